@@ -1,0 +1,40 @@
+//! Benchmark suites behind `rigless bench`: each yields one record per case with the stable
+//! field names of DESIGN.md's quality table. Timing uses the monotonic clock around the
+//! measured step only; setup is excluded and reported separately (`factor_s`).
+
+pub mod capsules;
+
+use std::time::Duration;
+
+/// Median and spread of a set of durations, in milliseconds.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Spread {
+    pub median_ms: f64,
+    pub p10_ms: f64,
+    pub p90_ms: f64,
+    pub p99_ms: f64,
+    pub min_ms: f64,
+    pub max_ms: f64,
+}
+
+impl Spread {
+    pub fn of(samples: &[Duration]) -> Self {
+        let mut ms: Vec<f64> = samples.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+        ms.sort_by(f64::total_cmp);
+        let q = |p: f64| {
+            if ms.is_empty() {
+                f64::NAN
+            } else {
+                ms[((ms.len() - 1) as f64 * p).round() as usize]
+            }
+        };
+        Self {
+            median_ms: q(0.5),
+            p10_ms: q(0.1),
+            p90_ms: q(0.9),
+            p99_ms: q(0.99),
+            min_ms: q(0.0),
+            max_ms: q(1.0),
+        }
+    }
+}

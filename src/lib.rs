@@ -1,0 +1,20 @@
+//! rigless: animate a character mesh live from a handful of motion-capture markers, with
+//! no rigging step.
+//!
+//! Method (Le Naour, Courty, Gibet, "Real-time mesh animation from low dimensional
+//! positional constraints"): the character is embedded in a volumetric control mesh;
+//! each frame, as-rigid-as-possible deformation with bone-length, straightness and
+//! joint-limit constraints pulls the control mesh onto the markers, and the full mesh
+//! follows through Green coordinates.
+//!
+//! Units and frames: SI inside (metres, seconds, radians); the world frame is
+//! right-handed, Y up. Adapters convert once at the edge.
+//!
+//! Module map (data flows top to bottom; a module only imports those above it):
+//! - [`rig`]: control mesh construction and binding (offline).
+//! - [`solve`]: per-frame math, no I/O.
+//! - [`bench`]: the benchmark suites behind `rigless bench`.
+
+pub mod bench;
+pub mod rig;
+pub mod solve;

@@ -1,0 +1,105 @@
+//! The `rigless` command line: the only place that prints to the user and exits.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use rigless::bench::capsules;
+use std::path::PathBuf;
+
+/// Animate a character mesh live from a handful of motion-capture markers, with no
+/// rigging step.
+#[derive(Parser)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a benchmark suite and print one line per case (a table, or JSON with --json).
+    Bench {
+        /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared
+        /// data folder) or `characters` (the procedural hand and body playing their motions).
+        #[arg(long, value_enum, default_value_t = Suite::Capsules)]
+        suite: Suite,
+        /// Print one JSON object per line instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// The shared data folder (holds `tetmesh/`).
+        #[arg(long, default_value = "../shared/data")]
+        data: PathBuf,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Suite {
+    Capsules,
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Bench {
+            suite: Suite::Capsules,
+            json,
+            data,
+        } => bench_capsules(&data, json),
+    }
+}
+
+fn bench_capsules(data: &std::path::Path, json: bool) -> Result<()> {
+    let dir = data.join("tetmesh");
+    if !dir.is_dir() {
+        bail!(
+            "{} not found: the capsules suite needs the shared benchmark meshes (pass --data DIR)",
+            dir.display()
+        );
+    }
+    if !json {
+        println!(
+            "{:<20} {:>6} {:>7} {:>7} {:>9} {:>12} {:>10} {:>10} {:>12} {:>9} {:>8}",
+            "mesh",
+            "n",
+            "tets",
+            "clamped",
+            "factor_s",
+            "iter_ms p50",
+            "p10",
+            "p90",
+            "libigl_ms",
+            "target",
+            "inverted"
+        );
+    }
+    for (file, _, _, _) in capsules::CASES {
+        let path = dir.join(file);
+        let rec = capsules::run_case(&path, 10, capsules::timed_iters_for(file))
+            .with_context(|| format!("benchmarking {}", path.display()))?;
+        if json {
+            println!("{}", serde_json::to_string(&rec)?);
+        } else {
+            println!(
+                "{:<20} {:>6} {:>7} {:>7} {:>9.3} {:>12.3} {:>10.3} {:>10.3} {:>5.2}-{:<6.2} {:>9.2} {:>8}",
+                rec.mesh,
+                rec.n,
+                rec.tets,
+                rec.clamped_weights,
+                rec.factor_s,
+                rec.per_iter_ms_median,
+                rec.per_iter_ms_p10,
+                rec.per_iter_ms_p90,
+                rec.libigl_ms_low,
+                rec.libigl_ms_high,
+                rec.target_ms,
+                rec.inverted_tets
+            );
+        }
+    }
+    Ok(())
+}

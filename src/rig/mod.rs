@@ -1,0 +1,5 @@
+//! Offline binding: control mesh (lattice tetrahedralization and the benchmark tet
+//! format), weights, Green coordinates, and the bound rig.
+
+pub mod lattice;
+pub mod tetmesh;

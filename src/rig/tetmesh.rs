@@ -1,0 +1,343 @@
+//! Tetrahedral meshes: the control mesh type, its quality measures (signed volumes,
+//! dihedral angles), and the reader for the benchmark capsule format of
+//! `../shared/data/tetmesh` (a parser of untrusted bytes: it never panics and never
+//! allocates more than the input can hold).
+//!
+//! Sign convention: a tet `[a, b, c, d]` is positively oriented when
+//! `det(b − a, c − a, d − a) > 0`; [`TetMesh::new`] reorients every tet to that.
+
+use glam::DVec3;
+use std::path::Path;
+
+/// A tetrahedral mesh in metres (or the file's units for benchmark meshes).
+#[derive(Clone, Debug)]
+pub struct TetMesh {
+    /// Vertex positions, `n` of them.
+    pub positions: Vec<DVec3>,
+    /// Vertex indices of each tet, positively oriented.
+    pub tets: Vec<[u32; 4]>,
+}
+
+/// Errors building or reading a tet mesh.
+#[derive(Debug, thiserror::Error)]
+pub enum TetMeshError {
+    #[error("tet {tet} references vertex {index} but the mesh has {n_vertices} vertices")]
+    IndexOutOfRange {
+        tet: usize,
+        index: i64,
+        n_vertices: usize,
+    },
+    #[error("tet {tet} is degenerate (zero volume)")]
+    Degenerate { tet: usize },
+    #[error("vertex {vertex} has a non-finite coordinate")]
+    NonFinite { vertex: usize },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {what} at byte {offset}")]
+    Format {
+        path: String,
+        what: String,
+        offset: usize,
+    },
+}
+
+/// Six times the signed volume of tet `(a, b, c, d)`.
+#[inline]
+pub fn signed_volume6(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    (b - a).cross(c - a).dot(d - a)
+}
+
+impl TetMesh {
+    /// Builds a mesh, checking indices and finiteness and orienting every tet positively.
+    pub fn new(positions: Vec<DVec3>, mut tets: Vec<[u32; 4]>) -> Result<Self, TetMeshError> {
+        if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(TetMeshError::NonFinite { vertex });
+        }
+        let n = positions.len();
+        for (t, tet) in tets.iter_mut().enumerate() {
+            if let Some(&index) = tet.iter().find(|&&i| i as usize >= n) {
+                return Err(TetMeshError::IndexOutOfRange {
+                    tet: t,
+                    index: index as i64,
+                    n_vertices: n,
+                });
+            }
+            let [a, b, c, d] = tet.map(|i| positions[i as usize]);
+            let v6 = signed_volume6(a, b, c, d);
+            if v6 == 0.0 {
+                return Err(TetMeshError::Degenerate { tet: t });
+            }
+            if v6 < 0.0 {
+                tet.swap(2, 3);
+            }
+        }
+        Ok(Self { positions, tets })
+    }
+
+    /// Number of tets whose signed volume under `positions` is not positive.
+    pub fn inverted_tets(&self, positions: &[DVec3]) -> usize {
+        self.tets
+            .iter()
+            .filter(|t| {
+                let [a, b, c, d] = t.map(|i| positions[i as usize]);
+                signed_volume6(a, b, c, d) <= 0.0
+            })
+            .count()
+    }
+
+    /// Smallest and largest dihedral angle over all tets, in degrees.
+    pub fn dihedral_range_deg(&self) -> (f64, f64) {
+        let mut lo = f64::INFINITY;
+        let mut hi = f64::NEG_INFINITY;
+        for t in &self.tets {
+            let p = t.map(|i| self.positions[i as usize]);
+            for (e0, e1) in EDGE_PAIRS {
+                let ang = dihedral_angle(p, e0, e1);
+                lo = lo.min(ang);
+                hi = hi.max(ang);
+            }
+        }
+        (lo.to_degrees(), hi.to_degrees())
+    }
+
+    /// Total volume (sum of tet volumes at `positions`).
+    pub fn volume(&self, positions: &[DVec3]) -> f64 {
+        self.tets
+            .iter()
+            .map(|t| {
+                let [a, b, c, d] = t.map(|i| positions[i as usize]);
+                signed_volume6(a, b, c, d) / 6.0
+            })
+            .sum()
+    }
+
+    /// Largest extent of the bounding box.
+    pub fn extent(&self) -> f64 {
+        let (lo, hi) = bounds(&self.positions);
+        (hi - lo).max_element()
+    }
+}
+
+/// Axis-aligned bounds `(min, max)` of a point set (infinite for an empty set).
+pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
+    points
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        })
+}
+
+/// The six edges of a tet as vertex-slot pairs.
+pub const EDGE_PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+
+/// Interior dihedral angle (radians) of tet `p` at edge `(e0, e1)`.
+pub fn dihedral_angle(p: [DVec3; 4], e0: usize, e1: usize) -> f64 {
+    let others: Vec<usize> = (0..4).filter(|&k| k != e0 && k != e1).collect();
+    let axis = (p[e1] - p[e0]).normalize();
+    let u = p[others[0]] - p[e0];
+    let v = p[others[1]] - p[e0];
+    let u = u - axis * u.dot(axis);
+    let v = v - axis * v.dot(axis);
+    u.angle_between(v)
+}
+
+/// A benchmark problem from `../shared/data/tetmesh`: mesh plus fixed-position constraints.
+#[derive(Clone, Debug)]
+pub struct CapsuleProblem {
+    pub mesh: TetMesh,
+    /// Constrained vertex indices.
+    pub constrained: Vec<u32>,
+    /// Their target positions.
+    pub targets: Vec<DVec3>,
+}
+
+/// Reads a capsule benchmark file (layout in `../shared/data/README.md`).
+pub fn read_capsule(path: &Path) -> Result<CapsuleProblem, TetMeshError> {
+    let bytes = std::fs::read(path).map_err(|source| TetMeshError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse_capsule(&bytes).map_err(|(what, offset)| TetMeshError::Format {
+        path: path.display().to_string(),
+        what,
+        offset,
+    })
+}
+
+/// Pure parser of the capsule layout: little-endian `i32 n, m, k`, `n*3 f64` positions,
+/// `m*4 i32` tets, `k i32` constrained indices, `k*3 f64` targets. Errors carry the byte
+/// offset at fault. Counts are checked against the input length before any allocation.
+pub fn parse_capsule(bytes: &[u8]) -> Result<CapsuleProblem, (String, usize)> {
+    let mut r = Reader { bytes, pos: 0 };
+    let n = r.count("vertex count")?;
+    let m = r.count("tet count")?;
+    let k = r.count("constraint count")?;
+    let need = n
+        .checked_mul(24)
+        .and_then(|a| m.checked_mul(16).and_then(|b| a.checked_add(b)))
+        .and_then(|a| k.checked_mul(28).and_then(|b| a.checked_add(b)))
+        .ok_or_else(|| ("counts overflow".to_string(), 0usize))?;
+    if bytes.len() - 12 != need {
+        return Err((
+            format!(
+                "expected {} bytes for n={n}, m={m}, k={k}, file has {}",
+                need + 12,
+                bytes.len()
+            ),
+            12,
+        ));
+    }
+    let positions: Vec<DVec3> = (0..n)
+        .map(|_| DVec3::new(r.f64(), r.f64(), r.f64()))
+        .collect();
+    let mut tets = Vec::with_capacity(m);
+    for t in 0..m {
+        let at = r.pos;
+        let idx = [r.i32(), r.i32(), r.i32(), r.i32()];
+        if let Some(bad) = idx.iter().find(|&&i| i < 0 || i as usize >= n) {
+            return Err((format!("tet {t} has vertex index {bad} outside 0..{n}"), at));
+        }
+        tets.push(idx.map(|i| i as u32));
+    }
+    let mut constrained = Vec::with_capacity(k);
+    for c in 0..k {
+        let at = r.pos;
+        let i = r.i32();
+        if i < 0 || i as usize >= n {
+            return Err((
+                format!("constraint {c} has vertex index {i} outside 0..{n}"),
+                at,
+            ));
+        }
+        constrained.push(i as u32);
+    }
+    let targets: Vec<DVec3> = (0..k)
+        .map(|_| DVec3::new(r.f64(), r.f64(), r.f64()))
+        .collect();
+    let mesh = TetMesh::new(positions, tets).map_err(|e| (e.to_string(), 12))?;
+    if targets.iter().any(|t| !t.is_finite()) {
+        return Err((
+            "non-finite constraint target".into(),
+            12 + n * 24 + m * 16 + k * 4,
+        ));
+    }
+    Ok(CapsuleProblem {
+        mesh,
+        constrained,
+        targets,
+    })
+}
+
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn count(&mut self, what: &str) -> Result<usize, (String, usize)> {
+        let at = self.pos;
+        if self.bytes.len() < at + 4 {
+            return Err((format!("file ends before the {what}"), at));
+        }
+        let v = self.i32();
+        usize::try_from(v).map_err(|_| (format!("negative {what} {v}"), at))
+    }
+    // Callers have checked the length up front, so these index in range.
+    fn i32(&mut self) -> i32 {
+        let v = i32::from_le_bytes(
+            self.bytes[self.pos..self.pos + 4]
+                .try_into()
+                .expect("4 bytes"),
+        );
+        self.pos += 4;
+        v
+    }
+    fn f64(&mut self) -> f64 {
+        let v = f64::from_le_bytes(
+            self.bytes[self.pos..self.pos + 8]
+                .try_into()
+                .expect("8 bytes"),
+        );
+        self.pos += 8;
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn unit_tet_bytes() -> Vec<u8> {
+        let mut b = Vec::new();
+        for v in [4i32, 1, 1] {
+            b.extend(v.to_le_bytes());
+        }
+        for p in [
+            [0.0f64, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+        ] {
+            for c in p {
+                b.extend(c.to_le_bytes());
+            }
+        }
+        for i in [0i32, 1, 3, 2] {
+            b.extend(i.to_le_bytes());
+        }
+        b.extend(2i32.to_le_bytes());
+        for c in [0.5f64, 0.5, 0.5] {
+            b.extend(c.to_le_bytes());
+        }
+        b
+    }
+
+    #[test]
+    fn parses_and_orients() {
+        let p = parse_capsule(&unit_tet_bytes()).unwrap();
+        assert_eq!(p.mesh.positions.len(), 4);
+        // [0,1,3,2] is negatively oriented; it must come back positive.
+        assert_eq!(p.mesh.inverted_tets(&p.mesh.positions), 0);
+        assert!((p.mesh.volume(&p.mesh.positions) - 1.0 / 6.0).abs() < 1e-15);
+        assert_eq!(p.constrained, vec![2]);
+    }
+
+    #[test]
+    fn rejects_bad_index_with_offset() {
+        let mut b = unit_tet_bytes();
+        // first tet index lives right after the header and 4 positions
+        let at = 12 + 4 * 24;
+        b[at..at + 4].copy_from_slice(&9i32.to_le_bytes());
+        let (msg, off) = parse_capsule(&b).unwrap_err();
+        assert_eq!(off, at);
+        assert!(msg.contains("vertex index 9"), "{msg}");
+    }
+
+    #[test]
+    fn huge_counts_do_not_allocate() {
+        let mut b = Vec::new();
+        for v in [i32::MAX, i32::MAX, i32::MAX] {
+            b.extend(v.to_le_bytes());
+        }
+        assert!(parse_capsule(&b).is_err());
+    }
+
+    proptest! {
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512)) {
+            let _ = parse_capsule(&bytes);
+        }
+
+        #[test]
+        fn mutated_valid_file_never_panics(pos in 0usize..200, val in any::<u8>()) {
+            let mut b = unit_tet_bytes();
+            let p = pos % b.len();
+            b[p] = val;
+            let _ = parse_capsule(&b);
+        }
+    }
+}

@@ -1,0 +1,621 @@
+//! Volumetric as-rigid-as-possible deformation of a tet mesh with soft linear constraints.
+//!
+//! Energy (Le Naour et al., Eq. 5 and Eq. 11; Sorkine & Alexa 2007 for the alternation):
+//!
+//! ```text
+//! E(V') = (w_l / h) Σ_i Σ_{j∈N(i)} w_ij ‖(v'_i − v'_j) − R_i (v_i − v_j)‖²
+//!       + Σ_r ω_r ‖a_rᵀ V' − t_r‖²
+//! ```
+//!
+//! - `w_ij` are the volumetric cotangent weights `(1/6) Σ_k l_kl cot θ_kl` over the tets
+//!   sharing edge `ij`, computed as the linear-FEM stiffness `−(N_i·N_j) / (9 V)` (`N_i`:
+//!   area-weighted outward normal of the face opposite `i`). Negative weights (slivers)
+//!   are clamped to zero, and counted, because per-vertex ARAP inverts tets with them.
+//! - `h` is the mean rest edge length, so the energy balance, and hence every result, is
+//!   unchanged when the whole problem is scaled.
+//! - Rows `a_r` are sparse (marker barycentric rows, skeleton difference rows, fixed
+//!   vertices); their weights `ω_r` and sparsity are fixed at bind time, only targets `t_r`
+//!   change per frame or per iteration.
+//!
+//! Global step (∂E/∂V' = 0, divided by 2):
+//! `(2 (w_l/h) L + Σ_r ω_r a_r a_rᵀ) V' = (w_l/h) b(R) + Σ_r ω_r a_r t_rᵀ`, with
+//! `L` the weighted graph Laplacian (`L_ii = Σ_j w_ij`, `L_ij = −w_ij`) and
+//! `b_i = Σ_j w_ij (R_i + R_j)(v_i − v_j)`. The matrix is factored once.
+
+use super::factor::{FactorError, SolveScratch, SparseCholesky};
+use super::polar::extract_rotation;
+use crate::rig::tetmesh::TetMesh;
+use faer::Mat;
+use glam::{DMat3, DQuat, DVec3};
+
+/// Cotangent weights of a tet mesh as a symmetric adjacency (CSR, both directions).
+#[derive(Clone, Debug)]
+pub struct ArapOperator {
+    /// Rest positions `v_i`.
+    pub rest: Vec<DVec3>,
+    /// CSR row starts, `n + 1` entries.
+    pub start: Vec<u32>,
+    /// Neighbour index per adjacency entry.
+    pub nbr: Vec<u32>,
+    /// Clamped cotangent weight per adjacency entry (`w_ij ≥ 0`).
+    pub weight: Vec<f64>,
+    /// Rest edge `v_i − v_j` per adjacency entry.
+    pub rest_edge: Vec<DVec3>,
+    /// Σ_i Σ_j w_ij ‖v_i − v_j‖² (denominator of rrms).
+    pub rest_energy_scale: f64,
+    /// Mean rest edge length `h`.
+    pub mean_edge_length: f64,
+    /// Number of edges whose summed cotangent weight was negative and clamped to zero.
+    pub clamped_weights: usize,
+    /// Number of undirected edges.
+    pub n_edges: usize,
+}
+
+impl ArapOperator {
+    /// Computes clamped cotangent weights for `mesh` (rest = its positions).
+    pub fn new(mesh: &TetMesh) -> Self {
+        let n = mesh.positions.len();
+        let p = &mesh.positions;
+        let mut edges: Vec<(u32, u32, f64)> = Vec::with_capacity(mesh.tets.len() * 6);
+        for t in &mesh.tets {
+            let x = t.map(|i| p[i as usize]);
+            let vol6 = super::super::rig::tetmesh::signed_volume6(x[0], x[1], x[2], x[3]);
+            let vol = vol6 / 6.0;
+            // Area-weighted outward normal of the face opposite each vertex.
+            let mut nrm = [DVec3::ZERO; 4];
+            for (k, nk) in nrm.iter_mut().enumerate() {
+                let [a, b, c] = FACE_OPPOSITE[k].map(|s| x[s]);
+                *nk = 0.5 * (b - a).cross(c - a);
+            }
+            for (a, b) in crate::rig::tetmesh::EDGE_PAIRS {
+                let w = -nrm[a].dot(nrm[b]) / (9.0 * vol);
+                let (i, j) = (t[a].min(t[b]), t[a].max(t[b]));
+                edges.push((i, j, w));
+            }
+        }
+        edges.sort_unstable_by_key(|&(i, j, _)| (i, j));
+        let mut merged: Vec<(u32, u32, f64)> = Vec::with_capacity(edges.len() / 3);
+        for (i, j, w) in edges {
+            match merged.last_mut() {
+                Some(e) if e.0 == i && e.1 == j => e.2 += w,
+                _ => merged.push((i, j, w)),
+            }
+        }
+        let mut clamped = 0;
+        for e in &mut merged {
+            if e.2 < 0.0 {
+                e.2 = 0.0;
+                clamped += 1;
+            }
+        }
+        let mut degree = vec![0u32; n + 1];
+        for &(i, j, _) in &merged {
+            degree[i as usize + 1] += 1;
+            degree[j as usize + 1] += 1;
+        }
+        for k in 0..n {
+            degree[k + 1] += degree[k];
+        }
+        let start = degree;
+        let mut fill = start.clone();
+        let total = start[n] as usize;
+        let mut nbr = vec![0u32; total];
+        let mut weight = vec![0.0; total];
+        let mut rest_edge = vec![DVec3::ZERO; total];
+        let mut len_sum = 0.0;
+        for &(i, j, w) in &merged {
+            let e = p[i as usize] - p[j as usize];
+            len_sum += e.length();
+            for (a, b, ev) in [(i, j, e), (j, i, -e)] {
+                let slot = fill[a as usize] as usize;
+                fill[a as usize] += 1;
+                nbr[slot] = b;
+                weight[slot] = w;
+                rest_edge[slot] = ev;
+            }
+        }
+        let rest_energy_scale = weight
+            .iter()
+            .zip(&rest_edge)
+            .map(|(w, e)| w * e.length_squared())
+            .sum();
+        let n_edges = merged.len();
+        Self {
+            rest: p.clone(),
+            start,
+            nbr,
+            weight,
+            rest_edge,
+            rest_energy_scale,
+            mean_edge_length: if n_edges > 0 {
+                len_sum / n_edges as f64
+            } else {
+                1.0
+            },
+            clamped_weights: clamped,
+            n_edges,
+        }
+    }
+
+    /// Number of vertices.
+    pub fn n(&self) -> usize {
+        self.rest.len()
+    }
+
+    /// `L · x` for a scalar field `x` (`L_ii = Σ_j w_ij`, `L_ij = −w_ij`).
+    pub fn apply_laplacian(&self, x: &[f64], out: &mut [f64]) {
+        for i in 0..self.n() {
+            let mut s = 0.0;
+            for k in self.start[i] as usize..self.start[i + 1] as usize {
+                s += self.weight[k] * (x[i] - x[self.nbr[k] as usize]);
+            }
+            out[i] = s;
+        }
+    }
+
+    /// The shape energy `Σ_i Σ_j w_ij ‖(v'_i − v'_j) − R_i (v_i − v_j)‖²` (without
+    /// `w_l / h`), evaluated directly (used by tests and metrics, not the hot path).
+    pub fn shape_energy(&self, positions: &[DVec3], rotations: &[DMat3]) -> f64 {
+        let mut e = 0.0;
+        for i in 0..self.n() {
+            for k in self.start[i] as usize..self.start[i + 1] as usize {
+                let j = self.nbr[k] as usize;
+                let d = (positions[i] - positions[j]) - rotations[i] * self.rest_edge[k];
+                e += self.weight[k] * d.length_squared();
+            }
+        }
+        e
+    }
+}
+
+/// Vertex slots of the face opposite each vertex slot of a tet. Orientation does not
+/// matter for the weights (the product of two normals flips sign twice).
+const FACE_OPPOSITE: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+
+/// Sparse soft-constraint rows `a_r` with fixed weights `ω_r` (CSR over rows).
+#[derive(Clone, Debug, Default)]
+pub struct LinearRows {
+    /// Row starts, `rows + 1` entries (starts with 0).
+    pub start: Vec<u32>,
+    /// Column (vertex) index per entry.
+    pub idx: Vec<u32>,
+    /// Coefficient per entry.
+    pub coef: Vec<f64>,
+    /// Weight `ω_r` per row (unitless).
+    pub weight: Vec<f64>,
+}
+
+impl LinearRows {
+    pub fn new() -> Self {
+        Self {
+            start: vec![0],
+            ..Default::default()
+        }
+    }
+    /// Appends a row; returns its index.
+    pub fn push(&mut self, entries: &[(u32, f64)], weight: f64) -> usize {
+        for &(i, c) in entries {
+            self.idx.push(i);
+            self.coef.push(c);
+        }
+        self.start.push(self.idx.len() as u32);
+        self.weight.push(weight);
+        self.weight.len() - 1
+    }
+    pub fn len(&self) -> usize {
+        self.weight.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.weight.is_empty()
+    }
+    /// Entries of row `r`.
+    #[inline]
+    pub fn row(&self, r: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+        let s = self.start[r] as usize..self.start[r + 1] as usize;
+        self.idx[s.clone()]
+            .iter()
+            .zip(&self.coef[s])
+            .map(|(&i, &c)| (i as usize, c))
+    }
+    /// `a_rᵀ V`.
+    #[inline]
+    pub fn eval(&self, r: usize, positions: &[DVec3]) -> DVec3 {
+        self.row(r).map(|(i, c)| positions[i] * c).sum()
+    }
+}
+
+/// Precomputed, immutable ARAP system: operator, constraint rows and factored matrix.
+pub struct ArapSystem {
+    pub op: ArapOperator,
+    pub rows: LinearRows,
+    /// `w_l / h`: the shape weight per unit of cotangent weight.
+    pub shape_scale: f64,
+    chol: SparseCholesky,
+}
+
+/// Per-solver mutable state of the ARAP alternation. Allocated once; iterating does not
+/// allocate.
+pub struct ArapState {
+    /// Current positions `v'_i`.
+    pub positions: Vec<DVec3>,
+    /// Current per-vertex rotations (warm start for the next local step).
+    pub quats: Vec<DQuat>,
+    /// The same rotations as matrices.
+    pub rots: Vec<DMat3>,
+    /// Per-row targets `t_r`.
+    pub targets: Vec<DVec3>,
+    /// Total polar-extraction iterations in the last local step.
+    pub polar_iters: usize,
+    rhs: Mat<f64>,
+    scratch: SolveScratch,
+}
+
+impl ArapSystem {
+    /// Factors `2 (w_l/h) L + Σ_r ω_r a_r a_rᵀ`.
+    pub fn new(op: ArapOperator, rows: LinearRows, w_shape: f64) -> Result<Self, FactorError> {
+        let n = op.n();
+        let shape_scale = w_shape / op.mean_edge_length;
+        let mut upper: Vec<(usize, usize, f64)> =
+            Vec::with_capacity(n + op.n_edges + rows.idx.len() * 4);
+        for i in 0..n {
+            let mut diag = 0.0;
+            for k in op.start[i] as usize..op.start[i + 1] as usize {
+                let j = op.nbr[k] as usize;
+                let w = 2.0 * shape_scale * op.weight[k];
+                diag += w;
+                if i < j && w != 0.0 {
+                    upper.push((i, j, -w));
+                }
+            }
+            upper.push((i, i, diag));
+        }
+        for r in 0..rows.len() {
+            let w = rows.weight[r];
+            for (a, ca) in rows.row(r) {
+                for (b, cb) in rows.row(r) {
+                    if a <= b {
+                        upper.push((a, b, w * ca * cb));
+                    }
+                }
+            }
+        }
+        let chol = SparseCholesky::factor_upper(n, &upper)?;
+        Ok(Self {
+            op,
+            rows,
+            shape_scale,
+            chol,
+        })
+    }
+
+    /// Fill of the factor (number of stored values).
+    pub fn factor_len(&self) -> usize {
+        self.chol.factor_len()
+    }
+
+    /// A fresh state at the rest pose with identity rotations and rest targets.
+    pub fn new_state(&self) -> ArapState {
+        let n = self.op.n();
+        let targets = (0..self.rows.len())
+            .map(|r| self.rows.eval(r, &self.op.rest))
+            .collect();
+        ArapState {
+            positions: self.op.rest.clone(),
+            quats: vec![DQuat::IDENTITY; n],
+            rots: vec![DMat3::IDENTITY; n],
+            targets,
+            polar_iters: 0,
+            rhs: Mat::zeros(n, 3),
+            scratch: self.chol.scratch(3),
+        }
+    }
+
+    /// Local step: per-vertex rotations `R_i = polar(Σ_j w_ij e'_ij e_ijᵀ)` from the current
+    /// positions, warm-started from the previous rotations.
+    ///
+    /// Returns the shape energy of the current positions with the new rotations,
+    /// `Σ_i Σ_j w_ij ‖e'_ij − R_i e_ij‖²` (without `w_l / h`), obtained for free as
+    /// `Σ w‖e'‖² − 2 tr(R_iᵀ A_i) + Σ w‖e‖²`.
+    pub fn local_step(&self, st: &mut ArapState) -> f64 {
+        let op = &self.op;
+        let mut energy = 0.0;
+        let mut polar_iters = 0;
+        for i in 0..op.n() {
+            let pi = st.positions[i];
+            let mut a = DMat3::ZERO;
+            let mut e2 = 0.0;
+            for k in op.start[i] as usize..op.start[i + 1] as usize {
+                let w = op.weight[k];
+                let ed = pi - st.positions[op.nbr[k] as usize];
+                let er = op.rest_edge[k];
+                let wd = ed * w;
+                a.x_axis += wd * er.x;
+                a.y_axis += wd * er.y;
+                a.z_axis += wd * er.z;
+                e2 += w * (ed.length_squared() + er.length_squared());
+            }
+            polar_iters += extract_rotation(&a, &mut st.quats[i]);
+            let r = DMat3::from_quat(st.quats[i]);
+            st.rots[i] = r;
+            let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
+            energy += e2 - 2.0 * tr;
+        }
+        st.polar_iters = polar_iters;
+        energy.max(0.0)
+    }
+
+    /// Global step: solves for new positions given the current rotations and targets.
+    pub fn global_step(&self, st: &mut ArapState) {
+        let op = &self.op;
+        let s = self.shape_scale;
+        let rhs = &mut st.rhs;
+        for i in 0..op.n() {
+            let ri = st.rots[i];
+            let mut b = DVec3::ZERO;
+            for k in op.start[i] as usize..op.start[i + 1] as usize {
+                let j = op.nbr[k] as usize;
+                b += (ri * op.rest_edge[k] + st.rots[j] * op.rest_edge[k]) * op.weight[k];
+            }
+            b *= s;
+            rhs[(i, 0)] = b.x;
+            rhs[(i, 1)] = b.y;
+            rhs[(i, 2)] = b.z;
+        }
+        for r in 0..self.rows.len() {
+            let t = st.targets[r] * self.rows.weight[r];
+            for (i, c) in self.rows.row(r) {
+                rhs[(i, 0)] += c * t.x;
+                rhs[(i, 1)] += c * t.y;
+                rhs[(i, 2)] += c * t.z;
+            }
+        }
+        self.chol.solve_in_place(rhs.as_mut(), &mut st.scratch);
+        for (i, p) in st.positions.iter_mut().enumerate() {
+            *p = DVec3::new(rhs[(i, 0)], rhs[(i, 1)], rhs[(i, 2)]);
+        }
+    }
+
+    /// Total energy (shape with `w_l/h`, plus constraint rows) at the current state.
+    pub fn total_energy(&self, st: &ArapState) -> f64 {
+        let shape = self.shape_scale * self.op.shape_energy(&st.positions, &st.rots);
+        let rows: f64 = (0..self.rows.len())
+            .map(|r| {
+                self.rows.weight[r]
+                    * (self.rows.eval(r, &st.positions) - st.targets[r]).length_squared()
+            })
+            .sum();
+        shape + rows
+    }
+
+    /// rrms of the shape energy value returned by [`Self::local_step`] (DESIGN.md).
+    pub fn rrms(&self, shape_energy: f64) -> f64 {
+        (shape_energy / self.op.rest_energy_scale).sqrt()
+    }
+}
+
+/// How an iteration loop ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The relative change of the error criterion fell below the tolerance.
+    Converged,
+    /// The iteration cap was reached first.
+    IterationCap,
+    /// The frame's deadline was reached first.
+    Deadline,
+}
+
+/// Absolute floor added to the relative convergence test, so an exactly reproducible
+/// (zero-energy) pose converges instead of chasing round-off.
+pub const CONVERGENCE_ABS_FLOOR: f64 = 1e-9;
+
+impl ArapSystem {
+    /// Plain ARAP alternation (no skeleton step) until the relative change of rrms falls
+    /// below `rel_tol`, or `max_iters`. Returns (iterations, last rrms, reason).
+    pub fn iterate(
+        &self,
+        st: &mut ArapState,
+        max_iters: usize,
+        rel_tol: f64,
+    ) -> (usize, f64, StopReason) {
+        let mut prev: Option<f64> = None;
+        for it in 0..max_iters {
+            let rr = self.rrms(self.local_step(st));
+            if let Some(p) = prev {
+                if (rr - p).abs() <= rel_tol * p + CONVERGENCE_ABS_FLOOR {
+                    return (it, rr, StopReason::Converged);
+                }
+            }
+            prev = Some(rr);
+            self.global_step(st);
+        }
+        let rr = self.rrms(self.local_step(st));
+        (max_iters, rr, StopReason::IterationCap)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rig::lattice::box_lattice;
+
+    /// A bar of 8x2x2 cells with both end faces pinned by soft rows.
+    fn bar(scale: f64) -> (ArapSystem, Vec<usize>) {
+        let lm = box_lattice(DVec3::ZERO, DVec3::new(4.0, 1.0, 1.0) * scale, [8, 2, 2]);
+        let op = ArapOperator::new(&lm.mesh);
+        let mut rows = LinearRows::new();
+        let mut pinned = Vec::new();
+        for (i, p) in lm.mesh.positions.iter().enumerate() {
+            if p.x < 1e-9 * scale || p.x > 4.0 * scale - 1e-9 * scale {
+                rows.push(&[(i as u32, 1.0)], 100.0);
+                pinned.push(i);
+            }
+        }
+        (ArapSystem::new(op, rows, 1.0).unwrap(), pinned)
+    }
+
+    fn bend_targets(sys: &ArapSystem, st: &mut ArapState, scale: f64) {
+        // Rotate the far end by 60° about z around (3, 0, 0) and lift it.
+        let q = DQuat::from_rotation_z(60f64.to_radians());
+        for r in 0..sys.rows.len() {
+            let rest = sys.rows.eval(r, &sys.op.rest);
+            st.targets[r] = if rest.x > 2.0 * scale {
+                let c = DVec3::new(3.0, 0.0, 0.0) * scale;
+                c + q * (rest - c) + DVec3::new(0.0, 0.3, 0.0) * scale
+            } else {
+                rest
+            };
+        }
+    }
+
+    #[test]
+    fn laplacian_annihilates_constants() {
+        let (sys, _) = bar(1.0);
+        let ones = vec![1.0; sys.op.n()];
+        let mut out = vec![0.0; sys.op.n()];
+        sys.op.apply_laplacian(&ones, &mut out);
+        let wmax = sys.op.weight.iter().cloned().fold(0.0, f64::max);
+        // Each entry sums at most ~30 weights exactly cancelling: 1e-12 relative is generous.
+        assert!(
+            out.iter().all(|v| v.abs() <= 1e-12 * wmax),
+            "L·1 = {:?}",
+            out.iter().cloned().fold(0.0, f64::max)
+        );
+    }
+
+    #[test]
+    fn kuhn_lattice_needs_no_clamping() {
+        let (sys, _) = bar(1.0);
+        assert_eq!(sys.op.clamped_weights, 0);
+        assert!(sys.op.weight.iter().all(|&w| w >= 0.0));
+    }
+
+    #[test]
+    fn rigid_motion_costs_zero_energy() {
+        let (sys, _) = bar(1.0);
+        let mut st = sys.new_state();
+        let q = DQuat::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), 1.3);
+        let t = DVec3::new(0.5, -2.0, 3.0);
+        let rigid: Vec<DVec3> = sys.op.rest.iter().map(|r| q * *r + t).collect();
+        for (r, tr) in st.targets.iter_mut().enumerate() {
+            *tr = sys.rows.eval(r, &rigid);
+        }
+        st.positions.clone_from(&rigid);
+        let e = sys.local_step(&mut st) / sys.op.rest_energy_scale;
+        // Relative energy of an exactly rigid pose: only round-off (1e-12 relative).
+        assert!(e < 1e-12, "relative energy {e}");
+        assert!(st
+            .quats
+            .iter()
+            .all(|r| crate::solve::polar::rotation_angle_between(*r, q) < 1e-9));
+        // The rigid pose is a fixed point of the alternation.
+        let (iters, _, reason) = sys.iterate(&mut st, 10, 1e-9);
+        assert_eq!(reason, StopReason::Converged);
+        assert!(iters <= 2);
+        let max_err = st
+            .positions
+            .iter()
+            .zip(&rigid)
+            .map(|(p, r)| (*p - *r).length())
+            .fold(0.0, f64::max);
+        // 1e-12 of the bar length: a direct solve of a consistent system.
+        assert!(max_err < 4e-12, "max distance to rigid pose {max_err}");
+    }
+
+    #[test]
+    fn rigid_targets_from_rest_converge_to_rigid_pose() {
+        let (sys, _) = bar(1.0);
+        let mut st = sys.new_state();
+        let q = DQuat::from_axis_angle(DVec3::new(0.0, 0.0, 1.0), 0.5);
+        for (r, tr) in st.targets.iter_mut().enumerate() {
+            *tr = q * sys.rows.eval(r, &sys.op.rest);
+        }
+        sys.iterate(&mut st, 2000, 1e-12);
+        let max_err = st
+            .positions
+            .iter()
+            .zip(&sys.op.rest)
+            .map(|(p, r)| (*p - q * *r).length())
+            .fold(0.0, f64::max);
+        // 1e-6 of the bar length: the alternation converges linearly; 2000 iterations and a
+        // 1e-12 relative stop put it far below this.
+        assert!(max_err < 4e-6, "max distance to rigid pose {max_err}");
+    }
+
+    #[test]
+    fn energy_never_increases() {
+        let (sys, _) = bar(1.0);
+        let mut st = sys.new_state();
+        bend_targets(&sys, &mut st, 1.0);
+        sys.local_step(&mut st);
+        let mut prev = f64::INFINITY;
+        for _ in 0..30 {
+            sys.global_step(&mut st);
+            sys.local_step(&mut st);
+            let e = sys.total_energy(&st);
+            // Each half-step minimises E over its block exactly; 1e-12 relative slack for round-off.
+            assert!(e <= prev * (1.0 + 1e-12), "energy rose from {prev} to {e}");
+            prev = e;
+        }
+    }
+
+    #[test]
+    fn results_do_not_change_under_scaling() {
+        let solve = |s: f64| {
+            let (sys, _) = bar(s);
+            let mut st = sys.new_state();
+            bend_targets(&sys, &mut st, s);
+            sys.iterate(&mut st, 40, 0.0);
+            st.positions.iter().map(|p| *p / s).collect::<Vec<_>>()
+        };
+        let base = solve(1.0);
+        for s in [1e-3, 1e3] {
+            let other = solve(s);
+            let d = base
+                .iter()
+                .zip(&other)
+                .map(|(a, b)| (*a - *b).length())
+                .fold(0.0, f64::max);
+            // Same iterations on a scaled copy: only round-off differs (1e-9 of the length 4).
+            assert!(d < 4e-9, "scale {s}: max difference {d}");
+        }
+    }
+
+    #[test]
+    fn warm_start_needs_no_more_iterations_than_cold() {
+        let (sys, _) = bar(1.0);
+        let mut warm = sys.new_state();
+        bend_targets(&sys, &mut warm, 1.0);
+        sys.iterate(&mut warm, 500, 1e-8);
+        // Next frame: the targets move a little further.
+        let q = DQuat::from_rotation_z(2f64.to_radians());
+        let moved: Vec<DVec3> = warm
+            .targets
+            .iter()
+            .map(|t| if t.x > 2.0 { q * *t } else { *t })
+            .collect();
+        warm.targets.clone_from(&moved);
+        let (warm_iters, _, _) = sys.iterate(&mut warm, 500, 1e-6);
+        let mut cold = sys.new_state();
+        cold.targets.clone_from(&moved);
+        let (cold_iters, _, _) = sys.iterate(&mut cold, 500, 1e-6);
+        assert!(
+            warm_iters <= cold_iters,
+            "warm {warm_iters} > cold {cold_iters}"
+        );
+        assert!(
+            warm_iters < cold_iters / 2,
+            "warm start should save most iterations: warm {warm_iters}, cold {cold_iters}"
+        );
+    }
+
+    #[test]
+    fn bending_does_not_invert_tets() {
+        let (sys, _) = bar(1.0);
+        let mut st = sys.new_state();
+        bend_targets(&sys, &mut st, 1.0);
+        sys.iterate(&mut st, 100, 1e-6);
+        let lm = box_lattice(DVec3::ZERO, DVec3::new(4.0, 1.0, 1.0), [8, 2, 2]);
+        assert_eq!(lm.mesh.inverted_tets(&st.positions), 0);
+    }
+}

@@ -1,0 +1,6 @@
+//! Per-frame math: ARAP local and global steps, the skeleton step, the frame solver and
+//! its quality figures. No I/O, no locks, no logging: results come back in a report.
+
+pub mod arap;
+pub mod factor;
+pub mod polar;
