@@ -16,5 +16,6 @@
 //! - [`bench`]: the benchmark suites behind `rigless bench`.
 
 pub mod bench;
+pub mod character;
 pub mod rig;
 pub mod solve;
