@@ -17,5 +17,6 @@
 
 pub mod bench;
 pub mod character;
+pub mod markers;
 pub mod rig;
 pub mod solve;

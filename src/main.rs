@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use rigless::bench::capsules;
+use rigless::bench::{capsules, characters};
 use std::path::PathBuf;
 
 /// Animate a character mesh live from a handful of motion-capture markers, with no
@@ -34,6 +34,7 @@ enum Command {
 #[derive(Clone, Copy, ValueEnum)]
 enum Suite {
     Capsules,
+    Characters,
 }
 
 fn main() -> Result<()> {
@@ -50,7 +51,23 @@ fn main() -> Result<()> {
             json,
             data,
         } => bench_capsules(&data, json),
+        Command::Bench {
+            suite: Suite::Characters,
+            json,
+            ..
+        } => bench_characters(json),
     }
+}
+
+fn bench_characters(json: bool) -> Result<()> {
+    let rec =
+        characters::run_hand(10.0, 120.0, 0.0, |_, _| {}).context("binding the procedural hand")?;
+    if json {
+        println!("{}", serde_json::to_string(&rec)?);
+    } else {
+        println!("{}", serde_json::to_string_pretty(&rec)?);
+    }
+    Ok(())
 }
 
 fn bench_capsules(data: &std::path::Path, json: bool) -> Result<()> {

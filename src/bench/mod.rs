@@ -3,6 +3,7 @@
 //! measured step only; setup is excluded and reported separately (`factor_s`).
 
 pub mod capsules;
+pub mod characters;
 
 use std::time::Duration;
 

@@ -139,15 +139,15 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
             side: (-5.0 * DEG, 5.0 * DEG),
         },
     ];
-    let mut add_chain = |joints: &mut Vec<Joint>,
-                         capsules: &mut Vec<(usize, Capsule)>,
-                         name: &str,
-                         base: DVec3,
-                         dir: DVec3,
-                         lengths: [f64; 3],
-                         radius: (f64, f64),
-                         bend_axis: DVec3,
-                         limits: [JointLimits; 3]| {
+    let add_chain = |joints: &mut Vec<Joint>,
+                     capsules: &mut Vec<(usize, Capsule)>,
+                     name: &str,
+                     base: DVec3,
+                     dir: DVec3,
+                     lengths: [f64; 3],
+                     radius: (f64, f64),
+                     bend_axis: DVec3,
+                     limits: [JointLimits; 3]| {
         let names = ["1", "2", "3", "tip"];
         let mut pos = base;
         let total: f64 = lengths.iter().sum();

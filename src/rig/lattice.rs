@@ -48,18 +48,18 @@ impl Grid {
         [0, 1, 2].map(|a| (q[a].floor().max(0.0) as usize).min(self.dims[a] - 1))
     }
     #[inline]
-    fn node_index(&self, c: [usize; 3]) -> usize {
+    pub fn node_index(&self, c: [usize; 3]) -> usize {
         c[0] + (self.dims[0] + 1) * (c[1] + (self.dims[1] + 1) * c[2])
     }
     #[inline]
-    fn node_position(&self, c: [usize; 3]) -> DVec3 {
+    pub fn node_position(&self, c: [usize; 3]) -> DVec3 {
         self.origin + DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * self.cell_size
     }
 }
 
 /// The six Kuhn tets of a unit cube, as corner bit masks (bit 0 = +x, 1 = +y, 2 = +z):
 /// one tet per axis order of the path from corner 0 to corner 7.
-const KUHN: [[usize; 4]; 6] = [
+pub const KUHN: [[usize; 4]; 6] = [
     [0, 1, 3, 7],
     [0, 1, 5, 7],
     [0, 2, 3, 7],
@@ -68,6 +68,27 @@ const KUHN: [[usize; 4]; 6] = [
     [0, 4, 6, 7],
 ];
 
+/// Points on every triangle at most half a cell apart (the vertices themselves included,
+/// exactly), passed to `visit`.
+pub fn sample_surface(
+    cell_size: f64,
+    vertices: &[DVec3],
+    triangles: &[[u32; 3]],
+    mut visit: impl FnMut(DVec3),
+) {
+    for t in triangles {
+        let [a, b, c] = t.map(|i| vertices[i as usize]);
+        let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+        let steps = ((longest / (0.5 * cell_size)).ceil() as usize).max(1);
+        for i in 0..=steps {
+            for j in 0..=steps - i {
+                let (u, v) = (i as f64 / steps as f64, j as f64 / steps as f64);
+                visit(a + (b - a) * u + (c - a) * v);
+            }
+        }
+    }
+}
+
 /// Marks the cells touched by the surface (triangles sampled at most half a cell apart)
 /// and the cells enclosed by it (everything the outside flood fill does not reach).
 pub fn cells_of_closed_surface(
@@ -75,19 +96,20 @@ pub fn cells_of_closed_surface(
     vertices: &[DVec3],
     triangles: &[[u32; 3]],
 ) -> Vec<bool> {
+    enclosed_or(grid, &surface_cells(grid, vertices, triangles))
+}
+
+/// Cells touched by the surface.
+pub fn surface_cells(grid: &Grid, vertices: &[DVec3], triangles: &[[u32; 3]]) -> Vec<bool> {
     let mut surface = vec![false; grid.n_cells()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| vertices[i as usize]);
-        let longest = (b - a).length().max((c - b).length()).max((a - c).length());
-        let steps = ((longest / (0.5 * grid.cell_size)).ceil() as usize).max(1);
-        for i in 0..=steps {
-            for j in 0..=steps - i {
-                let (u, v) = (i as f64 / steps as f64, j as f64 / steps as f64);
-                let p = a + (b - a) * u + (c - a) * v;
-                surface[grid.cell_index(grid.cell_of(p))] = true;
-            }
-        }
-    }
+    sample_surface(grid.cell_size, vertices, triangles, |p| {
+        surface[grid.cell_index(grid.cell_of(p))] = true
+    });
+    surface
+}
+
+/// `surface` plus every cell the outside flood fill (from the grid's boundary) cannot reach.
+pub fn enclosed_or(grid: &Grid, surface: &[bool]) -> Vec<bool> {
     // Flood the outside from every boundary cell of the grid (the grid is padded).
     let mut outside = vec![false; grid.n_cells()];
     let mut queue = VecDeque::new();

@@ -1,5 +1,6 @@
 //! Offline binding: control mesh (lattice tetrahedralization and the benchmark tet
 //! format), weights, Green coordinates, and the bound rig.
 
+pub mod bind;
 pub mod lattice;
 pub mod tetmesh;

@@ -3,4 +3,5 @@
 
 pub mod arap;
 pub mod factor;
+pub mod frame;
 pub mod polar;

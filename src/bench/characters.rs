@@ -1,0 +1,193 @@
+//! The `characters` suite: procedural characters playing their motions at 120 Hz through
+//! the frame solver (warm-started, solved to convergence), compared against the known
+//! truth every frame.
+
+use super::Spread;
+use crate::character::procedural::{
+    hand, hand_pose, mesh_volume, skin_pose, Character, HandMotion,
+};
+use crate::markers::MarkerFrame;
+use crate::rig::bind::{BindError, BindParams, Rig};
+use crate::solve::frame::{SolveReport, Solver, SolverParams};
+use glam::DVec3;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Binding parameters for the procedural hand.
+pub fn hand_bind_params() -> BindParams {
+    BindParams {
+        cell_size_m: 0.0065,
+        skeleton_step_m: 0.008,
+        w_shape: 1.0,
+        w_marker: 5.0,
+        w_skeleton: 5.0,
+        max_marker_distance_m: 0.03,
+    }
+}
+
+/// The procedural hand used by the demo, tests and benchmarks (about 5,000 vertices).
+pub fn demo_hand() -> Character {
+    hand(0.0016, 10_000)
+}
+
+/// One character's run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CharacterRecord {
+    pub suite: &'static str,
+    pub character: String,
+    pub motion: String,
+    pub frames: usize,
+    pub rate_hz: f64,
+    pub mesh_vertices: usize,
+    pub n: usize,
+    pub control_tets: usize,
+    pub factor_s: f64,
+    pub bind_s: f64,
+    pub frame_ms_p50: f64,
+    pub frame_ms_p99: f64,
+    pub frame_ms_max: f64,
+    pub solve_ms_p50: f64,
+    pub gc_ms_p50: f64,
+    pub iterations_mean: f64,
+    pub iterations_max: usize,
+    pub converged_fraction: f64,
+    pub rrms_mean: f64,
+    pub bone_length_error_mean: f64,
+    pub bone_length_error_max: f64,
+    pub joint_limit_violation_deg_max: f64,
+    pub marker_residual_mm_rms: f64,
+    pub marker_residual_mm_max: f64,
+    pub volume_error_mean: f64,
+    pub volume_error_max: f64,
+    pub inverted_tets_max: usize,
+    pub gt_vertex_error_mean: f64,
+    pub gt_vertex_error_max: f64,
+}
+
+/// Plays `seconds` of the hand's finger play at `rate_hz` through a solver, comparing
+/// with the truth. `noise_m`: uniform marker noise amplitude (0 for none).
+pub fn run_hand(
+    seconds: f64,
+    rate_hz: f64,
+    noise_m: f64,
+    mut on_frame: impl FnMut(usize, &SolveReport),
+) -> Result<CharacterRecord, BindError> {
+    let ch = demo_hand();
+    let t0 = Instant::now();
+    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params())?);
+    let bind_s = t0.elapsed().as_secs_f64();
+    let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let frames = (seconds * rate_hz).round() as usize;
+    let nv = ch.vertices.len();
+    let mut truth = vec![DVec3::ZERO; nv];
+    let mut markers = vec![DVec3::ZERO; ch.markers.len()];
+    let mut out = vec![DVec3::ZERO; nv];
+    let rest_volume = mesh_volume(&ch.vertices, &ch.triangles);
+    let mut frame_t = Vec::with_capacity(frames);
+    let mut solve_t = Vec::with_capacity(frames);
+    let mut gc_t = Vec::with_capacity(frames);
+    let mut rec = CharacterRecord {
+        suite: "characters",
+        character: ch.name.clone(),
+        motion: "finger_play".into(),
+        frames,
+        rate_hz,
+        mesh_vertices: nv,
+        n: rig.stats.control_vertices,
+        control_tets: rig.stats.control_tets,
+        factor_s: rig.stats.seconds_weights_factor,
+        bind_s,
+        frame_ms_p50: 0.0,
+        frame_ms_p99: 0.0,
+        frame_ms_max: 0.0,
+        solve_ms_p50: 0.0,
+        gc_ms_p50: 0.0,
+        iterations_mean: 0.0,
+        iterations_max: 0,
+        converged_fraction: 0.0,
+        rrms_mean: 0.0,
+        bone_length_error_mean: 0.0,
+        bone_length_error_max: 0.0,
+        joint_limit_violation_deg_max: 0.0,
+        marker_residual_mm_rms: 0.0,
+        marker_residual_mm_max: 0.0,
+        volume_error_mean: 0.0,
+        volume_error_max: 0.0,
+        inverted_tets_max: 0,
+        gt_vertex_error_mean: 0.0,
+        gt_vertex_error_max: 0.0,
+    };
+    let mut rng = 0x9E3779B97F4A7C15u64;
+    let mut uniform = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let mut res2 = 0.0;
+    for f in 0..frames {
+        let t = f as f64 / rate_hz;
+        let pose = hand_pose(&ch.skeleton, HandMotion::FingerPlay, t);
+        skin_pose(&ch, &pose, &mut truth, &mut markers);
+        let noisy: Vec<DVec3> = markers
+            .iter()
+            .map(|m| *m + DVec3::new(uniform(), uniform(), uniform()) * noise_m)
+            .collect();
+        let frame = MarkerFrame::all_present(t, noisy);
+        let start = Instant::now();
+        let rep = solver.solve(
+            &frame,
+            start + Duration::from_secs_f64(1.0 / rate_hz),
+            &mut out,
+        );
+        frame_t.push(start.elapsed());
+        solve_t.push(Duration::from_secs_f64(rep.solve_ms / 1e3));
+        gc_t.push(Duration::from_secs_f64(rep.gc_ms / 1e3));
+        on_frame(f, &rep);
+        let vol_err = (mesh_volume(&out, &ch.triangles) - rest_volume).abs() / rest_volume;
+        let (mut sum, mut max) = (0.0f64, 0.0f64);
+        for (a, b) in out.iter().zip(&truth) {
+            let d = (*a - *b).length();
+            sum += d;
+            max = max.max(d);
+        }
+        rec.gt_vertex_error_mean += sum / nv as f64 / rig.height_m;
+        rec.gt_vertex_error_max = rec.gt_vertex_error_max.max(max / rig.height_m);
+        rec.volume_error_mean += vol_err;
+        rec.volume_error_max = rec.volume_error_max.max(vol_err);
+        rec.inverted_tets_max = rec
+            .inverted_tets_max
+            .max(rig.control.inverted_tets(solver.control_positions()));
+        rec.iterations_mean += rep.iterations as f64;
+        rec.iterations_max = rec.iterations_max.max(rep.iterations);
+        rec.converged_fraction +=
+            (rep.stop == crate::solve::arap::StopReason::Converged) as u8 as f64;
+        rec.rrms_mean += rep.rrms;
+        rec.bone_length_error_mean += rep.bone_length_error;
+        rec.bone_length_error_max = rec.bone_length_error_max.max(rep.bone_length_error);
+        rec.joint_limit_violation_deg_max = rec
+            .joint_limit_violation_deg_max
+            .max(rep.joint_limit_violation_deg);
+        res2 += rep.marker_residual_rms_mm * rep.marker_residual_rms_mm;
+        rec.marker_residual_mm_max = rec.marker_residual_mm_max.max(rep.marker_residual_max_mm);
+    }
+    let nf = frames.max(1) as f64;
+    for v in [
+        &mut rec.gt_vertex_error_mean,
+        &mut rec.volume_error_mean,
+        &mut rec.iterations_mean,
+        &mut rec.converged_fraction,
+        &mut rec.rrms_mean,
+        &mut rec.bone_length_error_mean,
+    ] {
+        *v /= nf;
+    }
+    rec.marker_residual_mm_rms = (res2 / nf).sqrt();
+    let s = Spread::of(&frame_t);
+    rec.frame_ms_p50 = s.median_ms;
+    rec.frame_ms_p99 = s.p99_ms;
+    rec.frame_ms_max = s.max_ms;
+    rec.solve_ms_p50 = Spread::of(&solve_t).median_ms;
+    rec.gc_ms_p50 = Spread::of(&gc_t).median_ms;
+    Ok(rec)
+}

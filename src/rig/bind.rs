@@ -1,0 +1,429 @@
+//! Binding a character: the labelled lattice control mesh, marker and skeleton-sample
+//! rows, the embedding of the full mesh, and the factored ARAP system. The result, a
+//! [`Rig`], is immutable and shared by every solver of that character.
+//!
+//! Labelled lattice (virtual nodes, after Nesme et al. 2009, "Preserving topology and
+//! elasticity for embedded deformable models"): every surface sample, mesh vertex, skeleton
+//! sample and interior cell gets a label, the owner joint of the nearest skeleton segment.
+//! A grid cell is instanced once per label present in it, and cell instances share a grid
+//! node only when their labels are compatible (the same joint, or parent and child).
+//! So two fingers that pass through the same cells get separate copies of those cells and
+//! are free to move apart, while each finger stays connected to its parent segment.
+
+use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, Grid, KUHN};
+use super::tetmesh::{bounds, TetMesh, TetMeshError};
+use crate::character::procedural::Character;
+use crate::character::skeleton::Skeleton;
+use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
+use crate::solve::factor::FactorError;
+use glam::DVec3;
+use std::collections::HashMap;
+
+/// Binding parameters.
+#[derive(Clone, Debug)]
+pub struct BindParams {
+    /// Lattice cell edge in metres.
+    pub cell_size_m: f64,
+    /// Spacing of skeleton samples along each segment, in metres.
+    pub skeleton_step_m: f64,
+    /// Shape weight `w_l`.
+    pub w_shape: f64,
+    /// Marker weight `w_u`.
+    pub w_marker: f64,
+    /// Skeleton weight `w_d`.
+    pub w_skeleton: f64,
+    /// A marker farther than this from every control tet is an error, in metres.
+    pub max_marker_distance_m: f64,
+}
+
+/// What binding measured (printed by `rigless bake`).
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct BindStats {
+    pub control_vertices: usize,
+    pub control_tets: usize,
+    pub cell_instances: usize,
+    pub duplicated_cells: usize,
+    pub min_dihedral_deg: f64,
+    pub clamped_weights: usize,
+    pub mesh_vertices: usize,
+    pub mesh_vertices_inside: usize,
+    pub skeleton_samples: usize,
+    pub factor_len: usize,
+    pub seconds_lattice: f64,
+    pub seconds_weights_factor: f64,
+}
+
+/// Errors binding a character.
+#[derive(Debug, thiserror::Error)]
+pub enum BindError {
+    #[error("marker {name:?} is {distance_m:.3} m from the control mesh (limit {limit_m} m): is it on this character?")]
+    MarkerTooFar {
+        name: String,
+        distance_m: f64,
+        limit_m: f64,
+    },
+    #[error("mesh vertex {vertex} lies in no control tet")]
+    VertexOutside { vertex: usize },
+    #[error("skeleton joint {joint:?} lies outside the control mesh")]
+    JointOutside { joint: String },
+    #[error("control mesh: {0}")]
+    Mesh(#[from] TetMeshError),
+    #[error("factorization: {0}")]
+    Factor(#[from] FactorError),
+    #[error("the mesh has no vertices or triangles")]
+    EmptyMesh,
+}
+
+/// One skeleton sub-edge between consecutive samples along a segment.
+#[derive(Clone, Copy, Debug)]
+pub struct SkeletonEdge {
+    /// Joint owning the segment (whose rotation moves it).
+    pub joint: usize,
+    /// Segment (child joint) the edge lies on.
+    pub child: usize,
+    /// Rest vector `s_b − s_a`.
+    pub rest: DVec3,
+    /// Sample row indices `(a, b)` in [`Rig::samples`].
+    pub samples: (usize, usize),
+    /// Row index in the ARAP system.
+    pub row: usize,
+}
+
+/// An immutable, bound character.
+pub struct Rig {
+    pub skeleton: Skeleton,
+    pub marker_names: Vec<String>,
+    /// Full-resolution mesh at rest, in the file's vertex order.
+    pub mesh_rest: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub control: TetMesh,
+    pub system: ArapSystem,
+    /// ARAP rows `0..n_markers` are the markers.
+    pub n_markers: usize,
+    /// Skeleton samples as unweighted barycentric rows (to read their positions).
+    pub samples: LinearRows,
+    pub edges: Vec<SkeletonEdge>,
+    /// Control vertices whose rotations are averaged to read each joint's rotation.
+    pub joint_region: Vec<Vec<u32>>,
+    /// For each mesh vertex: the four control vertices and barycentric weights.
+    pub embedding: Vec<([u32; 4], [f64; 4])>,
+    pub stats: BindStats,
+    /// Character height (bounding box extent along Y), metres.
+    pub height_m: f64,
+}
+
+/// Segments of a skeleton: `(owner joint, child joint)`, grouped by owner (ascending).
+pub fn segments(sk: &Skeleton) -> Vec<(usize, usize)> {
+    let mut s: Vec<(usize, usize)> = sk
+        .joints
+        .iter()
+        .enumerate()
+        .filter_map(|(c, j)| j.parent.map(|p| (p, c)))
+        .collect();
+    s.sort_unstable();
+    s
+}
+
+fn nearest_owner(sk: &Skeleton, segs: &[(usize, usize)], p: DVec3) -> u32 {
+    let mut best = (f64::INFINITY, 0u32);
+    for &(a, b) in segs {
+        let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
+        let ab = pb - pa;
+        let t = ((p - pa).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+        let d = (p - (pa + ab * t)).length_squared();
+        if d < best.0 {
+            best = (d, a as u32);
+        }
+    }
+    best.1
+}
+
+fn compatible(sk: &Skeleton, a: u32, b: u32) -> bool {
+    a == b
+        || sk.joints[a as usize].parent == Some(b as usize)
+        || sk.joints[b as usize].parent == Some(a as usize)
+}
+
+fn find(parent: &mut [usize], mut x: usize) -> usize {
+    while parent[x] != x {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    x
+}
+
+impl Rig {
+    /// Binds a character.
+    pub fn bind(ch: &Character, params: &BindParams) -> Result<Self, BindError> {
+        if ch.vertices.is_empty() || ch.triangles.is_empty() {
+            return Err(BindError::EmptyMesh);
+        }
+        let t0 = std::time::Instant::now();
+        let sk = &ch.skeleton;
+        let segs = segments(sk);
+        let (lo, hi) = bounds(&ch.vertices);
+        let grid = Grid::covering(lo, hi, params.cell_size_m, 2);
+        // 1. Cell instances (cell, label).
+        let mut inst: HashMap<(usize, u32), usize> = HashMap::new();
+        let mut inst_list: Vec<(usize, u32)> = Vec::new();
+        let mut add = |cell: usize, label: u32, inst: &mut HashMap<(usize, u32), usize>| -> usize {
+            *inst.entry((cell, label)).or_insert_with(|| {
+                inst_list.push((cell, label));
+                inst_list.len() - 1
+            })
+        };
+        sample_surface(grid.cell_size, &ch.vertices, &ch.triangles, |p| {
+            let c = grid.cell_index(grid.cell_of(p));
+            add(c, nearest_owner(sk, &segs, p), &mut inst);
+        });
+        let surface = surface_cells(&grid, &ch.vertices, &ch.triangles);
+        let keep = enclosed_or(&grid, &surface);
+        for z in 0..grid.dims[2] {
+            for y in 0..grid.dims[1] {
+                for x in 0..grid.dims[0] {
+                    let k = grid.cell_index([x, y, z]);
+                    if keep[k] && !surface[k] {
+                        let center =
+                            grid.node_position([x, y, z]) + DVec3::splat(0.5 * grid.cell_size);
+                        add(k, nearest_owner(sk, &segs, center), &mut inst);
+                    }
+                }
+            }
+        }
+        // Skeleton samples, each in a cell instance labelled by its segment's owner.
+        let mut sample_pos: Vec<(DVec3, u32)> = Vec::new();
+        let mut seg_samples: Vec<(usize, usize, usize, usize)> = Vec::new(); // (owner, child, first, count)
+        for &(a, b) in &segs {
+            let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
+            let n = (((pb - pa).length() / params.skeleton_step_m).ceil() as usize).max(1);
+            let first = sample_pos.len();
+            for k in 0..=n {
+                let p = pa + (pb - pa) * (k as f64 / n as f64);
+                sample_pos.push((p, a as u32));
+                add(grid.cell_index(grid.cell_of(p)), a as u32, &mut inst);
+            }
+            seg_samples.push((a, b, first, n + 1));
+        }
+        drop(add);
+        // 2. Nodes: per grid node, union compatible instances among the cells around it.
+        let mut at_node: HashMap<usize, Vec<(usize, usize)>> = HashMap::new(); // node -> (instance, corner bits)
+        let cell_coord = |k: usize| {
+            [
+                k % grid.dims[0],
+                (k / grid.dims[0]) % grid.dims[1],
+                k / (grid.dims[0] * grid.dims[1]),
+            ]
+        };
+        for (ii, &(cell, _)) in inst_list.iter().enumerate() {
+            let c = cell_coord(cell);
+            for bits in 0..8 {
+                let nc = [
+                    c[0] + (bits & 1),
+                    c[1] + ((bits >> 1) & 1),
+                    c[2] + ((bits >> 2) & 1),
+                ];
+                at_node
+                    .entry(grid.node_index(nc))
+                    .or_default()
+                    .push((ii, bits));
+            }
+        }
+        let mut corner_node = vec![[u32::MAX; 8]; inst_list.len()];
+        let mut positions: Vec<DVec3> = Vec::new();
+        let mut nodes: Vec<(&usize, &Vec<(usize, usize)>)> = at_node.iter().collect();
+        nodes.sort_unstable_by_key(|(n, _)| **n);
+        for (&node, list) in nodes {
+            let m = list.len();
+            let mut parent: Vec<usize> = (0..m).collect();
+            for x in 0..m {
+                for y in x + 1..m {
+                    if compatible(sk, inst_list[list[x].0].1, inst_list[list[y].0].1) {
+                        let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
+                        parent[rx] = ry;
+                    }
+                }
+            }
+            let nx1 = grid.dims[0] + 1;
+            let ny1 = grid.dims[1] + 1;
+            let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
+            let pos = grid.node_position(nc);
+            let mut root_id: HashMap<usize, u32> = HashMap::new();
+            for x in 0..m {
+                let r = find(&mut parent, x);
+                let id = *root_id.entry(r).or_insert_with(|| {
+                    positions.push(pos);
+                    (positions.len() - 1) as u32
+                });
+                let (ii, bits) = list[x];
+                corner_node[ii][bits] = id;
+            }
+        }
+        let mut tets = Vec::with_capacity(inst_list.len() * 6);
+        for corners in &corner_node {
+            for kt in KUHN {
+                tets.push(kt.map(|b| corners[b]));
+            }
+        }
+        let control = TetMesh::new(positions, tets)?;
+        let distinct_cells = {
+            let mut cells: Vec<usize> = inst_list.iter().map(|i| i.0).collect();
+            cells.sort_unstable();
+            cells.dedup();
+            cells.len()
+        };
+        // 3. Locate points: the tet of instance (cell, label) that holds p, or the nearest
+        // compatible tet around it (for markers off the skin).
+        let locate_in = |ii: usize, p: DVec3| -> ([u32; 4], [f64; 4], f64) {
+            let mut best = ([0u32; 4], [0.0; 4], f64::NEG_INFINITY);
+            for t in &control.tets[ii * 6..ii * 6 + 6] {
+                let b = barycentric(t.map(|i| control.positions[i as usize]), p);
+                let m = b.iter().cloned().fold(f64::INFINITY, f64::min);
+                if m > best.2 {
+                    best = (*t, b, m);
+                }
+            }
+            best
+        };
+        let locate =
+            |p: DVec3, label: u32, search_cells: usize| -> Option<([u32; 4], [f64; 4], f64)> {
+                let c = grid.cell_of(p);
+                if let Some(&ii) = inst.get(&(grid.cell_index(c), label)) {
+                    let r = locate_in(ii, p);
+                    if r.2 >= -1e-9 {
+                        return Some(r);
+                    }
+                }
+                let r = search_cells as i64;
+                let mut best: Option<([u32; 4], [f64; 4], f64)> = None;
+                for dz in -r..=r {
+                    for dy in -r..=r {
+                        for dx in -r..=r {
+                            let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
+                            if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
+                                continue;
+                            }
+                            let k = grid.cell_index(q.map(|v| v as usize));
+                            for (&(cell, l), &ii) in inst.iter().filter(|((cell, _), _)| *cell == k)
+                            {
+                                let _ = cell;
+                                if !compatible(sk, l, label) {
+                                    continue;
+                                }
+                                let cand = locate_in(ii, p);
+                                if best.is_none_or(|b| cand.2 > b.2) {
+                                    best = Some(cand);
+                                }
+                            }
+                        }
+                    }
+                }
+                best
+            };
+        let mut embedding = Vec::with_capacity(ch.vertices.len());
+        let mut inside = 0;
+        for (vi, &v) in ch.vertices.iter().enumerate() {
+            let label = nearest_owner(sk, &segs, v);
+            let (t, b, m) = locate(v, label, 1).ok_or(BindError::VertexOutside { vertex: vi })?;
+            if m >= -1e-9 {
+                inside += 1;
+            }
+            embedding.push((t, b));
+        }
+        let seconds_lattice = t0.elapsed().as_secs_f64();
+        let t1 = std::time::Instant::now();
+        // 4. Rows: markers, then skeleton edges.
+        let mut rows = LinearRows::new();
+        let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
+        for (k, m) in ch.markers.iter().enumerate() {
+            let label = ch
+                .marker_joint
+                .get(k)
+                .map(|&j| j as u32)
+                .unwrap_or_else(|| nearest_owner(sk, &segs, m.rest));
+            let too_far = |d: f64| BindError::MarkerTooFar {
+                name: m.name.clone(),
+                distance_m: d,
+                limit_m: params.max_marker_distance_m,
+            };
+            let (t, b, _) = locate(m.rest, label, search).ok_or_else(|| too_far(f64::INFINITY))?;
+            let centroid: DVec3 = t
+                .iter()
+                .map(|&i| control.positions[i as usize])
+                .sum::<DVec3>()
+                / 4.0;
+            let d = (centroid - m.rest).length() - grid.cell_size;
+            if d > params.max_marker_distance_m {
+                return Err(too_far(d));
+            }
+            let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
+            rows.push(&entries, params.w_marker);
+        }
+        let mut samples = LinearRows::new();
+        let mut sample_region: Vec<[u32; 4]> = Vec::new();
+        for &(p, label) in &sample_pos {
+            let (t, b, _) = locate(p, label, 2).ok_or_else(|| BindError::JointOutside {
+                joint: sk.joints[label as usize].name.clone(),
+            })?;
+            let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
+            samples.push(&entries, 1.0);
+            sample_region.push(t);
+        }
+        let mut edges = Vec::new();
+        let mut joint_region: Vec<Vec<u32>> = vec![Vec::new(); sk.len()];
+        for &(owner, child, first, count) in &seg_samples {
+            for k in first..first + count {
+                joint_region[owner].extend_from_slice(&sample_region[k]);
+            }
+            for k in first..first + count - 1 {
+                let (a, b) = (k, k + 1);
+                let mut entries: Vec<(u32, f64)> =
+                    samples.row(b).map(|(i, c)| (i as u32, c)).collect();
+                entries.extend(samples.row(a).map(|(i, c)| (i as u32, -c)));
+                let row = rows.push(&entries, params.w_skeleton);
+                edges.push(SkeletonEdge {
+                    joint: owner,
+                    child,
+                    rest: sample_pos[b].0 - sample_pos[a].0,
+                    samples: (a, b),
+                    row,
+                });
+            }
+        }
+        for r in &mut joint_region {
+            r.sort_unstable();
+            r.dedup();
+        }
+        let op = ArapOperator::new(&control);
+        let system = ArapSystem::new(op, rows, params.w_shape)?;
+        let seconds_weights_factor = t1.elapsed().as_secs_f64();
+        let stats = BindStats {
+            control_vertices: control.positions.len(),
+            control_tets: control.tets.len(),
+            cell_instances: inst_list.len(),
+            duplicated_cells: inst_list.len() - distinct_cells,
+            min_dihedral_deg: control.dihedral_range_deg().0,
+            clamped_weights: system.op.clamped_weights,
+            mesh_vertices: ch.vertices.len(),
+            mesh_vertices_inside: inside,
+            skeleton_samples: sample_pos.len(),
+            factor_len: system.factor_len(),
+            seconds_lattice,
+            seconds_weights_factor,
+        };
+        Ok(Rig {
+            skeleton: sk.clone(),
+            marker_names: ch.markers.iter().map(|m| m.name.clone()).collect(),
+            mesh_rest: ch.vertices.clone(),
+            triangles: ch.triangles.clone(),
+            control,
+            system,
+            n_markers: ch.markers.len(),
+            samples,
+            edges,
+            joint_region,
+            embedding,
+            stats,
+            height_m: hi.y - lo.y,
+        })
+    }
+}
