@@ -542,7 +542,7 @@ pub fn hand_pose(sk: &Skeleton, motion: HandMotion, t_s: f64) -> Pose {
         } else {
             [70.0, 95.0, 65.0]
         };
-        for k in 0..3 {
+        for (k, flex_deg) in flex.iter().enumerate() {
             let j = sk
                 .joints
                 .iter()
@@ -552,7 +552,7 @@ pub fn hand_pose(sk: &Skeleton, motion: HandMotion, t_s: f64) -> Pose {
             let bend = sk.joints[j].bend_axis;
             let st = super::skeleton::SwingTwist {
                 twist: 0.0,
-                bend: curl * flex[k] * DEG,
+                bend: curl * flex_deg * DEG,
                 side: if k == 0 { side_deg * DEG } else { 0.0 },
             };
             local[j] = super::skeleton::compose(st, axis, bend);

@@ -204,7 +204,6 @@ impl Rig {
             }
             seg_samples.push((a, b, first, n + 1));
         }
-        drop(add);
         // 2. Nodes: per grid node, union compatible instances among the cells around it.
         let mut at_node: HashMap<usize, Vec<(usize, usize)>> = HashMap::new(); // node -> (instance, corner bits)
         let cell_coord = |k: usize| {
@@ -248,13 +247,12 @@ impl Rig {
             let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
             let pos = grid.node_position(nc);
             let mut root_id: HashMap<usize, u32> = HashMap::new();
-            for x in 0..m {
+            for (x, &(ii, bits)) in list.iter().enumerate() {
                 let r = find(&mut parent, x);
                 let id = *root_id.entry(r).or_insert_with(|| {
                     positions.push(pos);
                     (positions.len() - 1) as u32
                 });
-                let (ii, bits) = list[x];
                 corner_node[ii][bits] = id;
             }
         }
@@ -371,8 +369,8 @@ impl Rig {
         let mut edges = Vec::new();
         let mut joint_region: Vec<Vec<u32>> = vec![Vec::new(); sk.len()];
         for &(owner, child, first, count) in &seg_samples {
-            for k in first..first + count {
-                joint_region[owner].extend_from_slice(&sample_region[k]);
+            for region in &sample_region[first..first + count] {
+                joint_region[owner].extend_from_slice(region);
             }
             for k in first..first + count - 1 {
                 let (a, b) = (k, k + 1);

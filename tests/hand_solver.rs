@@ -1,0 +1,124 @@
+//! The frame solver on the procedural hand: invariants that hold exactly (rest pose,
+//! rigid motion, warm start), independent of tuning.
+
+use glam::DVec3;
+use rigless::bench::characters::{demo_hand, hand_bind_params};
+use rigless::markers::MarkerFrame;
+use rigless::rig::bind::Rig;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+fn far_deadline() -> Instant {
+    Instant::now() + Duration::from_secs(60)
+}
+
+fn setup() -> (rigless::character::procedural::Character, Arc<Rig>) {
+    let ch = demo_hand();
+    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).expect("hand binds"));
+    (ch, rig)
+}
+
+#[test]
+fn binding_embeds_every_vertex_and_reproduces_the_rest_mesh() {
+    let (ch, rig) = setup();
+    assert_eq!(rig.embedding.len(), ch.vertices.len());
+    assert_eq!(
+        rig.stats.mesh_vertices_inside,
+        ch.vertices.len(),
+        "every vertex lies inside a control tet"
+    );
+    assert_eq!(
+        rig.stats.clamped_weights, 0,
+        "Kuhn lattice weights are never negative"
+    );
+    assert!(
+        rig.stats.duplicated_cells > 0,
+        "cells shared by two fingers must be instanced per finger"
+    );
+    let mut worst = 0.0f64;
+    for ((t, b), v) in rig.embedding.iter().zip(&ch.vertices) {
+        let p: DVec3 = (0..4)
+            .map(|k| rig.control.positions[t[k] as usize] * b[k])
+            .sum();
+        worst = worst.max((p - *v).length());
+        assert!((b.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+    // 1e-9 of the character's height, the bind-time reproduction requirement.
+    assert!(
+        worst < 1e-9 * rig.height_m,
+        "rest reproduction error {worst} m"
+    );
+}
+
+#[test]
+fn rest_markers_give_the_rest_mesh() {
+    let (ch, rig) = setup();
+    let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let frame = MarkerFrame::all_present(0.0, ch.markers.iter().map(|m| m.rest).collect());
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    let rep = solver.solve(&frame, far_deadline(), &mut out);
+    let worst = out
+        .iter()
+        .zip(&ch.vertices)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0, f64::max);
+    // The rest pose is an exact fixed point: only round-off of a direct solve remains.
+    assert!(worst < 1e-9 * rig.height_m, "max deviation {worst} m");
+    assert!(rep.joint_limit_violation_deg < 1e-6, "{rep:?}");
+    assert!(rep.iterations <= 2, "{rep:?}");
+}
+
+#[test]
+fn translating_all_markers_translates_the_mesh_exactly() {
+    let (ch, rig) = setup();
+    let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let t = DVec3::new(0.1, -0.05, 0.2);
+    let frame = MarkerFrame::all_present(0.0, ch.markers.iter().map(|m| m.rest + t).collect());
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    let rep = solver.solve(&frame, far_deadline(), &mut out);
+    let worst = out
+        .iter()
+        .zip(&ch.vertices)
+        .map(|(a, b)| (*a - (*b + t)).length())
+        .fold(0.0, f64::max);
+    // Rotations stay identity, so one global step lands exactly: round-off only.
+    assert!(
+        worst < 1e-9 * rig.height_m,
+        "max deviation from the translated pose {worst} m after {rep:?}"
+    );
+    assert!(rep.rrms < 1e-6 && rep.bone_length_error < 1e-9, "{rep:?}");
+}
+
+#[test]
+fn warm_start_needs_no_more_iterations_than_cold() {
+    use rigless::character::procedural::{hand_pose, skin_pose, HandMotion};
+    let (ch, rig) = setup();
+    let mut truth = vec![DVec3::ZERO; ch.vertices.len()];
+    let mut markers = vec![DVec3::ZERO; ch.markers.len()];
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    let mut warm = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let mut total_warm = 0;
+    let mut total_cold = 0;
+    for f in 0..24 {
+        let t = 0.5 + f as f64 / 120.0;
+        skin_pose(
+            &ch,
+            &hand_pose(&ch.skeleton, HandMotion::FingerPlay, t),
+            &mut truth,
+            &mut markers,
+        );
+        let frame = MarkerFrame::all_present(t, markers.clone());
+        let w = warm.solve(&frame, far_deadline(), &mut out);
+        let mut cold = Solver::new(Arc::clone(&rig), SolverParams::default());
+        let c = cold.solve(&frame, far_deadline(), &mut out);
+        if f > 0 {
+            total_warm += w.iterations;
+            total_cold += c.iterations;
+        }
+    }
+    assert!(
+        total_warm <= total_cold,
+        "warm {total_warm} iterations, cold {total_cold}"
+    );
+}
