@@ -10,7 +10,7 @@
 //! Frame: metres, Y up; the hand points +Y, palm facing +Z, thumb towards −X.
 
 use super::skeleton::{Joint, JointLimits, Skeleton};
-use crate::rig::lattice::Grid;
+use crate::rig::lattice::{Grid, KUHN};
 use glam::{DQuat, DVec3};
 use std::collections::HashMap;
 
@@ -440,14 +440,6 @@ pub fn marching_tets(
     let mut vertices = Vec::new();
     let mut triangles = Vec::new();
     let mut edge_vertex: HashMap<(usize, usize), u32> = HashMap::new();
-    const KUHN: [[usize; 4]; 6] = [
-        [0, 1, 3, 7],
-        [0, 1, 5, 7],
-        [0, 2, 3, 7],
-        [0, 2, 6, 7],
-        [0, 4, 5, 7],
-        [0, 4, 6, 7],
-    ];
     for z in 0..nz {
         for y in 0..ny {
             for x in 0..nx {
