@@ -92,6 +92,8 @@ pub struct SkeletonEdge {
 /// An immutable, bound character.
 pub struct Rig {
     pub skeleton: Skeleton,
+    /// Rest twist axis per joint ([`Skeleton::twist_axis`]), precomputed for the solver.
+    pub twist_axis: Vec<DVec3>,
     pub marker_names: Vec<String>,
     /// Full-resolution mesh at rest, in the file's vertex order.
     pub mesh_rest: Vec<DVec3>,
@@ -410,6 +412,7 @@ impl Rig {
         };
         Ok(Rig {
             skeleton: sk.clone(),
+            twist_axis: (0..sk.len()).map(|j| sk.twist_axis(j)).collect(),
             marker_names: ch.markers.iter().map(|m| m.name.clone()).collect(),
             mesh_rest: ch.vertices.clone(),
             triangles: ch.triangles.clone(),

@@ -162,12 +162,10 @@ impl Solver {
         }
     }
 
-    /// Mean relative length error of the skeleton sub-edges at the current positions.
-    fn bone_length_error(&mut self) -> f64 {
+    /// Mean relative length error of the skeleton sub-edges, from the sample positions the
+    /// last [`Self::skeleton_step`] read off the current control mesh.
+    fn bone_length_error(&self) -> f64 {
         let rig = &self.rig;
-        for (s, p) in self.sample_pos.iter_mut().enumerate() {
-            *p = rig.samples.eval(s, &self.st.positions);
-        }
         let mut sum = 0.0;
         for e in &rig.edges {
             let d = (self.sample_pos[e.samples.1] - self.sample_pos[e.samples.0]).length();
@@ -242,7 +240,7 @@ impl Solver {
             let mut local = parent_world.conjugate() * q;
             if let Some(lim) = &sk.joints[j].limits {
                 let (clamped, excess) =
-                    clamp_to_limits(local, sk.twist_axis(j), sk.joints[j].bend_axis, lim);
+                    clamp_to_limits(local, rig.twist_axis[j], sk.joints[j].bend_axis, lim);
                 local = clamped;
                 worst = worst.max(excess);
             }
