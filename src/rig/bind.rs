@@ -16,6 +16,7 @@ use crate::character::procedural::Character;
 use crate::character::skeleton::Skeleton;
 use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
 use crate::solve::factor::FactorError;
+use crate::solve::ik::IkModel;
 use glam::DVec3;
 use std::collections::HashMap;
 
@@ -74,19 +75,14 @@ pub enum BindError {
     EmptyMesh,
 }
 
-/// One skeleton sub-edge between consecutive samples along a segment.
+/// One skeleton sub-edge between consecutive samples along a segment (for
+/// `bone_length_error`).
 #[derive(Clone, Copy, Debug)]
 pub struct SkeletonEdge {
-    /// Joint owning the segment (whose rotation moves it).
-    pub joint: usize,
-    /// Segment (child joint) the edge lies on.
-    pub child: usize,
-    /// Rest vector `s_b − s_a`.
-    pub rest: DVec3,
     /// Sample row indices `(a, b)` in [`Rig::samples`].
     pub samples: (usize, usize),
-    /// Row index in the ARAP system.
-    pub row: usize,
+    /// Rest length `‖s_b − s_a‖`, metres.
+    pub rest_length_m: f64,
 }
 
 /// An immutable, bound character.
@@ -102,11 +98,22 @@ pub struct Rig {
     pub system: ArapSystem,
     /// ARAP rows `0..n_markers` are the markers.
     pub n_markers: usize,
-    /// Skeleton samples as unweighted barycentric rows (to read their positions).
+    /// The joint whose segments carry each marker.
+    pub marker_joint: Vec<usize>,
+    /// Skeleton samples as unweighted barycentric rows (to read their positions). Sample
+    /// `s` is also ARAP row `n_markers + s`, an absolute positional row of weight `w_d`.
     pub samples: LinearRows,
+    /// Per sample: the joint owning its segment, and its rest position.
+    pub sample_owner: Vec<usize>,
+    pub sample_rest: Vec<DVec3>,
+    /// Per segment (owner joint, child joint): its samples' first index and count.
+    pub segment_samples: Vec<(usize, usize, usize, usize)>,
     pub edges: Vec<SkeletonEdge>,
-    /// Control vertices whose rotations are averaged to read each joint's rotation.
-    pub joint_region: Vec<Vec<u32>>,
+    /// Owner joint of each control vertex (the label of the cell instance it came from),
+    /// used to carry the previous frame's control mesh along with the new posture.
+    pub control_label: Vec<u32>,
+    /// The posture problem of the skeleton step.
+    pub ik: IkModel,
     /// For each mesh vertex: the four control vertices and barycentric weights.
     pub embedding: Vec<([u32; 4], [f64; 4])>,
     pub stats: BindStats,
@@ -231,6 +238,7 @@ impl Rig {
         }
         let mut corner_node = vec![[u32::MAX; 8]; inst_list.len()];
         let mut positions: Vec<DVec3> = Vec::new();
+        let mut control_label: Vec<u32> = Vec::new();
         let mut nodes: Vec<(&usize, &Vec<(usize, usize)>)> = at_node.iter().collect();
         nodes.sort_unstable_by_key(|(n, _)| **n);
         for (&node, list) in nodes {
@@ -253,6 +261,7 @@ impl Rig {
                 let r = find(&mut parent, x);
                 let id = *root_id.entry(r).or_insert_with(|| {
                     positions.push(pos);
+                    control_label.push(inst_list[ii].1);
                     (positions.len() - 1) as u32
                 });
                 corner_node[ii][bits] = id;
@@ -271,6 +280,10 @@ impl Rig {
             cells.dedup();
             cells.len()
         };
+        let mut by_cell: HashMap<usize, Vec<(u32, usize)>> = HashMap::new();
+        for (ii, &(cell, label)) in inst_list.iter().enumerate() {
+            by_cell.entry(cell).or_default().push((label, ii));
+        }
         // 3. Locate points: the tet of instance (cell, label) that holds p, or the nearest
         // compatible tet around it (for markers off the skin).
         let locate_in = |ii: usize, p: DVec3| -> ([u32; 4], [f64; 4], f64) {
@@ -303,9 +316,7 @@ impl Rig {
                                 continue;
                             }
                             let k = grid.cell_index(q.map(|v| v as usize));
-                            for (&(cell, l), &ii) in inst.iter().filter(|((cell, _), _)| *cell == k)
-                            {
-                                let _ = cell;
+                            for &(l, ii) in by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
                                 if !compatible(sk, l, label) {
                                     continue;
                                 }
@@ -331,15 +342,17 @@ impl Rig {
         }
         let seconds_lattice = t0.elapsed().as_secs_f64();
         let t1 = std::time::Instant::now();
-        // 4. Rows: markers, then skeleton edges.
+        // 4. Rows: markers, then skeleton samples (absolute positions).
         let mut rows = LinearRows::new();
         let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
+        let mut marker_joint = Vec::with_capacity(ch.markers.len());
         for (k, m) in ch.markers.iter().enumerate() {
             let label = ch
                 .marker_joint
                 .get(k)
                 .map(|&j| j as u32)
                 .unwrap_or_else(|| nearest_owner(sk, &segs, m.rest));
+            marker_joint.push(label as usize);
             let too_far = |d: f64| BindError::MarkerTooFar {
                 name: m.name.clone(),
                 distance_m: d,
@@ -359,39 +372,22 @@ impl Rig {
             rows.push(&entries, params.w_marker);
         }
         let mut samples = LinearRows::new();
-        let mut sample_region: Vec<[u32; 4]> = Vec::new();
         for &(p, label) in &sample_pos {
             let (t, b, _) = locate(p, label, 2).ok_or_else(|| BindError::JointOutside {
                 joint: sk.joints[label as usize].name.clone(),
             })?;
             let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
             samples.push(&entries, 1.0);
-            sample_region.push(t);
+            rows.push(&entries, params.w_skeleton);
         }
         let mut edges = Vec::new();
-        let mut joint_region: Vec<Vec<u32>> = vec![Vec::new(); sk.len()];
-        for &(owner, child, first, count) in &seg_samples {
-            for region in &sample_region[first..first + count] {
-                joint_region[owner].extend_from_slice(region);
-            }
+        for &(_, _, first, count) in &seg_samples {
             for k in first..first + count - 1 {
-                let (a, b) = (k, k + 1);
-                let mut entries: Vec<(u32, f64)> =
-                    samples.row(b).map(|(i, c)| (i as u32, c)).collect();
-                entries.extend(samples.row(a).map(|(i, c)| (i as u32, -c)));
-                let row = rows.push(&entries, params.w_skeleton);
                 edges.push(SkeletonEdge {
-                    joint: owner,
-                    child,
-                    rest: sample_pos[b].0 - sample_pos[a].0,
-                    samples: (a, b),
-                    row,
+                    samples: (k, k + 1),
+                    rest_length_m: (sample_pos[k + 1].0 - sample_pos[k].0).length(),
                 });
             }
-        }
-        for r in &mut joint_region {
-            r.sort_unstable();
-            r.dedup();
         }
         let op = ArapOperator::new(&control);
         let system = ArapSystem::new(op, rows, params.w_shape)?;
@@ -410,21 +406,30 @@ impl Rig {
             seconds_lattice,
             seconds_weights_factor,
         };
+        let twist_axis: Vec<DVec3> = (0..sk.len()).map(|j| sk.twist_axis(j)).collect();
+        let marker_rest: Vec<DVec3> = ch.markers.iter().map(|m| m.rest).collect();
+        let height_m = hi.y - lo.y;
+        let ik = IkModel::new(sk, &twist_axis, &marker_joint, &marker_rest, height_m);
         Ok(Rig {
             skeleton: sk.clone(),
-            twist_axis: (0..sk.len()).map(|j| sk.twist_axis(j)).collect(),
+            twist_axis,
             marker_names: ch.markers.iter().map(|m| m.name.clone()).collect(),
             mesh_rest: ch.vertices.clone(),
             triangles: ch.triangles.clone(),
             control,
             system,
             n_markers: ch.markers.len(),
+            marker_joint,
             samples,
+            sample_owner: sample_pos.iter().map(|&(_, o)| o as usize).collect(),
+            sample_rest: sample_pos.iter().map(|&(p, _)| p).collect(),
+            segment_samples: seg_samples,
             edges,
-            joint_region,
+            control_label,
+            ik,
             embedding,
             stats,
-            height_m: hi.y - lo.y,
+            height_m,
         })
     }
 }

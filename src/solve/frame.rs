@@ -1,10 +1,20 @@
-//! The per-character frame solver (Le Naour et al., Section 4): ARAP local step, skeleton
-//! step (bone lengths, straightness, joint limits, forward kinematics), global step; until
-//! the paper's criterion converges, an iteration cap or the deadline. Then the full mesh
-//! follows the control mesh. Warm-started from the previous frame; allocation-free per
-//! frame.
+//! The per-character frame solver (Le Naour et al., Section 4). Per frame:
+//!
+//! 1. Skeleton step: the posture (joint rotations inside their limits, see
+//!    [`super::ik`]) that carries the markers onto their measured positions; its forward
+//!    kinematics gives every skeleton sample a target (bone lengths and straightness
+//!    restored, limits held by construction).
+//! 2. Warm start: the previous frame's control mesh is carried along with each joint's
+//!    change of pose (every control vertex moves rigidly with its owner joint), and its
+//!    rotations with it.
+//! 3. ARAP alternation (local step, global step) with the marker rows and the skeleton
+//!    sample rows, until the paper's criterion (relative change of
+//!    `0.5·rrms + 0.5·bone_length_error`) converges, an iteration cap or the deadline.
+//!
+//! Then the full mesh follows the control mesh. Allocation-free per frame.
 
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
+use super::ik::{IkParams, IkState};
 use super::polar::extract_rotation;
 use crate::character::skeleton::clamp_to_limits;
 use crate::markers::MarkerFrame;
@@ -20,6 +30,8 @@ pub struct SolverParams {
     pub max_iterations: usize,
     /// Relative change of `0.5·rrms + 0.5·bone_length_error` below which a frame is done.
     pub tolerance: f64,
+    /// The skeleton step's posture fit.
+    pub ik: IkParams,
 }
 
 impl Default for SolverParams {
@@ -27,6 +39,7 @@ impl Default for SolverParams {
         Self {
             max_iterations: 30,
             tolerance: 1e-3,
+            ik: IkParams::default(),
         }
     }
 }
@@ -34,7 +47,12 @@ impl Default for SolverParams {
 /// What one frame's solve did and how good it is (names as in DESIGN.md).
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct SolveReport {
+    /// ARAP iterations (local, global) this frame.
     pub iterations: usize,
+    /// Levenberg–Marquardt iterations of the skeleton step's posture fit.
+    pub ik_iterations: usize,
+    /// RMS distance of the fitted skeleton's markers from the measured ones, mm.
+    pub ik_marker_rms_mm: f64,
     pub stop: StopReason,
     pub rrms: f64,
     pub bone_length_error: f64,
@@ -50,24 +68,31 @@ pub struct Solver {
     rig: Arc<Rig>,
     params: SolverParams,
     st: ArapState,
-    /// Per joint: estimated world rotation (warm start) and clamped world rotation.
-    joint_est: Vec<DQuat>,
-    joint_world: Vec<DQuat>,
+    ik: IkState,
+    /// Joint world rotations and positions of the previous frame's posture.
+    prev_rot: Vec<DQuat>,
+    prev_pos: Vec<DVec3>,
+    /// Skeleton sample positions read off the control mesh.
     sample_pos: Vec<DVec3>,
+    /// Joint world rotations read off the control mesh (joint limit measurement).
+    measured_rot: Vec<DQuat>,
 }
 
 impl Solver {
     pub fn new(rig: Arc<Rig>, params: SolverParams) -> Self {
         let st = rig.system.new_state();
+        let ik = rig.ik.new_state();
         let nj = rig.skeleton.len();
         let ns = rig.samples.len();
         Self {
+            prev_rot: ik.world_rot.clone(),
+            prev_pos: ik.world_pos.clone(),
             rig,
             params,
             st,
-            joint_est: vec![DQuat::IDENTITY; nj],
-            joint_world: vec![DQuat::IDENTITY; nj],
+            ik,
             sample_pos: vec![DVec3::ZERO; ns],
+            measured_rot: vec![DQuat::IDENTITY; nj],
         }
     }
 
@@ -80,15 +105,20 @@ impl Solver {
         &self.st.positions
     }
 
+    /// The fitted posture: world rotation and position of every joint.
+    pub fn joint_world(&self) -> (&[DQuat], &[DVec3]) {
+        (&self.ik.world_rot, &self.ik.world_pos)
+    }
+
     /// Forgets the previous frame (cold start at the rest pose).
     pub fn reset(&mut self) {
         self.st = self.rig.system.new_state();
-        self.joint_est.fill(DQuat::IDENTITY);
-        self.joint_world.fill(DQuat::IDENTITY);
+        self.ik = self.rig.ik.new_state();
     }
 
     /// Solves one frame, warm-started from the previous one, and writes the full-resolution
     /// vertices (file order, metres) into `vertices_out` (`len` = mesh vertex count).
+    /// Markers not `present` keep their previous target.
     pub fn solve(
         &mut self,
         frame: &MarkerFrame,
@@ -98,18 +128,44 @@ impl Solver {
         let t0 = Instant::now();
         let rig = Arc::clone(&self.rig);
         let sys = &rig.system;
-        for k in 0..rig.n_markers.min(frame.positions.len()) {
+        let nm = rig.n_markers;
+        for k in 0..nm.min(frame.positions.len()) {
             if frame.present[k] && frame.positions[k].is_finite() {
                 self.st.targets[k] = frame.positions[k];
             }
         }
+        // 1. Skeleton step.
+        self.prev_rot.copy_from_slice(&self.ik.world_rot);
+        self.prev_pos.copy_from_slice(&self.ik.world_pos);
+        rig.ik.begin_frame(&mut self.ik);
+        let ik_rep = rig
+            .ik
+            .solve(&mut self.ik, &self.st.targets[..nm], &self.params.ik);
+        let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
+        for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
+            let o = rig.sample_owner[s];
+            *t = wp[o] + wr[o] * (rig.sample_rest[s] - rig.skeleton.joints[o].rest);
+        }
+        // 2. Carry the control mesh along with each joint's change of pose.
+        for (i, (p, q)) in self
+            .st
+            .positions
+            .iter_mut()
+            .zip(self.st.quats.iter_mut())
+            .enumerate()
+        {
+            let j = rig.control_label[i] as usize;
+            let delta = wr[j] * self.prev_rot[j].conjugate();
+            *p = wp[j] + delta * (*p - self.prev_pos[j]);
+            *q = (delta * *q).normalize();
+        }
+        // 3. ARAP alternation.
         let mut prev: Option<f64> = None;
         let mut iterations = 0;
         let mut stop = StopReason::IterationCap;
-        let (mut rrms, mut ble, mut jlv);
+        let (mut rrms, mut ble);
         loop {
             rrms = sys.rrms(sys.local_step(&mut self.st));
-            jlv = self.skeleton_step();
             ble = self.bone_length_error();
             let crit = 0.5 * rrms + 0.5 * ble;
             if let Some(p) = prev {
@@ -130,21 +186,24 @@ impl Solver {
             iterations += 1;
         }
         let (mut sum2, mut max2) = (0.0f64, 0.0f64);
-        for k in 0..rig.n_markers {
+        for k in 0..nm {
             let d2 = (sys.rows.eval(k, &self.st.positions) - self.st.targets[k]).length_squared();
             sum2 += d2;
             max2 = max2.max(d2);
         }
+        let jlv = self.joint_limit_violation();
         let t1 = Instant::now();
         self.write_mesh(vertices_out);
         let t2 = Instant::now();
         SolveReport {
             iterations,
+            ik_iterations: ik_rep.iterations,
+            ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
             stop,
             rrms,
             bone_length_error: ble,
             joint_limit_violation_deg: jlv.to_degrees(),
-            marker_residual_rms_mm: (sum2 / rig.n_markers.max(1) as f64).sqrt() * 1e3,
+            marker_residual_rms_mm: (sum2 / nm.max(1) as f64).sqrt() * 1e3,
             marker_residual_max_mm: max2.sqrt() * 1e3,
             solve_ms: (t1 - t0).as_secs_f64() * 1e3,
             gc_ms: (t2 - t1).as_secs_f64() * 1e3,
@@ -162,92 +221,73 @@ impl Solver {
         }
     }
 
-    /// Mean relative length error of the skeleton sub-edges, from the sample positions the
-    /// last [`Self::skeleton_step`] read off the current control mesh.
-    fn bone_length_error(&self) -> f64 {
+    /// Reads the skeleton samples off the current control mesh and returns the mean
+    /// relative length error of the skeleton sub-edges.
+    fn bone_length_error(&mut self) -> f64 {
         let rig = &self.rig;
+        for (s, p) in self.sample_pos.iter_mut().enumerate() {
+            *p = rig.samples.eval(s, &self.st.positions);
+        }
         let mut sum = 0.0;
         for e in &rig.edges {
             let d = (self.sample_pos[e.samples.1] - self.sample_pos[e.samples.0]).length();
-            let d0 = e.rest.length();
-            sum += (d - d0).abs() / d0;
+            sum += (d - e.rest_length_m).abs() / e.rest_length_m;
         }
         sum / rig.edges.len().max(1) as f64
     }
 
-    /// Skeleton step: reads each joint's rotation from the current control mesh (rotation
-    /// average of its region, swung to the measured segment direction), expresses it in the
-    /// parent's frame, clamps it to the joint's limits, composes clamped rotations down the
-    /// tree (forward kinematics) and sets each skeleton edge's target `γ = Q_j · rest_edge`,
-    /// which restores rest length and straightness. Returns the largest limit excess
-    /// (radians) of the measured posture.
-    fn skeleton_step(&mut self) -> f64 {
+    /// Largest excess (radians) over any joint limit of the posture the control mesh
+    /// shows: each joint's rotation is the fitted one, turned so that its segments point
+    /// where the mesh's skeleton samples (last read by [`Self::bone_length_error`]) point
+    /// (bone lines show no twist, so the twist is the fitted one), and expressed in its
+    /// measured parent's frame.
+    fn joint_limit_violation(&mut self) -> f64 {
         let rig = &self.rig;
         let sk = &rig.skeleton;
-        // Sample positions for segment directions.
-        for (s, p) in self.sample_pos.iter_mut().enumerate() {
-            *p = rig.samples.eval(s, &self.st.positions);
-        }
+        let (wr, _) = (&self.ik.world_rot, &self.ik.world_pos);
         let mut worst = 0.0f64;
-        let mut edge = 0;
+        let mut seg = 0;
+        let segs = &rig.segment_samples;
         for j in 0..sk.len() {
-            if rig.joint_region[j].is_empty() {
-                continue;
-            }
-            // Rotation average of the region, plus the segments' directions (Kabsch).
+            let parent = sk.joints[j].parent;
+            let local = match parent {
+                Some(p) => wr[p].conjugate() * wr[j],
+                None => wr[j],
+            };
+            let pred = match parent {
+                Some(p) => self.measured_rot[p] * local,
+                None => local,
+            };
+            // Directions of the segments leaving j: predicted and measured.
             let mut m = DMat3::ZERO;
-            for &v in &rig.joint_region[j] {
-                m += self.st.rots[v as usize];
+            let mut single: Option<(DVec3, DVec3)> = None;
+            let mut count = 0;
+            while seg < segs.len() && segs[seg].0 == j {
+                let (_, child, first, n) = segs[seg];
+                let d_pred = (pred * (sk.joints[child].rest - sk.joints[j].rest)).normalize();
+                let d_meas =
+                    (self.sample_pos[first + n - 1] - self.sample_pos[first]).normalize_or_zero();
+                m += DMat3::from_cols(d_meas * d_pred.x, d_meas * d_pred.y, d_meas * d_pred.z);
+                single = Some((d_pred, d_meas));
+                count += 1;
+                seg += 1;
             }
-            let region_weight = rig.joint_region[j].len() as f64;
-            let first_edge = edge;
-            let mut dir_pairs: [(DVec3, DVec3); 8] = [(DVec3::ZERO, DVec3::ZERO); 8];
-            let mut n_dirs = 0;
-            while edge < rig.edges.len() && rig.edges[edge].joint == j {
-                // Group the segment's sub-edges: from its first to its last sample.
-                let child = rig.edges[edge].child;
-                let start = edge;
-                while edge < rig.edges.len()
-                    && rig.edges[edge].joint == j
-                    && rig.edges[edge].child == child
-                {
-                    edge += 1;
+            let correction = match (count, single) {
+                (1, Some((a, b))) if b != DVec3::ZERO => DQuat::from_rotation_arc(a, b),
+                (c, _) if c > 1 => {
+                    let mut q = DQuat::IDENTITY;
+                    extract_rotation(&m, &mut q);
+                    q
                 }
-                let (a, b) = (rig.edges[start].samples.0, rig.edges[edge - 1].samples.1);
-                let cur = self.sample_pos[b] - self.sample_pos[a];
-                let rest = sk.joints[child].rest - sk.joints[j].rest;
-                if n_dirs < dir_pairs.len() {
-                    dir_pairs[n_dirs] = (cur.normalize_or_zero(), rest.normalize());
-                    n_dirs += 1;
-                }
-                let (c, r) = (cur.normalize_or_zero(), rest.normalize());
-                m += DMat3::from_cols(c * r.x, c * r.y, c * r.z) * (2.0 * region_weight);
-            }
-            let mut q = self.joint_est[j];
-            extract_rotation(&m, &mut q);
-            if n_dirs == 1 {
-                // One segment: its measured direction is exact; keep the region's twist.
-                let (c, r) = dir_pairs[0];
-                if c != DVec3::ZERO {
-                    q = (DQuat::from_rotation_arc((q * r).normalize(), c) * q).normalize();
-                }
-            }
-            self.joint_est[j] = q;
-            let parent_world = sk.joints[j]
-                .parent
-                .map(|p| self.joint_world[p])
-                .unwrap_or(DQuat::IDENTITY);
-            let mut local = parent_world.conjugate() * q;
-            if let Some(lim) = &sk.joints[j].limits {
-                let (clamped, excess) =
-                    clamp_to_limits(local, rig.twist_axis[j], sk.joints[j].bend_axis, lim);
-                local = clamped;
+                _ => DQuat::IDENTITY,
+            };
+            let measured = (correction * pred).normalize();
+            self.measured_rot[j] = measured;
+            if let (Some(lim), Some(p)) = (&sk.joints[j].limits, parent) {
+                let local_meas = self.measured_rot[p].conjugate() * measured;
+                let (_, excess) =
+                    clamp_to_limits(local_meas, rig.twist_axis[j], sk.joints[j].bend_axis, lim);
                 worst = worst.max(excess);
-            }
-            let world = (parent_world * local).normalize();
-            self.joint_world[j] = world;
-            for e in &rig.edges[first_edge..edge] {
-                self.st.targets[e.row] = world * e.rest;
             }
         }
         worst

@@ -4,4 +4,5 @@
 pub mod arap;
 pub mod factor;
 pub mod frame;
+pub mod ik;
 pub mod polar;
