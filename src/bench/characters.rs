@@ -16,11 +16,11 @@ use std::time::{Duration, Instant};
 /// Binding parameters for the procedural hand.
 pub fn hand_bind_params() -> BindParams {
     BindParams {
-        cell_size_m: 0.0065,
+        cell_size_m: 0.009,
         skeleton_step_m: 0.008,
         w_shape: 1.0,
-        w_marker: 5.0,
-        w_skeleton: 5.0,
+        w_marker: 30.0,
+        w_skeleton: 1000.0,
         max_marker_distance_m: 0.03,
     }
 }
@@ -48,6 +48,7 @@ pub struct CharacterRecord {
     pub frame_ms_max: f64,
     pub solve_ms_p50: f64,
     pub gc_ms_p50: f64,
+    pub ik_ms_p50: f64,
     pub iterations_mean: f64,
     pub iterations_max: usize,
     pub converged_fraction: f64,
@@ -70,13 +71,54 @@ pub fn run_hand(
     seconds: f64,
     rate_hz: f64,
     noise_m: f64,
+    on_frame: impl FnMut(usize, &SolveReport),
+) -> Result<CharacterRecord, BindError> {
+    run_hand_with(
+        &demo_hand(),
+        &hand_bind_params(),
+        SolverParams::default(),
+        HandRun {
+            seconds,
+            rate_hz,
+            noise_m,
+            frame_budget_s: 1.0 / rate_hz,
+        },
+        on_frame,
+    )
+}
+
+/// How to play a motion through the solver.
+#[derive(Clone, Copy, Debug)]
+pub struct HandRun {
+    /// Seconds of motion.
+    pub seconds: f64,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+    /// Uniform marker noise amplitude, metres (0 for none).
+    pub noise_m: f64,
+    /// Each frame's deadline after its start, seconds (`1 / rate_hz` live; longer in tests
+    /// that check quality independently of the machine's speed).
+    pub frame_budget_s: f64,
+}
+
+/// [`run_hand`] with explicit character and parameters (for tuning and tests).
+pub fn run_hand_with(
+    ch: &Character,
+    bind: &BindParams,
+    solver_params: SolverParams,
+    run: HandRun,
     mut on_frame: impl FnMut(usize, &SolveReport),
 ) -> Result<CharacterRecord, BindError> {
-    let ch = demo_hand();
+    let HandRun {
+        seconds,
+        rate_hz,
+        noise_m,
+        frame_budget_s,
+    } = run;
     let t0 = Instant::now();
-    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params())?);
+    let rig = Arc::new(Rig::bind(ch, bind)?);
     let bind_s = t0.elapsed().as_secs_f64();
-    let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let mut solver = Solver::new(Arc::clone(&rig), solver_params);
     let frames = (seconds * rate_hz).round() as usize;
     let nv = ch.vertices.len();
     let mut truth = vec![DVec3::ZERO; nv];
@@ -86,6 +128,7 @@ pub fn run_hand(
     let mut frame_t = Vec::with_capacity(frames);
     let mut solve_t = Vec::with_capacity(frames);
     let mut gc_t = Vec::with_capacity(frames);
+    let mut ik_t = Vec::with_capacity(frames);
     let mut rec = CharacterRecord {
         suite: "characters",
         character: ch.name.clone(),
@@ -102,6 +145,7 @@ pub fn run_hand(
         frame_ms_max: 0.0,
         solve_ms_p50: 0.0,
         gc_ms_p50: 0.0,
+        ik_ms_p50: 0.0,
         iterations_mean: 0.0,
         iterations_max: 0,
         converged_fraction: 0.0,
@@ -128,7 +172,7 @@ pub fn run_hand(
     for f in 0..frames {
         let t = f as f64 / rate_hz;
         let pose = hand_pose(&ch.skeleton, HandMotion::FingerPlay, t);
-        skin_pose(&ch, &pose, &mut truth, &mut markers);
+        skin_pose(ch, &pose, &mut truth, &mut markers);
         let noisy: Vec<DVec3> = markers
             .iter()
             .map(|m| *m + DVec3::new(uniform(), uniform(), uniform()) * noise_m)
@@ -137,12 +181,13 @@ pub fn run_hand(
         let start = Instant::now();
         let rep = solver.solve(
             &frame,
-            start + Duration::from_secs_f64(1.0 / rate_hz),
+            start + Duration::from_secs_f64(frame_budget_s),
             &mut out,
         );
         frame_t.push(start.elapsed());
         solve_t.push(Duration::from_secs_f64(rep.solve_ms / 1e3));
         gc_t.push(Duration::from_secs_f64(rep.gc_ms / 1e3));
+        ik_t.push(Duration::from_secs_f64(rep.ik_ms / 1e3));
         on_frame(f, &rep);
         let vol_err = (mesh_volume(&out, &ch.triangles) - rest_volume).abs() / rest_volume;
         let (mut sum, mut max) = (0.0f64, 0.0f64);
@@ -189,5 +234,6 @@ pub fn run_hand(
     rec.frame_ms_max = s.max_ms;
     rec.solve_ms_p50 = Spread::of(&solve_t).median_ms;
     rec.gc_ms_p50 = Spread::of(&gc_t).median_ms;
+    rec.ik_ms_p50 = Spread::of(&ik_t).median_ms;
     Ok(rec)
 }

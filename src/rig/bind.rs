@@ -10,6 +10,7 @@
 //! So two fingers that pass through the same cells get separate copies of those cells and
 //! are free to move apart, while each finger stays connected to its parent segment.
 
+use super::green::GreenEmbedding;
 use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, Grid, KUHN};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::procedural::Character;
@@ -50,7 +51,12 @@ pub struct BindStats {
     pub mesh_vertices_inside: usize,
     pub skeleton_samples: usize,
     pub factor_len: usize,
+    /// Mesh vertices whose Green coordinates fell back to barycentric ones.
+    pub green_fallback_vertices: usize,
+    /// Largest rest reproduction error of the embedding, metres.
+    pub green_max_rest_error_m: f64,
     pub seconds_lattice: f64,
+    pub seconds_green: f64,
     pub seconds_weights_factor: f64,
 }
 
@@ -114,8 +120,8 @@ pub struct Rig {
     pub control_label: Vec<u32>,
     /// The posture problem of the skeleton step.
     pub ik: IkModel,
-    /// For each mesh vertex: the four control vertices and barycentric weights.
-    pub embedding: Vec<([u32; 4], [f64; 4])>,
+    /// The full mesh's Green coordinates in the control tets.
+    pub green: GreenEmbedding,
     pub stats: BindStats,
     /// Character height (bounding box extent along Y), metres.
     pub height_m: f64,
@@ -171,7 +177,13 @@ impl Rig {
         let sk = &ch.skeleton;
         let segs = segments(sk);
         let (lo, hi) = bounds(&ch.vertices);
-        let grid = Grid::covering(lo, hi, params.cell_size_m, 2);
+        // The lattice is offset from the mesh bounds by a fraction of a cell that no
+        // rational ratio reaches (1/π, (√2 − 1)/2, √2 − 1): meshes made on a grid (marching cubes or tets) would
+        // otherwise put vertices exactly on lattice planes, where Green coordinates lose
+        // precision and fall back to barycentric ones.
+        use std::f64::consts::{FRAC_1_PI, SQRT_2};
+        let offset = DVec3::new(FRAC_1_PI, (SQRT_2 - 1.0) / 2.0, SQRT_2 - 1.0) * params.cell_size_m;
+        let grid = Grid::covering(lo - offset, hi, params.cell_size_m, 2);
         // 1. Cell instances (cell, label).
         let mut inst: HashMap<(usize, u32), usize> = HashMap::new();
         let mut inst_list: Vec<(usize, u32)> = Vec::new();
@@ -286,59 +298,62 @@ impl Rig {
         }
         // 3. Locate points: the tet of instance (cell, label) that holds p, or the nearest
         // compatible tet around it (for markers off the skin).
-        let locate_in = |ii: usize, p: DVec3| -> ([u32; 4], [f64; 4], f64) {
-            let mut best = ([0u32; 4], [0.0; 4], f64::NEG_INFINITY);
-            for t in &control.tets[ii * 6..ii * 6 + 6] {
+        let locate_in = |ii: usize, p: DVec3| -> ([u32; 4], [f64; 4], f64, usize) {
+            let mut best = ([0u32; 4], [0.0; 4], f64::NEG_INFINITY, 0);
+            for (k, t) in control.tets[ii * 6..ii * 6 + 6].iter().enumerate() {
                 let b = barycentric(t.map(|i| control.positions[i as usize]), p);
                 let m = b.iter().cloned().fold(f64::INFINITY, f64::min);
                 if m > best.2 {
-                    best = (*t, b, m);
+                    best = (*t, b, m, ii * 6 + k);
                 }
             }
             best
         };
-        let locate =
-            |p: DVec3, label: u32, search_cells: usize| -> Option<([u32; 4], [f64; 4], f64)> {
-                let c = grid.cell_of(p);
-                if let Some(&ii) = inst.get(&(grid.cell_index(c), label)) {
-                    let r = locate_in(ii, p);
-                    if r.2 >= -1e-9 {
-                        return Some(r);
-                    }
+        let locate = |p: DVec3,
+                      label: u32,
+                      search_cells: usize|
+         -> Option<([u32; 4], [f64; 4], f64, usize)> {
+            let c = grid.cell_of(p);
+            if let Some(&ii) = inst.get(&(grid.cell_index(c), label)) {
+                let r = locate_in(ii, p);
+                if r.2 >= -1e-9 {
+                    return Some(r);
                 }
-                let r = search_cells as i64;
-                let mut best: Option<([u32; 4], [f64; 4], f64)> = None;
-                for dz in -r..=r {
-                    for dy in -r..=r {
-                        for dx in -r..=r {
-                            let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
-                            if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
+            }
+            let r = search_cells as i64;
+            let mut best: Option<([u32; 4], [f64; 4], f64, usize)> = None;
+            for dz in -r..=r {
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
+                        if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
+                            continue;
+                        }
+                        let k = grid.cell_index(q.map(|v| v as usize));
+                        for &(l, ii) in by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
+                            if !compatible(sk, l, label) {
                                 continue;
                             }
-                            let k = grid.cell_index(q.map(|v| v as usize));
-                            for &(l, ii) in by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
-                                if !compatible(sk, l, label) {
-                                    continue;
-                                }
-                                let cand = locate_in(ii, p);
-                                if best.is_none_or(|b| cand.2 > b.2) {
-                                    best = Some(cand);
-                                }
+                            let cand = locate_in(ii, p);
+                            if best.is_none_or(|b| cand.2 > b.2) {
+                                best = Some(cand);
                             }
                         }
                     }
                 }
-                best
-            };
-        let mut embedding = Vec::with_capacity(ch.vertices.len());
+            }
+            best
+        };
+        let mut vertex_tets = Vec::with_capacity(ch.vertices.len());
         let mut inside = 0;
         for (vi, &v) in ch.vertices.iter().enumerate() {
             let label = nearest_owner(sk, &segs, v);
-            let (t, b, m) = locate(v, label, 1).ok_or(BindError::VertexOutside { vertex: vi })?;
+            let (_, _, m, t) =
+                locate(v, label, 1).ok_or(BindError::VertexOutside { vertex: vi })?;
             if m >= -1e-9 {
                 inside += 1;
             }
-            embedding.push((t, b));
+            vertex_tets.push(t);
         }
         let seconds_lattice = t0.elapsed().as_secs_f64();
         let t1 = std::time::Instant::now();
@@ -358,7 +373,8 @@ impl Rig {
                 distance_m: d,
                 limit_m: params.max_marker_distance_m,
             };
-            let (t, b, _) = locate(m.rest, label, search).ok_or_else(|| too_far(f64::INFINITY))?;
+            let (t, b, _, _) =
+                locate(m.rest, label, search).ok_or_else(|| too_far(f64::INFINITY))?;
             let centroid: DVec3 = t
                 .iter()
                 .map(|&i| control.positions[i as usize])
@@ -373,7 +389,7 @@ impl Rig {
         }
         let mut samples = LinearRows::new();
         for &(p, label) in &sample_pos {
-            let (t, b, _) = locate(p, label, 2).ok_or_else(|| BindError::JointOutside {
+            let (t, b, _, _) = locate(p, label, 2).ok_or_else(|| BindError::JointOutside {
                 joint: sk.joints[label as usize].name.clone(),
             })?;
             let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
@@ -389,6 +405,10 @@ impl Rig {
                 });
             }
         }
+        let t_gc = std::time::Instant::now();
+        let height_m = hi.y - lo.y;
+        let green = GreenEmbedding::new(&control, &ch.vertices, &vertex_tets, height_m);
+        let seconds_green = t_gc.elapsed().as_secs_f64();
         let op = ArapOperator::new(&control);
         let system = ArapSystem::new(op, rows, params.w_shape)?;
         let seconds_weights_factor = t1.elapsed().as_secs_f64();
@@ -403,12 +423,14 @@ impl Rig {
             mesh_vertices_inside: inside,
             skeleton_samples: sample_pos.len(),
             factor_len: system.factor_len(),
+            green_fallback_vertices: green.fallback_vertices,
+            green_max_rest_error_m: green.max_rest_error_m,
             seconds_lattice,
+            seconds_green,
             seconds_weights_factor,
         };
         let twist_axis: Vec<DVec3> = (0..sk.len()).map(|j| sk.twist_axis(j)).collect();
         let marker_rest: Vec<DVec3> = ch.markers.iter().map(|m| m.rest).collect();
-        let height_m = hi.y - lo.y;
         let ik = IkModel::new(sk, &twist_axis, &marker_joint, &marker_rest, height_m);
         Ok(Rig {
             skeleton: sk.clone(),
@@ -427,7 +449,7 @@ impl Rig {
             edges,
             control_label,
             ik,
-            embedding,
+            green,
             stats,
             height_m,
         })

@@ -2,5 +2,6 @@
 //! format), weights, Green coordinates, and the bound rig.
 
 pub mod bind;
+pub mod green;
 pub mod lattice;
 pub mod tetmesh;

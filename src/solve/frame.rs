@@ -19,6 +19,7 @@ use super::polar::extract_rotation;
 use crate::character::skeleton::clamp_to_limits;
 use crate::markers::MarkerFrame;
 use crate::rig::bind::Rig;
+use crate::rig::green::GreenScratch;
 use glam::{DMat3, DQuat, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
@@ -53,6 +54,8 @@ pub struct SolveReport {
     pub ik_iterations: usize,
     /// RMS distance of the fitted skeleton's markers from the measured ones, mm.
     pub ik_marker_rms_mm: f64,
+    /// Time spent in the skeleton step's posture fit, ms (part of `solve_ms`).
+    pub ik_ms: f64,
     pub stop: StopReason,
     pub rrms: f64,
     pub bone_length_error: f64,
@@ -76,6 +79,7 @@ pub struct Solver {
     sample_pos: Vec<DVec3>,
     /// Joint world rotations read off the control mesh (joint limit measurement).
     measured_rot: Vec<DQuat>,
+    green_scratch: GreenScratch,
 }
 
 impl Solver {
@@ -84,6 +88,7 @@ impl Solver {
         let ik = rig.ik.new_state();
         let nj = rig.skeleton.len();
         let ns = rig.samples.len();
+        let green_scratch = rig.green.scratch();
         Self {
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
@@ -93,6 +98,7 @@ impl Solver {
             ik,
             sample_pos: vec![DVec3::ZERO; ns],
             measured_rot: vec![DQuat::IDENTITY; nj],
+            green_scratch,
         }
     }
 
@@ -141,6 +147,7 @@ impl Solver {
         let ik_rep = rig
             .ik
             .solve(&mut self.ik, &self.st.targets[..nm], &self.params.ik);
+        let t_ik = Instant::now();
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
             let o = rig.sample_owner[s];
@@ -199,6 +206,7 @@ impl Solver {
             iterations,
             ik_iterations: ik_rep.iterations,
             ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
+            ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
             stop,
             rrms,
             bone_length_error: ble,
@@ -210,15 +218,11 @@ impl Solver {
         }
     }
 
-    /// Full mesh from the control mesh through the bind-time embedding.
-    pub fn write_mesh(&self, out: &mut [DVec3]) {
-        let p = &self.st.positions;
-        for (o, (t, b)) in out.iter_mut().zip(&self.rig.embedding) {
-            *o = p[t[0] as usize] * b[0]
-                + p[t[1] as usize] * b[1]
-                + p[t[2] as usize] * b[2]
-                + p[t[3] as usize] * b[3];
-        }
+    /// Full mesh from the control mesh through its Green coordinates.
+    pub fn write_mesh(&mut self, out: &mut [DVec3]) {
+        self.rig
+            .green
+            .deform(&self.st.positions, &mut self.green_scratch, out);
     }
 
     /// Reads the skeleton samples off the current control mesh and returns the mean

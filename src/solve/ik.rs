@@ -152,6 +152,10 @@ pub struct IkReport {
     pub marker_rms_m: f64,
 }
 
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
 /// `J_l(v) u`, the left Jacobian of SO(3) at rotation vector `v` applied to `u`.
 fn left_jacobian_apply(v: DVec3, u: DVec3) -> DVec3 {
     let t2 = v.length_squared();
@@ -513,9 +517,9 @@ impl IkModel {
             }
         }
         // Per marker: 3 rows, nonzero only in its chain's columns.
-        for k in 0..self.marker_joint.len() {
+        for (k, &target) in m.iter().enumerate().take(self.marker_joint.len()) {
             let p = st.predicted[k];
-            let r = p - m[k];
+            let r = p - target;
             let cols = &mut st.cols;
             cols.clear();
             for &j in &self.chain[self.chain_start[k]..self.chain_start[k + 1]] {
@@ -605,38 +609,33 @@ impl IkModel {
                 st.step[i] = 0.0;
             }
         }
+        // Cholesky, row by row over contiguous slices (L[i][..j] · L[j][..j]).
         for j in 0..np {
-            let mut d = l[j * np + j];
+            let (done, rest) = l.split_at_mut(j * np);
+            let row_j = &mut rest[..np];
             for k in 0..j {
-                d -= l[j * np + k] * l[j * np + k];
+                let row_k = &done[k * np..k * np + k + 1];
+                let v = row_j[k] - dot(&row_j[..k], &row_k[..k]);
+                row_j[k] = v / row_k[k];
             }
-            if !(d > 0.0) {
+            let d = row_j[j] - dot(&row_j[..j], &row_j[..j]);
+            if d.is_nan() || d <= 0.0 {
                 return false;
             }
-            let d = d.sqrt();
-            l[j * np + j] = d;
-            for i in j + 1..np {
-                let mut v = l[i * np + j];
-                for k in 0..j {
-                    v -= l[i * np + k] * l[j * np + k];
-                }
-                l[i * np + j] = v / d;
-            }
+            row_j[j] = d.sqrt();
         }
         let x = &mut st.step;
         for i in 0..np {
-            let mut v = x[i];
-            for k in 0..i {
-                v -= l[i * np + k] * x[k];
-            }
-            x[i] = v / l[i * np + i];
+            let row = &l[i * np..i * np + i + 1];
+            x[i] = (x[i] - dot(&row[..i], &x[..i])) / row[i];
         }
         for i in (0..np).rev() {
-            let mut v = x[i];
-            for k in i + 1..np {
-                v -= l[k * np + i] * x[k];
+            let row = &l[i * np..i * np + i + 1];
+            x[i] /= row[i];
+            let xi = x[i];
+            for (xk, lk) in x[..i].iter_mut().zip(&row[..i]) {
+                *xk -= lk * xi;
             }
-            x[i] = v / l[i * np + i];
         }
         true
     }
