@@ -384,14 +384,14 @@ impl ArapSystem {
         let op = &self.op;
         let s = self.shape_scale;
         let rhs = &mut st.rhs;
-        for i in 0..op.n() {
+        for (i, out) in rhs.iter_mut().enumerate() {
             // Σ_j w_ij (R_i + R_j) e_ij = R_i Σ_j w_ij e_ij + Σ_j R_j (w_ij e_ij).
             let mut b = st.rots[i] * op.rest_sum[i];
             for k in op.start[i] as usize..op.start[i + 1] as usize {
                 let j = op.nbr[k] as usize;
                 b += st.rots[j] * (op.rest_edge[k] * op.weight[k]);
             }
-            rhs[i] = b * s;
+            *out = b * s;
         }
         for r in 0..self.rows.len() {
             let t = st.targets[r] * self.rows.weight[r];
