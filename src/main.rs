@@ -30,6 +30,20 @@ enum Command {
         #[arg(long, default_value_t = 0.0)]
         noise_mm: f64,
     },
+    /// Bind a character: read its TOML file and mesh, build the control mesh, the Green
+    /// coordinates and the factorization, print a summary, and cache the result next to
+    /// the character file (`NAME.rigcache`, keyed by a hash of the character file, the
+    /// mesh file and this version) so the next start loads it instead of binding again.
+    Bake {
+        /// The character file (TOML: mesh, skeleton, markers; see README).
+        character: PathBuf,
+        /// Bind again even if the cache is current.
+        #[arg(long)]
+        force: bool,
+        /// Print the summary as one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// Run a benchmark suite and print one line per case (a table, or JSON with --json).
     Bench {
         /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared
@@ -65,6 +79,11 @@ fn main() -> Result<()> {
             every,
             noise_mm,
         } => demo(seconds, every.max(1), noise_mm),
+        Command::Bake {
+            character,
+            force,
+            json,
+        } => bake(&character, force, json),
         Command::Bench {
             suite: Suite::Capsules,
             json,
@@ -103,6 +122,105 @@ fn demo(seconds: f64, every: usize, noise_mm: f64) -> Result<()> {
     })
     .context("binding the procedural hand")?;
     println!("{}", serde_json::to_string_pretty(&rec)?);
+    Ok(())
+}
+
+fn bake(path: &std::path::Path, force: bool, json: bool) -> Result<()> {
+    use rigless::character::file::load_character;
+    use rigless::rig::bind::{BindStage, Rig};
+    use rigless::rig::cache;
+    use std::io::Write;
+    let t0 = std::time::Instant::now();
+    let loaded = load_character(path)?;
+    let ch = &loaded.character;
+    let read_s = t0.elapsed().as_secs_f64();
+    let cache_file = cache::cache_path(path);
+    let t1 = std::time::Instant::now();
+    let (rig, source) = match (force, cache::load(path, loaded.inputs_hash)) {
+        (false, Ok(rig)) => (
+            rig,
+            format!(
+                "loaded {} in {:.3} s",
+                cache_file.display(),
+                t1.elapsed().as_secs_f64()
+            ),
+        ),
+        (_, cached) => {
+            let why = match cached {
+                Ok(_) => "--force".to_string(),
+                Err(miss) => miss.to_string(),
+            };
+            let mut last = (None, -1i64);
+            let rig = Rig::bind_with_progress(ch, &loaded.bind, &mut |stage, f| {
+                let pct = (f * 100.0) as i64;
+                if json || (Some(stage), pct / 5) == (last.0, last.1 / 5) {
+                    return;
+                }
+                last = (Some(stage), pct);
+                let name = match stage {
+                    BindStage::Lattice => "lattice and binding",
+                    BindStage::GreenCoordinates => "Green coordinates",
+                    BindStage::Factorization => "weights and factorization",
+                };
+                let bar: String = (0..20)
+                    .map(|k| if k < pct / 5 { '#' } else { '.' })
+                    .collect();
+                eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
+                let _ = std::io::stderr().flush();
+            })
+            .with_context(|| format!("binding {}", path.display()))?;
+            if !json {
+                eprintln!("\r  binding [####################] done{:<30}", "");
+            }
+            let written = cache::store(path, &rig, loaded.inputs_hash)?;
+            (rig, format!("bound ({why}); wrote {}", written.display()))
+        }
+    };
+    let s = &rig.stats;
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "character": ch.name,
+                "mesh_vertices": ch.vertices.len(),
+                "triangles": ch.triangles.len(),
+                "joints": ch.skeleton.len(),
+                "markers": ch.markers.len(),
+                "height_m": rig.height_m,
+                "stats": s,
+                "cache": source,
+            })
+        );
+        return Ok(());
+    }
+    println!(
+        "character      {}: {} mesh vertices, {} triangles, {} joints, {} markers, {:.3} m tall (read in {read_s:.3} s)",
+        ch.name,
+        ch.vertices.len(),
+        ch.triangles.len(),
+        ch.skeleton.len(),
+        ch.markers.len(),
+        rig.height_m
+    );
+    println!(
+        "control mesh   {} vertices, {} tets ({} cells, {} duplicated for separate parts), smallest dihedral {:.1}°, clamped weights {}",
+        s.control_vertices, s.control_tets, s.cell_instances, s.duplicated_cells, s.min_dihedral_deg, s.clamped_weights
+    );
+    println!(
+        "mesh in cage   {} of {} vertices inside the control mesh; Green coordinates rest error {:.1e} m, {} barycentric fallbacks",
+        s.mesh_vertices_inside, s.mesh_vertices, s.green_max_rest_error_m, s.green_fallback_vertices
+    );
+    if s.mesh_vertices_inside < s.mesh_vertices {
+        println!(
+            "warning        {} mesh vertices lie outside their control tet",
+            s.mesh_vertices - s.mesh_vertices_inside
+        );
+    }
+    println!(
+        "stages         lattice {:.3} s, Green coordinates {:.3} s, weights + factorization {:.3} s",
+        s.seconds_lattice, s.seconds_green, s.seconds_weights_factor
+    );
+    println!("cache          {source}");
     Ok(())
 }
 

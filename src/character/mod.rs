@@ -2,5 +2,40 @@
 //! marker layout; plus the procedural characters and motions (with known truth) used by
 //! the demo, the tests and the benchmarks.
 
+pub mod file;
+pub mod mesh;
 pub mod procedural;
 pub mod skeleton;
+
+use glam::DVec3;
+use skeleton::Skeleton;
+
+/// A marker of a character's layout.
+#[derive(Clone, Debug)]
+pub struct MarkerDef {
+    pub name: String,
+    /// Rest position, metres, world frame.
+    pub rest: DVec3,
+    /// The joint whose segments carry it; `None`: the owner of the nearest segment,
+    /// decided at bind time.
+    pub joint: Option<usize>,
+}
+
+/// Per-vertex skin: up to four (joint, weight) pairs, weights summing to one.
+#[derive(Clone, Debug)]
+pub struct Skin {
+    pub influences: Vec<[(u32, f64); 4]>,
+}
+
+/// A character: full-resolution mesh (the file's vertex order and count, metres, world
+/// frame), skeleton, markers, and (procedural only) its skin.
+#[derive(Clone, Debug)]
+pub struct Character {
+    pub name: String,
+    pub vertices: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub skeleton: Skeleton,
+    pub markers: Vec<MarkerDef>,
+    /// Skin used to produce ground truth (procedural characters).
+    pub skin: Option<Skin>,
+}

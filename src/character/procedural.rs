@@ -14,32 +14,7 @@ use crate::rig::lattice::{Grid, KUHN};
 use glam::{DQuat, DVec3};
 use std::collections::HashMap;
 
-/// A marker of a character's layout: name and rest position (metres, world frame).
-#[derive(Clone, Debug)]
-pub struct MarkerDef {
-    pub name: String,
-    pub rest: DVec3,
-}
-
-/// Per-vertex skin: up to four (joint, weight) pairs, weights summing to one.
-#[derive(Clone, Debug)]
-pub struct Skin {
-    pub influences: Vec<[(u32, f64); 4]>,
-}
-
-/// A character: full-resolution mesh, skeleton, markers, and (procedural only) its skin.
-#[derive(Clone, Debug)]
-pub struct Character {
-    pub name: String,
-    pub vertices: Vec<DVec3>,
-    pub triangles: Vec<[u32; 3]>,
-    pub skeleton: Skeleton,
-    pub markers: Vec<MarkerDef>,
-    /// Skin used to produce ground truth (procedural characters).
-    pub skin: Option<Skin>,
-    /// For each marker, the joint whose segments carry it (truth only).
-    pub marker_joint: Vec<usize>,
-}
+pub use super::{Character, MarkerDef, Skin};
 
 /// A bone as a tapered capsule: owner joint, endpoints and radii.
 #[derive(Clone, Copy, Debug)]
@@ -273,7 +248,6 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
     // Markers: 5 on the nails (dorsal side of each distal segment near the tip), 3 on the
     // back of the hand; 6 mm off the skin (a 12 mm marker ball's centre).
     let mut markers = Vec::new();
-    let mut marker_joint = Vec::new();
     let dorsal = DVec3::new(0.0, 0.0, -1.0);
     let on_skin = |from: DVec3, dir: DVec3| {
         // March from inside along `dir` to the zero crossing, then bisect.
@@ -309,8 +283,8 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         markers.push(MarkerDef {
             name: format!("{name}_nail"),
             rest: on_skin(at, dorsal),
+            joint: Some(j3),
         });
-        marker_joint.push(j3);
     }
     for (name, at) in [
         ("hand_index", DVec3::new(-0.025, 0.07, 0.0)),
@@ -320,8 +294,8 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         markers.push(MarkerDef {
             name: name.into(),
             rest: on_skin(at, dorsal),
+            joint: Some(0),
         });
-        marker_joint.push(0);
     }
     Character {
         name: "hand".into(),
@@ -330,7 +304,6 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         skeleton,
         markers,
         skin: Some(skin),
-        marker_joint,
     }
 }
 
@@ -359,10 +332,33 @@ pub fn simplify(
         meshopt::SimplifyOptions::empty(),
         None,
     );
+    // Simplification can fold a thin pocket into a fin: the same triangle twice, back to
+    // back, which makes its edges non-manifold. Drop such pairs.
+    let mut seen: HashMap<[u32; 3], usize> = HashMap::new();
+    let tris: Vec<[u32; 3]> = out.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+    let mut dropped = vec![false; tris.len()];
+    for (k, t) in tris.iter().enumerate() {
+        let mut key = *t;
+        key.sort_unstable();
+        if let Some(&other) = seen.get(&key) {
+            if !dropped[other] {
+                dropped[other] = true;
+                dropped[k] = true;
+                seen.remove(&key);
+                continue;
+            }
+        }
+        seen.insert(key, k);
+    }
     let mut remap = vec![u32::MAX; vertices.len()];
     let mut new_v = Vec::new();
     let mut new_t = Vec::with_capacity(out.len() / 3);
-    for t in out.chunks_exact(3) {
+    for t in tris
+        .iter()
+        .zip(&dropped)
+        .filter(|(_, d)| !**d)
+        .map(|(t, _)| t)
+    {
         let tri = [t[0], t[1], t[2]].map(|i| {
             if remap[i as usize] == u32::MAX {
                 remap[i as usize] = new_v.len() as u32;
@@ -586,7 +582,7 @@ pub fn skin_pose(
         }
     }
     for (k, m) in ch.markers.iter().enumerate() {
-        markers_out[k] = xf(ch.marker_joint[k], m.rest);
+        markers_out[k] = xf(m.joint.unwrap_or(0), m.rest);
     }
 }
 
@@ -610,16 +606,14 @@ mod tests {
         let h = hand(0.0016, 10_000);
         let n = h.vertices.len();
         assert!((3_000..9_000).contains(&n), "{n} vertices");
-        // Watertight: every undirected edge is used by exactly two triangles, in opposite directions.
-        let mut edges: HashMap<(u32, u32), i32> = HashMap::new();
-        for t in &h.triangles {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                *edges.entry((a.min(b), a.max(b))).or_default() += if a < b { 1 } else { -1 };
-            }
-        }
-        let open = edges.values().filter(|&&v| v != 0).count();
-        assert_eq!(open, 0, "open or inconsistently oriented edges");
+        // Watertight and manifold: every edge is used by exactly two triangles, in
+        // opposite directions.
+        let issues = crate::character::mesh::surface_issues(&h.triangles);
+        assert_eq!(
+            issues,
+            crate::character::mesh::SurfaceIssues::default(),
+            "the hand's surface has defects"
+        );
         let vol = mesh_volume(&h.vertices, &h.triangles);
         // A real hand with a short forearm stub: 250–600 cm³.
         assert!((250e-6..600e-6).contains(&vol), "volume {} cm³", vol * 1e6);

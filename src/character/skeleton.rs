@@ -12,7 +12,7 @@
 use glam::{DQuat, DVec3};
 
 /// Range limits of one joint's rotation, in radians.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct JointLimits {
     /// Twist about the joint's twist axis, `(min, max)`.
     pub twist: (f64, f64),
@@ -23,7 +23,7 @@ pub struct JointLimits {
 }
 
 /// One joint of a skeleton.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Joint {
     pub name: String,
     /// Parent joint index (always smaller than this joint's index), `None` for a root.
@@ -37,7 +37,7 @@ pub struct Joint {
 }
 
 /// A joint tree in topological order (parents before children).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Skeleton {
     pub joints: Vec<Joint>,
 }

@@ -13,8 +13,8 @@
 use super::green::GreenEmbedding;
 use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, Grid, KUHN};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
-use crate::character::procedural::Character;
 use crate::character::skeleton::Skeleton;
+use crate::character::Character;
 use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
 use crate::solve::factor::FactorError;
 use crate::solve::ik::IkModel;
@@ -22,7 +22,7 @@ use glam::DVec3;
 use std::collections::HashMap;
 
 /// Binding parameters.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BindParams {
     /// Lattice cell edge in metres.
     pub cell_size_m: f64,
@@ -38,8 +38,19 @@ pub struct BindParams {
     pub max_marker_distance_m: f64,
 }
 
+/// The stages of binding, in order (for progress reports).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BindStage {
+    /// Lattice, virtual nodes, locating vertices, markers and skeleton samples.
+    Lattice,
+    /// Green coordinates of every mesh vertex (the long stage on large meshes).
+    GreenCoordinates,
+    /// Cotangent weights and the sparse Cholesky factorization.
+    Factorization,
+}
+
 /// What binding measured (printed by `rigless bake`).
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct BindStats {
     pub control_vertices: usize,
     pub control_tets: usize,
@@ -83,7 +94,7 @@ pub enum BindError {
 
 /// One skeleton sub-edge between consecutive samples along a segment (for
 /// `bone_length_error`).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SkeletonEdge {
     /// Sample row indices `(a, b)` in [`Rig::samples`].
     pub samples: (usize, usize),
@@ -91,7 +102,9 @@ pub struct SkeletonEdge {
     pub rest_length_m: f64,
 }
 
-/// An immutable, bound character.
+/// An immutable, bound character. Serializable for the bake cache: the factorization
+/// is not stored but redone on load (see [`ArapSystem`]).
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Rig {
     pub skeleton: Skeleton,
     /// Rest twist axis per joint ([`Skeleton::twist_axis`]), precomputed for the solver.
@@ -170,10 +183,20 @@ fn find(parent: &mut [usize], mut x: usize) -> usize {
 impl Rig {
     /// Binds a character.
     pub fn bind(ch: &Character, params: &BindParams) -> Result<Self, BindError> {
+        Self::bind_with_progress(ch, params, &mut |_, _| {})
+    }
+
+    /// [`Self::bind`], reporting each stage and its fraction done to `progress`.
+    pub fn bind_with_progress(
+        ch: &Character,
+        params: &BindParams,
+        progress: &mut dyn FnMut(BindStage, f64),
+    ) -> Result<Self, BindError> {
         if ch.vertices.is_empty() || ch.triangles.is_empty() {
             return Err(BindError::EmptyMesh);
         }
         let t0 = std::time::Instant::now();
+        progress(BindStage::Lattice, 0.0);
         let sk = &ch.skeleton;
         let segs = segments(sk);
         let (lo, hi) = bounds(&ch.vertices);
@@ -355,17 +378,14 @@ impl Rig {
             }
             vertex_tets.push(t);
         }
-        let seconds_lattice = t0.elapsed().as_secs_f64();
-        let t1 = std::time::Instant::now();
         // 4. Rows: markers, then skeleton samples (absolute positions).
         let mut rows = LinearRows::new();
         let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
         let mut marker_joint = Vec::with_capacity(ch.markers.len());
-        for (k, m) in ch.markers.iter().enumerate() {
-            let label = ch
-                .marker_joint
-                .get(k)
-                .map(|&j| j as u32)
+        for m in &ch.markers {
+            let label = m
+                .joint
+                .map(|j| j as u32)
                 .unwrap_or_else(|| nearest_owner(sk, &segs, m.rest));
             marker_joint.push(label as usize);
             let too_far = |d: f64| BindError::MarkerTooFar {
@@ -405,13 +425,22 @@ impl Rig {
                 });
             }
         }
+        let seconds_lattice = t0.elapsed().as_secs_f64();
         let t_gc = std::time::Instant::now();
         let height_m = hi.y - lo.y;
-        let green = GreenEmbedding::new(&control, &ch.vertices, &vertex_tets, height_m);
+        let green = GreenEmbedding::new_with_progress(
+            &control,
+            &ch.vertices,
+            &vertex_tets,
+            height_m,
+            &mut |f| progress(BindStage::GreenCoordinates, f),
+        );
         let seconds_green = t_gc.elapsed().as_secs_f64();
+        progress(BindStage::Factorization, 0.0);
+        let t_factor = std::time::Instant::now();
         let op = ArapOperator::new(&control);
         let system = ArapSystem::new(op, rows, params.w_shape)?;
-        let seconds_weights_factor = t1.elapsed().as_secs_f64();
+        let seconds_weights_factor = t_factor.elapsed().as_secs_f64();
         let stats = BindStats {
             control_vertices: control.positions.len(),
             control_tets: control.tets.len(),

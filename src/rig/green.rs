@@ -111,7 +111,7 @@ pub fn green_coordinates(
 
 /// Rest data of one cage face, for its stretch factor: `(u·v, ‖u‖², ‖v‖², √8 area)` with
 /// `u = b − a`, `v = c − a`.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct FaceRest {
     uv: f64,
     uu: f64,
@@ -120,7 +120,7 @@ struct FaceRest {
 }
 
 /// The full mesh's Green coordinates in its control tets (bind-time, immutable).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct GreenEmbedding {
     /// Control tets used by at least one vertex (positively oriented vertex indices).
     tets: Vec<[u32; 4]>,
@@ -147,6 +147,17 @@ impl GreenEmbedding {
     /// `control.tets`). `size_m` sets the reproduction tolerance
     /// (`REPRODUCTION_TOLERANCE · size_m`).
     pub fn new(control: &TetMesh, vertices: &[DVec3], vertex_tets: &[usize], size_m: f64) -> Self {
+        Self::new_with_progress(control, vertices, vertex_tets, size_m, &mut |_| {})
+    }
+
+    /// [`Self::new`], calling `progress` with the fraction done every 1,024 vertices.
+    pub fn new_with_progress(
+        control: &TetMesh,
+        vertices: &[DVec3],
+        vertex_tets: &[usize],
+        size_m: f64,
+        progress: &mut dyn FnMut(f64),
+    ) -> Self {
         let mut index: HashMap<usize, u32> = HashMap::new();
         let mut tets = Vec::new();
         let mut faces_rest = Vec::new();
@@ -154,7 +165,10 @@ impl GreenEmbedding {
         let tol = REPRODUCTION_TOLERANCE * size_m;
         let mut phi = [0.0; 4];
         let mut psi = [0.0; 4];
-        for (&x, &t) in vertices.iter().zip(vertex_tets) {
+        for (vi, (&x, &t)) in vertices.iter().zip(vertex_tets).enumerate() {
+            if vi % 1024 == 0 {
+                progress(vi as f64 / vertices.len() as f64);
+            }
             let tv = control.tets[t];
             let slot = *index.entry(t).or_insert_with(|| {
                 tets.push(tv);

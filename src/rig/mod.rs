@@ -2,6 +2,7 @@
 //! format), weights, Green coordinates, and the bound rig.
 
 pub mod bind;
+pub mod cache;
 pub mod green;
 pub mod lattice;
 pub mod tetmesh;

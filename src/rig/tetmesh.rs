@@ -10,7 +10,7 @@ use glam::DVec3;
 use std::path::Path;
 
 /// A tetrahedral mesh in metres (or the file's units for benchmark meshes).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct TetMesh {
     /// Vertex positions, `n` of them.
     pub positions: Vec<DVec3>,

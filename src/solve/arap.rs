@@ -28,7 +28,7 @@ use crate::rig::tetmesh::TetMesh;
 use glam::{DMat3, DQuat, DVec3};
 
 /// Cotangent weights of a tet mesh as a symmetric adjacency (CSR, both directions).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ArapOperator {
     /// Rest positions `v_i`.
     pub rest: Vec<DVec3>,
@@ -201,7 +201,7 @@ impl ArapOperator {
 const FACE_OPPOSITE: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
 
 /// Sparse soft-constraint rows `a_r` with fixed weights `ω_r` (CSR over rows).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct LinearRows {
     /// Row starts, `rows + 1` entries (starts with 0).
     pub start: Vec<u32>,
@@ -253,12 +253,50 @@ impl LinearRows {
 }
 
 /// Precomputed, immutable ARAP system: operator, constraint rows and factored matrix.
+/// Serializes as its parts (operator, rows, `w_l`); deserializing factors the matrix
+/// again, so a cached rig never carries a stale or foreign factorization.
+#[derive(serde::Deserialize)]
+#[serde(try_from = "ArapSystemParts")]
 pub struct ArapSystem {
     pub op: ArapOperator,
     pub rows: LinearRows,
+    /// `w_l`.
+    pub w_shape: f64,
     /// `w_l / h`: the shape weight per unit of cotangent weight.
     pub shape_scale: f64,
     chol: SparseCholesky,
+}
+
+/// What [`ArapSystem`] serializes: everything but the factorization.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct ArapSystemParts {
+    pub op: ArapOperator,
+    pub rows: LinearRows,
+    pub w_shape: f64,
+}
+
+impl TryFrom<ArapSystemParts> for ArapSystem {
+    type Error = FactorError;
+    fn try_from(p: ArapSystemParts) -> Result<Self, FactorError> {
+        ArapSystem::new(p.op, p.rows, p.w_shape)
+    }
+}
+
+impl serde::Serialize for ArapSystem {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        #[derive(serde::Serialize)]
+        struct Ref<'a> {
+            op: &'a ArapOperator,
+            rows: &'a LinearRows,
+            w_shape: f64,
+        }
+        Ref {
+            op: &self.op,
+            rows: &self.rows,
+            w_shape: self.w_shape,
+        }
+        .serialize(s)
+    }
 }
 
 /// Per-solver mutable state of the ARAP alternation. Allocated once; iterating does not
@@ -318,6 +356,7 @@ impl ArapSystem {
         Ok(Self {
             op,
             rows,
+            w_shape,
             shape_scale,
             chol,
         })

@@ -67,7 +67,7 @@ impl Default for IkParams {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 enum Dofs {
     /// A leaf: no unknowns.
     None,
@@ -78,7 +78,7 @@ enum Dofs {
 }
 
 /// The posture problem of one rig: immutable, shared.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct IkModel {
     parent: Vec<Option<usize>>,
     rest: Vec<DVec3>,

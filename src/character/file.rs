@@ -1,0 +1,736 @@
+//! Character files: a TOML description of what the user brings (the mesh file with its
+//! units and up axis, the skeleton from the glTF skin or listed, joint limits, the
+//! marker layout, binding settings), validated with every problem reported at once, and
+//! loaded into a [`Character`] in the world frame (metres, Y up).
+//!
+//! ```toml
+//! [mesh]
+//! path = "right.glb"          # .glb, .gltf or .obj, relative to this file
+//! units = "m"                 # m, dm, cm, mm or in
+//! up = "y"                    # y or z
+//!
+//! [skeleton.parents]          # skin joints that are not nested in the file
+//! thumb-metacarpal = "wrist"
+//!
+//! [skeleton.limits.index-finger-phalanx-proximal]
+//! twist_deg = [-5, 5]
+//! bend_deg = [0, 100]
+//! side_deg = [-5, 5]
+//!
+//! [[markers]]
+//! name = "index_nail"
+//! bone = "index-finger-phalanx-distal"
+//! offset_m = [0.0, -0.012, -0.008]
+//! ```
+//!
+//! Output vertex order: the mesh file's own (glTF: primitives in document order; OBJ:
+//! the `v` lines used by the kept faces, in file order), so an engine can apply the
+//! stream to the asset it already has. Seams are welded only for the checks and the
+//! lattice; every file vertex gets its own Green coordinates.
+
+use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
+use super::skeleton::{Joint, JointLimits, Skeleton};
+use super::{Character, MarkerDef};
+use crate::rig::bind::BindParams;
+use glam::{DMat4, DVec3};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The whole character file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CharacterFile {
+    /// Display name (default: the file's stem).
+    pub name: Option<String>,
+    /// The mesh file and how to read it.
+    pub mesh: MeshSpec,
+    /// Where the skeleton comes from, and its joint limits.
+    #[serde(default)]
+    pub skeleton: SkeletonSpec,
+    /// The marker layout, in the order the solver reports them.
+    #[serde(default)]
+    pub markers: Vec<MarkerSpec>,
+    /// Binding settings (defaults scale with the character's height).
+    #[serde(default)]
+    pub bind: BindSpec,
+}
+
+/// Length unit of a mesh file.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
+#[serde(rename_all = "lowercase")]
+pub enum Units {
+    #[default]
+    M,
+    Dm,
+    Cm,
+    Mm,
+    In,
+}
+
+impl Units {
+    /// Metres per file unit.
+    pub fn metres(self) -> f64 {
+        match self {
+            Units::M => 1.0,
+            Units::Dm => 0.1,
+            Units::Cm => 0.01,
+            Units::Mm => 0.001,
+            Units::In => 0.0254,
+        }
+    }
+}
+
+/// Up axis of a mesh file.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    /// Y up (glTF's convention): kept.
+    #[default]
+    Y,
+    /// Z up (most capture and CAD tools): turned to Y up, `(x, y, z) → (x, z, −y)`.
+    Z,
+}
+
+/// `[mesh]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSpec {
+    /// Mesh file relative to the character file: `.glb`, `.gltf` or `.obj`.
+    pub path: PathBuf,
+    /// Length unit of the mesh file.
+    #[serde(default)]
+    pub units: Units,
+    /// Up axis of the mesh file.
+    #[serde(default)]
+    pub up: UpAxis,
+    /// OBJ only: keep the faces of these `g`/`o` groups (all when empty).
+    #[serde(default)]
+    pub groups: Vec<String>,
+    /// Positions closer than this are welded for the checks and the lattice, metres
+    /// (default 1e-6 of the character's height).
+    pub weld_tolerance_m: Option<f64>,
+}
+
+/// `[skeleton]`.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkeletonSpec {
+    /// Take the joints from the glTF skin (default: yes when the mesh has one).
+    pub from_skin: Option<bool>,
+    /// Parent of each skin joint by name, for skins whose joints are not nested.
+    #[serde(default)]
+    pub parents: BTreeMap<String, String>,
+    /// Joints listed by hand, parents first (when there is no skin).
+    #[serde(default)]
+    pub joints: Vec<JointSpec>,
+    /// Limits per joint name (joints without an entry are free).
+    #[serde(default)]
+    pub limits: BTreeMap<String, LimitSpec>,
+}
+
+/// `[[skeleton.joints]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointSpec {
+    /// Joint name, unique.
+    pub name: String,
+    /// Parent joint name (listed before this one); none for the root.
+    pub parent: Option<String>,
+    /// Rest position, metres, world frame (Y up).
+    pub rest_m: Option<[f64; 3]>,
+    /// Or: rest position as the mean of these mesh vertices (0-based, file order).
+    pub rest_vertices: Option<Vec<usize>>,
+}
+
+/// `[skeleton.limits.NAME]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitSpec {
+    /// Twist about the joint's twist axis (towards its children), `[min, max]` degrees.
+    pub twist_deg: [f64; 2],
+    /// Flexion about the bend axis, `[min, max]` degrees (positive curls the segment).
+    pub bend_deg: [f64; 2],
+    /// Abduction about `twist × bend`, `[min, max]` degrees.
+    pub side_deg: [f64; 2],
+    /// Bend axis at rest, world frame; made perpendicular to the twist axis (default: a
+    /// skin joint's bind-pose X axis; required for listed joints).
+    pub bend_axis: Option<[f64; 3]>,
+}
+
+/// `[[markers]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MarkerSpec {
+    /// Marker name, as the capture system labels it.
+    pub name: String,
+    /// Rest position, metres, world frame.
+    pub position_m: Option<[f64; 3]>,
+    /// Or: the joint whose bone carries it (a leaf joint means its parent's bone) ...
+    pub bone: Option<String>,
+    /// ... and its offset from that joint at rest, metres, world axes (default zero).
+    pub offset_m: Option<[f64; 3]>,
+}
+
+/// `[bind]`.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BindSpec {
+    /// Lattice cell edge, metres (default 3.2 % of the character's height).
+    pub cell_size_m: Option<f64>,
+    /// Spacing of skeleton samples along each bone, metres (default 0.9 cell).
+    pub skeleton_step_m: Option<f64>,
+    /// Shape weight `w_l` (default 1).
+    pub w_shape: Option<f64>,
+    /// Marker row weight `w_u` (default 30).
+    pub w_marker: Option<f64>,
+    /// Skeleton sample row weight `w_d` (default 1000).
+    pub w_skeleton: Option<f64>,
+    /// A marker farther than this from the control mesh is an error, metres (default 10 %
+    /// of the character's height).
+    pub max_marker_distance_m: Option<f64>,
+}
+
+/// Errors loading a character file.
+#[derive(Debug, thiserror::Error)]
+pub enum CharacterError {
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Toml { path: String, message: String },
+    #[error("{path}: {source}")]
+    Mesh { path: String, source: MeshError },
+    #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, .problems.join("\n  - "))]
+    Invalid { path: String, problems: Vec<String> },
+}
+
+/// A loaded character with its binding settings and the bytes that define it.
+#[derive(Clone, Debug)]
+pub struct LoadedCharacter {
+    pub character: Character,
+    pub bind: BindParams,
+    /// Hash of the inputs (character file, mesh file, this crate's version): the cache
+    /// key of the bound rig.
+    pub inputs_hash: u64,
+    /// The mesh file that was read.
+    pub mesh_path: PathBuf,
+}
+
+/// FNV-1a, 64 bits: a stable hash (unlike std's) for cache keys.
+pub fn fnv1a(data: &[&[u8]]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for part in data {
+        for &b in part.iter() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+        h ^= part.len() as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// Loads and validates a character file.
+pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
+    let shown = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| CharacterError::Read {
+        path: shown.clone(),
+        source,
+    })?;
+    let spec: CharacterFile = toml::from_str(&text).map_err(|e| CharacterError::Toml {
+        path: shown.clone(),
+        message: e.to_string(),
+    })?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mesh_path = dir.join(&spec.mesh.path);
+    let mesh_shown = mesh_path.display().to_string();
+    let mesh_bytes = std::fs::read(&mesh_path).map_err(|source| CharacterError::Read {
+        path: mesh_shown.clone(),
+        source,
+    })?;
+    let ext = mesh_path
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let mesh = match ext.as_str() {
+        "obj" => parse_obj(&mesh_bytes, &spec.mesh.groups),
+        "glb" | "gltf" => read_gltf(&mesh_path),
+        other => {
+            return Err(CharacterError::Invalid {
+                path: shown,
+                problems: vec![format!(
+                    "mesh.path {:?}: unknown mesh format {other:?} (use .glb, .gltf or .obj)",
+                    spec.mesh.path
+                )],
+            })
+        }
+    }
+    .map_err(|source| CharacterError::Mesh {
+        path: mesh_shown,
+        source,
+    })?;
+    let name = spec.name.clone().unwrap_or_else(|| {
+        path.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "character".into())
+    });
+    let (character, bind) =
+        build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
+            path: shown,
+            problems,
+        })?;
+    let inputs_hash = fnv1a(&[
+        text.as_bytes(),
+        &mesh_bytes,
+        env!("CARGO_PKG_VERSION").as_bytes(),
+    ]);
+    Ok(LoadedCharacter {
+        character,
+        bind,
+        inputs_hash,
+        mesh_path,
+    })
+}
+
+/// Converts the mesh to the world frame and builds the character; every problem found
+/// is returned at once.
+pub fn build(
+    spec: &CharacterFile,
+    name: String,
+    mesh: MeshData,
+) -> Result<(Character, BindParams), Vec<String>> {
+    let mut problems = Vec::new();
+    let s = spec.mesh.units.metres();
+    let up = spec.mesh.up;
+    let to_world = |p: DVec3| {
+        let p = p * s;
+        match up {
+            UpAxis::Y => p,
+            UpAxis::Z => DVec3::new(p.x, p.z, -p.y),
+        }
+    };
+    let to_world_dir = |d: DVec3| match up {
+        UpAxis::Y => d,
+        UpAxis::Z => DVec3::new(d.x, d.z, -d.y),
+    };
+    let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| to_world(p)).collect();
+    if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
+        problems.push(format!(
+            "mesh vertex {i} is not finite: {:?}",
+            mesh.positions[i]
+        ));
+    }
+    let (lo, hi) = vertices.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), v| (a.min(*v), b.max(*v)),
+    );
+    let height = (hi.y - lo.y).max(0.0);
+    if problems.is_empty() && height <= 0.0 {
+        problems.push("the mesh has no height (all vertices at one Y)".into());
+    }
+    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
+    let (map, _) = weld(&vertices, weld_tol);
+    let welded_tris: Vec<[u32; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| map[i as usize]))
+        .collect();
+    let issues = surface_issues(&welded_tris);
+    if !issues.is_clean() {
+        let at = |e: Option<(u32, u32)>| {
+            e.map(|(a, b)| {
+                let first = |w: u32| map.iter().position(|&m| m == w).unwrap_or(0);
+                format!(
+                    " (e.g. between file vertices {} and {})",
+                    first(a),
+                    first(b)
+                )
+            })
+            .unwrap_or_default()
+        };
+        if issues.open_edges > 0 {
+            problems.push(format!(
+                "the mesh is open: {} edges border a hole{}; the solver needs a closed surface",
+                issues.open_edges,
+                at(issues.open_example)
+            ));
+        }
+        if issues.non_manifold_edges > 0 {
+            problems.push(format!(
+                "the mesh is not manifold: {} edges are shared by more than two triangles{}",
+                issues.non_manifold_edges,
+                at(issues.non_manifold_example)
+            ));
+        }
+        if issues.inconsistent_edges > 0 {
+            problems.push(format!(
+                "the mesh is not consistently oriented: {} edges join flipped triangles",
+                issues.inconsistent_edges
+            ));
+        }
+    }
+    // Skeleton.
+    let sk = &spec.skeleton;
+    let use_skin = sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty());
+    let mut joints: Vec<Joint> = Vec::new();
+    let mut skin_x_axis: Vec<Option<DVec3>> = Vec::new();
+    if use_skin {
+        if mesh.skin_joints.is_empty() {
+            problems.push("skeleton.from_skin is true but the mesh has no skin".into());
+        }
+        if !sk.joints.is_empty() {
+            problems.push("skeleton.joints cannot be listed when the skin is used (set skeleton.from_skin = false)".into());
+        }
+        let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
+        for (child, parent) in &sk.parents {
+            for n in [child, parent] {
+                if !names.contains(&n.as_str()) {
+                    problems.push(format!("skeleton.parents: no skin joint is named {n:?}"));
+                }
+            }
+        }
+        // Parent by name overrides the file's hierarchy; order parents first.
+        let parent_of = |k: usize| -> Option<usize> {
+            match sk.parents.get(&mesh.skin_joints[k].name) {
+                Some(p) => names.iter().position(|n| *n == p.as_str()),
+                None => mesh.skin_joints[k].parent,
+            }
+        };
+        let n = mesh.skin_joints.len();
+        let mut order = Vec::with_capacity(n);
+        let mut placed = vec![false; n];
+        for _ in 0..n {
+            for k in 0..n {
+                if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
+                    placed[k] = true;
+                    order.push(k);
+                }
+            }
+        }
+        if order.len() < n {
+            problems.push("skeleton.parents makes a cycle".into());
+        }
+        let mut slot = vec![usize::MAX; n];
+        for (i, &k) in order.iter().enumerate() {
+            slot[k] = i;
+            let sj = &mesh.skin_joints[k];
+            let m: DMat4 = sj.world_from_joint;
+            joints.push(Joint {
+                name: sj.name.clone(),
+                parent: parent_of(k).map(|p| slot[p]),
+                rest: to_world(m.w_axis.truncate()),
+                limits: None,
+                bend_axis: DVec3::X,
+            });
+            skin_x_axis.push(Some(to_world_dir(m.x_axis.truncate()).normalize_or_zero()));
+        }
+    } else {
+        if !sk.parents.is_empty() {
+            problems.push("skeleton.parents applies to skin joints only".into());
+        }
+        for (i, j) in sk.joints.iter().enumerate() {
+            let parent = match &j.parent {
+                None => None,
+                Some(p) => match sk.joints[..i].iter().position(|o| &o.name == p) {
+                    Some(pi) => Some(pi),
+                    None => {
+                        problems.push(format!(
+                            "joint {:?}: parent {p:?} is not listed before it",
+                            j.name
+                        ));
+                        None
+                    }
+                },
+            };
+            let rest = match (&j.rest_m, &j.rest_vertices) {
+                (Some(r), None) => DVec3::from_array(*r),
+                (None, Some(ids)) if !ids.is_empty() => {
+                    match ids.iter().find(|&&v| v >= vertices.len()) {
+                        Some(bad) => {
+                            problems.push(format!(
+                                "joint {:?}: rest_vertices names vertex {bad}, but the mesh has {}",
+                                j.name,
+                                vertices.len()
+                            ));
+                            DVec3::ZERO
+                        }
+                        None => ids.iter().map(|&v| vertices[v]).sum::<DVec3>() / ids.len() as f64,
+                    }
+                }
+                _ => {
+                    problems.push(format!(
+                        "joint {:?}: give exactly one of rest_m and rest_vertices (non-empty)",
+                        j.name
+                    ));
+                    DVec3::ZERO
+                }
+            };
+            joints.push(Joint {
+                name: j.name.clone(),
+                parent,
+                rest,
+                limits: None,
+                bend_axis: DVec3::X,
+            });
+            skin_x_axis.push(None);
+        }
+    }
+    if joints.is_empty() && problems.is_empty() {
+        problems.push(
+            "the character has no skeleton: list skeleton.joints or use a glTF file with a skin"
+                .into(),
+        );
+    }
+    let roots: Vec<&str> = joints
+        .iter()
+        .filter(|j| j.parent.is_none())
+        .map(|j| j.name.as_str())
+        .collect();
+    if roots.len() > 1 {
+        problems.push(format!(
+            "the skeleton has {} roots ({}): give every joint but one a parent",
+            roots.len(),
+            roots.join(", ")
+        ));
+    }
+    if joints.len() == 1 {
+        problems.push(format!(
+            "joint {:?} has no bone: a skeleton needs at least two joints",
+            joints[0].name
+        ));
+    }
+    // Limits.
+    for (name, l) in &sk.limits {
+        let Some(j) = joints.iter().position(|j| &j.name == name) else {
+            problems.push(format!("skeleton.limits: no joint is named {name:?}"));
+            continue;
+        };
+        for (which, [a, b]) in [
+            ("twist_deg", l.twist_deg),
+            ("bend_deg", l.bend_deg),
+            ("side_deg", l.side_deg),
+        ] {
+            if !(a.is_finite() && b.is_finite()) || a > b {
+                problems.push(format!(
+                    "skeleton.limits.{name}.{which}: [{a}, {b}] is not a range (min ≤ max, finite)"
+                ));
+            }
+        }
+        let axis = l
+            .bend_axis
+            .map(DVec3::from_array)
+            .or(skin_x_axis.get(j).copied().flatten());
+        match axis {
+            Some(a) if a.is_finite() && a.length() > 1e-9 => joints[j].bend_axis = a.normalize(),
+            _ => problems.push(format!(
+                "skeleton.limits.{name}: bend_axis is required (a non-zero vector) for a listed joint"
+            )),
+        }
+        let r = |v: [f64; 2]| (v[0].to_radians(), v[1].to_radians());
+        joints[j].limits = Some(JointLimits {
+            twist: r(l.twist_deg),
+            bend: r(l.bend_deg),
+            side: r(l.side_deg),
+        });
+    }
+    // Bend axes perpendicular to the twist axes (where the skeleton is otherwise valid).
+    let skeleton = match Skeleton::new(joints) {
+        Ok(s) => Some(s),
+        Err(errs) => {
+            problems.extend(errs.iter().map(|e| e.to_string()));
+            None
+        }
+    };
+    let skeleton = skeleton.map(|mut s| {
+        for j in 0..s.len() {
+            let a = s.twist_axis(j);
+            let b = s.joints[j].bend_axis;
+            let p = b - a * b.dot(a);
+            if s.joints[j].limits.is_some() && p.length() < 1e-3 {
+                problems.push(format!(
+                    "joint {:?}: bend_axis {b} is parallel to the bone; give an axis across it",
+                    s.joints[j].name
+                ));
+            }
+            s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+        }
+        s
+    });
+    // Markers.
+    let mut markers = Vec::new();
+    for (k, m) in spec.markers.iter().enumerate() {
+        if spec.markers[..k].iter().any(|o| o.name == m.name) {
+            problems.push(format!("marker name {:?} is used twice", m.name));
+        }
+        let (rest, joint) = match (&m.position_m, &m.bone, &skeleton) {
+            (Some(p), None, _) => (DVec3::from_array(*p), None),
+            (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
+                Some(j) => {
+                    let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
+                    // A leaf joint's bone is the segment that ends at it.
+                    let carrier = if s.children(j).next().is_none() {
+                        s.joints[j].parent.unwrap_or(j)
+                    } else {
+                        j
+                    };
+                    (s.joints[j].rest + off, Some(carrier))
+                }
+                None => {
+                    problems.push(format!("marker {:?}: no joint is named {b:?}", m.name));
+                    (DVec3::ZERO, None)
+                }
+            },
+            (None, Some(_), None) => (DVec3::ZERO, None),
+            _ => {
+                problems.push(format!(
+                    "marker {:?}: give exactly one of position_m and bone (with offset_m)",
+                    m.name
+                ));
+                (DVec3::ZERO, None)
+            }
+        };
+        if !rest.is_finite() {
+            problems.push(format!("marker {:?}: position is not finite", m.name));
+        }
+        markers.push(MarkerDef {
+            name: m.name.clone(),
+            rest,
+            joint,
+        });
+    }
+    if markers.is_empty() {
+        problems.push("the character has no markers ([[markers]])".into());
+    }
+    // Binding settings.
+    let b = &spec.bind;
+    let cell = b.cell_size_m.unwrap_or(0.032 * height);
+    let params = BindParams {
+        cell_size_m: cell,
+        skeleton_step_m: b.skeleton_step_m.unwrap_or(0.9 * cell),
+        w_shape: b.w_shape.unwrap_or(1.0),
+        w_marker: b.w_marker.unwrap_or(30.0),
+        w_skeleton: b.w_skeleton.unwrap_or(1000.0),
+        max_marker_distance_m: b.max_marker_distance_m.unwrap_or(0.1 * height),
+    };
+    for (name, v) in [
+        ("bind.cell_size_m", params.cell_size_m),
+        ("bind.skeleton_step_m", params.skeleton_step_m),
+        ("bind.w_shape", params.w_shape),
+        ("bind.w_marker", params.w_marker),
+        ("bind.w_skeleton", params.w_skeleton),
+        ("bind.max_marker_distance_m", params.max_marker_distance_m),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            problems.push(format!("{name} must be a positive number, got {v}"));
+        }
+    }
+    if params.cell_size_m.is_finite() && height > 0.0 && params.cell_size_m < height / 400.0 {
+        problems.push(format!(
+            "bind.cell_size_m {} is below 1/400 of the character's height {height:.3} m: the control mesh would be enormous",
+            params.cell_size_m
+        ));
+    }
+    match (problems.is_empty(), skeleton) {
+        (true, Some(skeleton)) => Ok((
+            Character {
+                name,
+                vertices,
+                triangles: mesh.triangles,
+                skeleton,
+                markers,
+                skin: None,
+            },
+            params,
+        )),
+        _ => Err(problems),
+    }
+}
+
+/// Writes a character as `DIR/NAME.obj` and a character file `DIR/NAME.toml` that loads
+/// it back (listed joints with limits and bend axes, markers on their bones). Returns the
+/// character file's path. The procedural characters use it to become files users can
+/// start from; the tests use it to run the file path end to end.
+pub fn write_character_files(
+    ch: &Character,
+    bind: Option<&BindParams>,
+    dir: &Path,
+) -> std::io::Result<PathBuf> {
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir)?;
+    let mut obj = String::with_capacity(ch.vertices.len() * 40 + ch.triangles.len() * 24);
+    let _ = writeln!(obj, "# {} (written by rigless)\no {}", ch.name, ch.name);
+    for v in &ch.vertices {
+        let _ = writeln!(obj, "v {:?} {:?} {:?}", v.x, v.y, v.z);
+    }
+    for t in &ch.triangles {
+        let _ = writeln!(obj, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(dir.join(format!("{}.obj", ch.name)), obj)?;
+    let mut toml = String::new();
+    let _ = writeln!(
+        toml,
+        "# {} (written by rigless): metres, Y up.\nname = {:?}\n\n[mesh]\npath = \"{}.obj\"\nunits = \"m\"\nup = \"y\"\n",
+        ch.name, ch.name, ch.name
+    );
+    if let Some(b) = bind {
+        let _ = writeln!(
+            toml,
+            "[bind]\ncell_size_m = {:?}\nskeleton_step_m = {:?}\nw_shape = {:?}\nw_marker = {:?}\nw_skeleton = {:?}\nmax_marker_distance_m = {:?}\n",
+            b.cell_size_m, b.skeleton_step_m, b.w_shape, b.w_marker, b.w_skeleton, b.max_marker_distance_m
+        );
+    }
+    let sk = &ch.skeleton;
+    for j in &sk.joints {
+        let _ = writeln!(toml, "[[skeleton.joints]]\nname = {:?}", j.name);
+        if let Some(p) = j.parent {
+            let _ = writeln!(toml, "parent = {:?}", sk.joints[p].name);
+        }
+        let _ = writeln!(
+            toml,
+            "rest_m = [{:?}, {:?}, {:?}]\n",
+            j.rest.x, j.rest.y, j.rest.z
+        );
+    }
+    for j in &sk.joints {
+        if let Some(l) = j.limits {
+            let d = |(a, b): (f64, f64)| format!("[{:?}, {:?}]", a.to_degrees(), b.to_degrees());
+            let _ = writeln!(
+                toml,
+                "[skeleton.limits.{:?}]\ntwist_deg = {}\nbend_deg = {}\nside_deg = {}\nbend_axis = [{:?}, {:?}, {:?}]\n",
+                j.name,
+                d(l.twist),
+                d(l.bend),
+                d(l.side),
+                j.bend_axis.x,
+                j.bend_axis.y,
+                j.bend_axis.z
+            );
+        }
+    }
+    for m in &ch.markers {
+        let _ = writeln!(toml, "[[markers]]\nname = {:?}", m.name);
+        match m.joint {
+            Some(j) => {
+                let o = m.rest - sk.joints[j].rest;
+                let _ = writeln!(
+                    toml,
+                    "bone = {:?}\noffset_m = [{:?}, {:?}, {:?}]\n",
+                    sk.joints[j].name, o.x, o.y, o.z
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    toml,
+                    "position_m = [{:?}, {:?}, {:?}]\n",
+                    m.rest.x, m.rest.y, m.rest.z
+                );
+            }
+        }
+    }
+    let path = dir.join(format!("{}.toml", ch.name));
+    std::fs::write(&path, toml)?;
+    Ok(path)
+}

@@ -1,0 +1,140 @@
+//! The bake cache: a bound [`Rig`] stored next to its character file, keyed by a hash of
+//! the inputs, so the next start skips binding. The factorization is not stored; loading
+//! redoes it (it is the cheap part of binding).
+//!
+//! File layout (little-endian):
+//!
+//! ```text
+//! 0   12  magic "RIGLESS-RIG\0"
+//! 12   4  u32 format version (FORMAT_VERSION)
+//! 16   8  u64 inputs hash (character file, mesh file, crate version)
+//! 24   8  u64 payload length in bytes
+//! 32   8  u64 FNV-1a of the payload
+//! 40   …  payload: the rig, bincode (default options)
+//! ```
+//!
+//! The file is untrusted input: a wrong magic, version, key, length or checksum makes it
+//! stale (the caller rebuilds), and decoding is limited to the payload's length, so a
+//! corrupt length field cannot make it allocate.
+
+use super::bind::Rig;
+use crate::character::file::fnv1a;
+use bincode::Options;
+use std::path::{Path, PathBuf};
+
+/// Magic bytes at the start of a cache file.
+pub const MAGIC: &[u8; 12] = b"RIGLESS-RIG\0";
+/// Bumped whenever the stored rig's layout changes.
+pub const FORMAT_VERSION: u32 = 1;
+const HEADER_LEN: usize = 40;
+
+/// Why a cache file was not used (the caller rebinds and says why).
+#[derive(Debug, thiserror::Error)]
+pub enum CacheMiss {
+    #[error("no cache file yet")]
+    Absent,
+    #[error("cannot read the cache file: {0}")]
+    Io(std::io::Error),
+    #[error("not a rigless cache file")]
+    BadMagic,
+    #[error("cache format {found} (this build reads {FORMAT_VERSION})")]
+    Version { found: u32 },
+    #[error("the character or its mesh changed since the bake")]
+    Stale,
+    #[error("the cache file is truncated or corrupt")]
+    Corrupt,
+    #[error("the cached rig could not be rebuilt: {0}")]
+    Decode(String),
+}
+
+/// Errors writing a cache file.
+#[derive(Debug, thiserror::Error)]
+pub enum CacheWriteError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("encoding the rig: {0}")]
+    Encode(String),
+}
+
+/// The cache file of a character file: same folder and stem, extension `rigcache`.
+pub fn cache_path(character: &Path) -> PathBuf {
+    character.with_extension("rigcache")
+}
+
+fn options() -> impl Options {
+    bincode::DefaultOptions::new()
+}
+
+/// Encodes a rig with its inputs hash (pure: bytes out).
+pub fn encode(rig: &Rig, inputs_hash: u64) -> Result<Vec<u8>, CacheWriteError> {
+    let payload = options()
+        .serialize(rig)
+        .map_err(|e| CacheWriteError::Encode(e.to_string()))?;
+    let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&inputs_hash.to_le_bytes());
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&fnv1a(&[&payload]).to_le_bytes());
+    out.extend_from_slice(&payload);
+    Ok(out)
+}
+
+/// Decodes a cache file's bytes, checking them against the expected inputs hash (pure).
+pub fn decode(bytes: &[u8], inputs_hash: u64) -> Result<Rig, CacheMiss> {
+    if bytes.len() < HEADER_LEN || &bytes[..12] != MAGIC {
+        return Err(CacheMiss::BadMagic);
+    }
+    let u64_at = |o: usize| {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&bytes[o..o + 8]);
+        u64::from_le_bytes(b)
+    };
+    let mut v = [0u8; 4];
+    v.copy_from_slice(&bytes[12..16]);
+    let version = u32::from_le_bytes(v);
+    if version != FORMAT_VERSION {
+        return Err(CacheMiss::Version { found: version });
+    }
+    if u64_at(16) != inputs_hash {
+        return Err(CacheMiss::Stale);
+    }
+    let len = u64_at(24);
+    let payload = &bytes[HEADER_LEN..];
+    if payload.len() as u64 != len || fnv1a(&[payload]) != u64_at(32) {
+        return Err(CacheMiss::Corrupt);
+    }
+    options()
+        .with_limit(len)
+        .deserialize(payload)
+        .map_err(|e| CacheMiss::Decode(e.to_string()))
+}
+
+/// Loads the cached rig of a character file if it is there and current.
+pub fn load(character: &Path, inputs_hash: u64) -> Result<Rig, CacheMiss> {
+    let path = cache_path(character);
+    let bytes = match std::fs::read(&path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(CacheMiss::Absent),
+        Err(e) => return Err(CacheMiss::Io(e)),
+    };
+    decode(&bytes, inputs_hash)
+}
+
+/// Writes the cache file of a character file (to a temporary name, then renamed, so a
+/// crash never leaves a half-written cache behind).
+pub fn store(character: &Path, rig: &Rig, inputs_hash: u64) -> Result<PathBuf, CacheWriteError> {
+    let path = cache_path(character);
+    let tmp = path.with_extension("rigcache.tmp");
+    let bytes = encode(rig, inputs_hash)?;
+    let io = |source| CacheWriteError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::rename(&tmp, &path).map_err(io)?;
+    Ok(path)
+}

@@ -1,0 +1,206 @@
+//! Character files end to end: the procedural hand written as OBJ + TOML loads back to
+//! the same character, bakes, caches, and tracks; bad files fail with errors that name
+//! what is wrong.
+
+use glam::DVec3;
+use rigless::bench::characters::{demo_hand, hand_bind_params};
+use rigless::character::file::{load_character, write_character_files};
+use rigless::markers::MarkerFrame;
+use rigless::rig::bind::Rig;
+use rigless::rig::cache;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+fn write_hand(dir: &Path) -> std::path::PathBuf {
+    write_character_files(&demo_hand(), Some(&hand_bind_params()), dir).expect("write hand")
+}
+
+#[test]
+fn written_hand_loads_back_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = demo_hand();
+    let path = write_hand(dir.path());
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let back = &loaded.character;
+    assert_eq!(back.vertices.len(), ch.vertices.len());
+    assert_eq!(back.triangles, ch.triangles);
+    // `{:?}` prints the shortest string that round-trips, so positions come back exactly.
+    assert!(back.vertices.iter().zip(&ch.vertices).all(|(a, b)| a == b));
+    assert_eq!(back.skeleton.len(), ch.skeleton.len());
+    for (a, b) in back.skeleton.joints.iter().zip(&ch.skeleton.joints) {
+        assert_eq!(
+            (&a.name, a.parent, a.rest, a.limits),
+            (&b.name, b.parent, b.rest, b.limits)
+        );
+        // Bend axes matter where there are limits (elsewhere they are only made
+        // perpendicular to the bone on load).
+        if a.limits.is_some() {
+            assert!((a.bend_axis - b.bend_axis).length() < 1e-12, "{}", a.name);
+        }
+    }
+    for (a, b) in back.markers.iter().zip(&ch.markers) {
+        assert_eq!((&a.name, a.joint), (&b.name, b.joint));
+        assert!((a.rest - b.rest).length() < 1e-15);
+    }
+    assert_eq!(loaded.bind, hand_bind_params());
+}
+
+#[test]
+fn bake_cache_round_trip_gives_the_same_solve() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let loaded = load_character(&path).unwrap();
+    assert!(matches!(
+        cache::load(&path, loaded.inputs_hash),
+        Err(cache::CacheMiss::Absent)
+    ));
+    let rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
+    cache::store(&path, &rig, loaded.inputs_hash).unwrap();
+    let t = Instant::now();
+    let cached = cache::load(&path, loaded.inputs_hash).unwrap_or_else(|e| panic!("{e}"));
+    let load_s = t.elapsed().as_secs_f64();
+    // "Loads in well under a second": generous for a loaded CI machine (about 0.02 s here).
+    assert!(load_s < 0.5, "cache load took {load_s} s");
+    // A changed input invalidates the cache.
+    assert!(matches!(
+        cache::load(&path, loaded.inputs_hash ^ 1),
+        Err(cache::CacheMiss::Stale)
+    ));
+    // Same solve, bit for bit, from the fresh and the cached rig.
+    let ch = &loaded.character;
+    let markers: Vec<DVec3> = ch
+        .markers
+        .iter()
+        .map(|m| m.rest + DVec3::new(0.004, -0.002, 0.003) * (m.rest.y * 20.0).sin())
+        .collect();
+    let frame = MarkerFrame::all_present(0.0, markers);
+    let far = Instant::now() + Duration::from_secs(60);
+    let mut a = vec![DVec3::ZERO; ch.vertices.len()];
+    let mut b = a.clone();
+    let ra = Solver::new(Arc::new(rig), SolverParams::default()).solve(&frame, far, &mut a);
+    let rb = Solver::new(Arc::new(cached), SolverParams::default()).solve(&frame, far, &mut b);
+    assert_eq!(ra.iterations, rb.iterations);
+    assert_eq!(a, b, "cached rig solves differently");
+}
+
+#[test]
+fn corrupt_cache_files_are_misses_not_panics() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let loaded = load_character(&path).unwrap();
+    let rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
+    let bytes = cache::encode(&rig, loaded.inputs_hash).unwrap();
+    assert!(cache::decode(&bytes, loaded.inputs_hash).is_ok());
+    for cut in [0, 11, 39, 40, bytes.len() / 2, bytes.len() - 1] {
+        assert!(
+            cache::decode(&bytes[..cut], loaded.inputs_hash).is_err(),
+            "cut at {cut}"
+        );
+    }
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x40;
+    assert!(matches!(
+        cache::decode(&flipped, loaded.inputs_hash),
+        Err(cache::CacheMiss::Corrupt)
+    ));
+    // A length field claiming more than the file holds is caught before decoding.
+    let mut long = bytes.clone();
+    long[24..32].copy_from_slice(&u64::MAX.to_le_bytes());
+    assert!(cache::decode(&long, loaded.inputs_hash).is_err());
+}
+
+/// Writes a variant of the hand's files with `edit` applied to the TOML text.
+fn broken(edit: impl Fn(&str) -> String, obj_edit: impl Fn(&str) -> String) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, edit(&text)).unwrap();
+    let obj = path.with_extension("obj");
+    let o = std::fs::read_to_string(&obj).unwrap();
+    std::fs::write(&obj, obj_edit(&o)).unwrap();
+    match load_character(&path) {
+        Ok(loaded) => match Rig::bind(&loaded.character, &loaded.bind) {
+            Ok(_) => panic!("the broken character loaded and bound"),
+            Err(e) => e.to_string(),
+        },
+        Err(e) => e.to_string(),
+    }
+}
+
+fn same(s: &str) -> String {
+    s.to_string()
+}
+
+#[test]
+fn bad_files_are_clear_errors() {
+    // An open mesh: drop the last triangle.
+    let e = broken(same, |o| {
+        let mut lines: Vec<&str> = o.lines().collect();
+        lines.pop();
+        lines.join("\n")
+    });
+    assert!(e.contains("the mesh is open: 3 edges border a hole"), "{e}");
+    // A NaN vertex names its line.
+    let e = broken(same, |o| o.replacen("\nv ", "\nv NaN ", 1));
+    assert!(e.contains("line 3") && e.contains("not finite"), "{e}");
+    // A marker far from the mesh.
+    let e = broken(
+        |t| {
+            t.replacen(
+                "bone = \"thumb_3\"\noffset_m = [",
+                "bone = \"thumb_3\"\noffset_m = [0.5, ",
+                1,
+            )
+            .replacen("[0.5, ", "[0.5, 0.0, 0.0]\n#", 1)
+        },
+        same,
+    );
+    assert!(
+        e.contains("marker \"thumb_nail\"") && e.contains("from the control mesh"),
+        "{e}"
+    );
+    // Unknown parent, unknown bone, duplicate marker and an unknown key, all at once.
+    let e = broken(
+        |t| {
+            t.replacen("parent = \"index_1\"", "parent = \"index_9\"", 1)
+                .replacen("bone = \"middle_3\"", "bone = \"middle_7\"", 1)
+                .replacen("name = \"ring_nail\"", "name = \"index_nail\"", 1)
+        },
+        same,
+    );
+    for want in [
+        "parent \"index_9\" is not listed before it",
+        "no joint is named \"middle_7\"",
+        "marker name \"index_nail\" is used twice",
+    ] {
+        assert!(e.contains(want), "missing {want:?} in:\n{e}");
+    }
+    let e = broken(|t| t.replacen("[mesh]\n", "[mesh]\nscale = 2\n", 1), same);
+    assert!(
+        e.contains("unknown field `scale`") && e.contains("line"),
+        "{e}"
+    );
+    // A joint with no bone: a skeleton of one joint.
+    let e = broken(
+        |t| {
+            let keep: Vec<&str> = t.split("[[skeleton.joints]]").collect();
+            let mut out = keep[0].to_string();
+            out.push_str("[[skeleton.joints]]");
+            out.push_str(keep[1]);
+            out.push_str(
+                &t[t.find("[[markers]]").unwrap()..]
+                    .replace("bone = \"thumb_3\"", "bone = \"wrist\"")
+                    .replace("bone = \"index_3\"", "bone = \"wrist\"")
+                    .replace("bone = \"middle_3\"", "bone = \"wrist\"")
+                    .replace("bone = \"ring_3\"", "bone = \"wrist\"")
+                    .replace("bone = \"pinky_3\"", "bone = \"wrist\""),
+            );
+            out
+        },
+        same,
+    );
+    assert!(e.contains("has no bone"), "{e}");
+}
