@@ -139,7 +139,9 @@ pub struct JointSpec {
     pub parent: Option<String>,
     /// Rest position, metres, world frame (Y up).
     pub rest_m: Option<[f64; 3]>,
-    /// Or: rest position as the mean of these mesh vertices (0-based, file order).
+    /// Or: rest position as the mean of these vertices of the mesh file, 0-based in file
+    /// order (OBJ: counting every `v` line, in any group, as MakeHuman's skeleton files
+    /// do; glTF: the vertices of all primitives in document order).
     pub rest_vertices: Option<Vec<usize>>,
 }
 
@@ -448,16 +450,19 @@ pub fn build(
             let rest = match (&j.rest_m, &j.rest_vertices) {
                 (Some(r), None) => DVec3::from_array(*r),
                 (None, Some(ids)) if !ids.is_empty() => {
-                    match ids.iter().find(|&&v| v >= vertices.len()) {
+                    let src = &mesh.source_positions;
+                    match ids.iter().find(|&&v| v >= src.len()) {
                         Some(bad) => {
                             problems.push(format!(
-                                "joint {:?}: rest_vertices names vertex {bad}, but the mesh has {}",
+                                "joint {:?}: rest_vertices names vertex {bad}, but the mesh file has {}",
                                 j.name,
-                                vertices.len()
+                                src.len()
                             ));
                             DVec3::ZERO
                         }
-                        None => ids.iter().map(|&v| vertices[v]).sum::<DVec3>() / ids.len() as f64,
+                        None => {
+                            ids.iter().map(|&v| to_world(src[v])).sum::<DVec3>() / ids.len() as f64
+                        }
                     }
                 }
                 _ => {

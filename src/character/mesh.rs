@@ -17,6 +17,10 @@ use std::path::Path;
 pub struct MeshData {
     pub positions: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
+    /// Every vertex the file defines, in file order (OBJ: every `v` line, also those of
+    /// groups that were not kept; glTF: the same as `positions`). Character files name
+    /// joint positions by these indices.
+    pub source_positions: Vec<DVec3>,
     /// Joints of the first skin (glTF), parents before children.
     pub skin_joints: Vec<SkinJoint>,
 }
@@ -159,6 +163,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
     Ok(MeshData {
         positions: out,
         triangles: faces.iter().map(|f| f.map(|i| remap[i as usize])).collect(),
+        source_positions: positions,
         skin_joints: Vec::new(),
     })
 }
@@ -257,6 +262,7 @@ pub fn parse_gltf(bytes: &[u8], base: Option<&Path>) -> Result<MeshData, MeshErr
     if out.triangles.is_empty() {
         return Err(MeshError::NoTriangles { groups: Vec::new() });
     }
+    out.source_positions = out.positions.clone();
     if let Some(skin) = first_skin {
         let joints: Vec<gltf::Node> = skin.joints().collect();
         let ibm: Vec<DMat4> = match skin

@@ -556,6 +556,57 @@ pub fn hand_pose(sk: &Skeleton, motion: HandMotion, t_s: f64) -> Pose {
     Pose { local, root_offset }
 }
 
+/// A motion for any skeleton, inside its limits: every joint with children swings
+/// through part of its range (at most ±57° about rest), each on its own phase, and the
+/// root turns and sways a little. Used to exercise characters from files, which have no
+/// motion of their own.
+pub fn flex_pose(sk: &Skeleton, t_s: f64) -> Pose {
+    let mut local = vec![DQuat::IDENTITY; sk.len()];
+    let tau = std::f64::consts::TAU;
+    let mut has_child = vec![false; sk.len()];
+    for j in &sk.joints {
+        if let Some(p) = j.parent {
+            has_child[p] = true;
+        }
+    }
+    for (j, joint) in sk.joints.iter().enumerate() {
+        if joint.parent.is_none() || !has_child[j] {
+            continue;
+        }
+        let phase = j as f64 * 0.9;
+        let wave = |(lo, hi): (f64, f64), amount: f64, period: f64| {
+            let (lo, hi) = (lo.max(-1.0), hi.min(1.0));
+            0.5 * (lo + hi) + amount * 0.5 * (hi - lo) * (tau * t_s / period + phase).sin()
+        };
+        let l = joint.limits.unwrap_or(JointLimits {
+            twist: (-0.15, 0.15),
+            bend: (-0.3, 0.3),
+            side: (-0.15, 0.15),
+        });
+        let st = super::skeleton::SwingTwist {
+            twist: wave(l.twist, 0.3, 3.3),
+            bend: wave(l.bend, 0.9, 2.1),
+            side: wave(l.side, 0.5, 2.9),
+        };
+        local[j] = super::skeleton::compose(st, sk.twist_axis(j), joint.bend_axis);
+    }
+    for (j, joint) in sk.joints.iter().enumerate() {
+        if joint.parent.is_none() {
+            local[j] = DQuat::from_rotation_y(0.3 * (tau * t_s / 4.1).sin())
+                * DQuat::from_rotation_x(0.1 * (tau * t_s / 3.7).sin());
+        }
+    }
+    let size = sk
+        .joints
+        .iter()
+        .map(|j| (j.rest - sk.joints[0].rest).length())
+        .fold(0.0, f64::max);
+    Pose {
+        local,
+        root_offset: DVec3::new(0.1 * size * (tau * t_s / 3.1).sin(), 0.0, 0.0),
+    }
+}
+
 /// Truth at a pose: skinned mesh vertices and marker positions.
 pub fn skin_pose(
     ch: &Character,

@@ -239,14 +239,24 @@ impl Rig {
         let mut seg_samples: Vec<(usize, usize, usize, usize)> = Vec::new(); // (owner, child, first, count)
         for &(a, b) in &segs {
             let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
-            let n = (((pb - pa).length() / params.skeleton_step_m).ceil() as usize).max(1);
+            let len = (pb - pa).length();
+            let n = ((len / params.skeleton_step_m).ceil() as usize).max(1);
             let first = sample_pos.len();
+            // The joints themselves, and interior samples at least a cell from both ends:
+            // samples of two segments closer than that to their shared joint would pin
+            // neighbouring tets to two rigid motions and crush the flexion crease.
+            let clear = grid.cell_size.min(0.5 * len);
             for k in 0..=n {
-                let p = pa + (pb - pa) * (k as f64 / n as f64);
+                let t = k as f64 / n as f64;
+                let interior = k > 0 && k < n;
+                if interior && (t * len < clear || (1.0 - t) * len < clear) {
+                    continue;
+                }
+                let p = pa + (pb - pa) * t;
                 sample_pos.push((p, a as u32));
                 add(grid.cell_index(grid.cell_of(p)), a as u32, &mut inst);
             }
-            seg_samples.push((a, b, first, n + 1));
+            seg_samples.push((a, b, first, sample_pos.len() - first));
         }
         // 2. Nodes: per grid node, union compatible instances among the cells around it.
         let mut at_node: HashMap<usize, Vec<(usize, usize)>> = HashMap::new(); // node -> (instance, corner bits)
@@ -278,6 +288,9 @@ impl Rig {
         nodes.sort_unstable_by_key(|(n, _)| **n);
         for (&node, list) in nodes {
             let m = list.len();
+            let nx1 = grid.dims[0] + 1;
+            let ny1 = grid.dims[1] + 1;
+            let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
             let mut parent: Vec<usize> = (0..m).collect();
             for x in 0..m {
                 for y in x + 1..m {
@@ -287,9 +300,6 @@ impl Rig {
                     }
                 }
             }
-            let nx1 = grid.dims[0] + 1;
-            let ny1 = grid.dims[1] + 1;
-            let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
             let pos = grid.node_position(nc);
             let mut root_id: HashMap<usize, u32> = HashMap::new();
             for (x, &(ii, bits)) in list.iter().enumerate() {

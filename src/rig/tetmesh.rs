@@ -88,6 +88,20 @@ impl TetMesh {
             .count()
     }
 
+    /// The smallest ratio of a tet's signed volume at `positions` to its volume at rest
+    /// (1 for a rigid motion; negative for an inverted tet: −0.03 means a fold of 3 % of
+    /// its rest volume).
+    pub fn min_volume_ratio(&self, positions: &[DVec3]) -> f64 {
+        self.tets
+            .iter()
+            .map(|t| {
+                let [a, b, c, d] = t.map(|i| positions[i as usize]);
+                let [ra, rb, rc, rd] = t.map(|i| self.positions[i as usize]);
+                signed_volume6(a, b, c, d) / signed_volume6(ra, rb, rc, rd)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Smallest and largest dihedral angle over all tets, in degrees.
     pub fn dihedral_range_deg(&self) -> (f64, f64) {
         let mut lo = f64::INFINITY;

@@ -1,0 +1,326 @@
+//! Golden tests on real meshes from `../shared/data/meshes` (skipped, with the reason
+//! printed, when the shared data folder is absent): the WebXR generic hand (glTF, 25-joint
+//! skin) and the MakeHuman body (OBJ, body group, decimetres, a skeleton listed from its
+//! own `default.mhskel`). Each bakes and tracks a motion inside its joint limits without
+//! inverted tets.
+
+use glam::DVec3;
+use rigless::character::file::load_character;
+use rigless::character::procedural::{flex_pose, skin_pose};
+use rigless::markers::MarkerFrame;
+use rigless::rig::bind::Rig;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+fn shared(rel: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel);
+    if p.exists() {
+        Some(p.canonicalize().unwrap())
+    } else {
+        eprintln!(
+            "skipped: {} is absent (the shared test data is not part of this repository)",
+            p.display()
+        );
+        None
+    }
+}
+
+/// What [`track`] measured over a motion.
+#[derive(Debug)]
+struct Tracked {
+    /// Most inverted tets in one frame, and the smallest signed-to-rest volume ratio of
+    /// any tet, on the first frame (a cold start from rest to a far pose) ...
+    cold_inverted_tets: usize,
+    cold_min_volume_ratio: f64,
+    /// ... and over every later frame (tracking, warm-started).
+    inverted_tets: usize,
+    min_volume_ratio: f64,
+    joint_limit_violation_deg: f64,
+    bone_length_error_mean: f64,
+    marker_residual_mm_rms: f64,
+}
+
+/// Binds a character file and plays `seconds` of [`flex_pose`] through the solver.
+fn track(toml_path: &Path, seconds: f64) -> Tracked {
+    let loaded = load_character(toml_path).unwrap_or_else(|e| panic!("{e}"));
+    let ch = &loaded.character;
+    let rig = Arc::new(Rig::bind(ch, &loaded.bind).unwrap_or_else(|e| panic!("{e}")));
+    let s = &rig.stats;
+    assert_eq!(s.mesh_vertices_inside, s.mesh_vertices, "{s:?}");
+    assert!(s.green_max_rest_error_m < 1e-9 * rig.height_m, "{s:?}");
+    let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    let mut markers = vec![DVec3::ZERO; ch.markers.len()];
+    let mut skinned = Vec::new();
+    let (mut inv, mut jlv, mut ble, mut res2) = (0usize, 0.0f64, 0.0, 0.0);
+    let (mut min_ratio, mut cold) = (f64::INFINITY, (0, 0.0));
+    let frames = (seconds * 120.0) as usize;
+    for f in 0..frames {
+        let t = f as f64 / 120.0;
+        skin_pose(ch, &flex_pose(&ch.skeleton, t), &mut skinned, &mut markers);
+        let frame = MarkerFrame::all_present(t, markers.clone());
+        let r = solver.solve(&frame, Instant::now() + Duration::from_secs(10), &mut out);
+        let (n_inv, ratio) = (
+            rig.control.inverted_tets(solver.control_positions()),
+            rig.control.min_volume_ratio(solver.control_positions()),
+        );
+        if f == 0 {
+            cold = (n_inv, ratio);
+        } else {
+            inv = inv.max(n_inv);
+            min_ratio = min_ratio.min(ratio);
+        }
+        jlv = jlv.max(r.joint_limit_violation_deg);
+        ble += r.bone_length_error / frames as f64;
+        res2 += r.marker_residual_rms_mm.powi(2) / frames as f64;
+        assert!(
+            out.iter().all(|v| v.is_finite()),
+            "frame {f}: non-finite vertex"
+        );
+    }
+    let t = Tracked {
+        cold_inverted_tets: cold.0,
+        cold_min_volume_ratio: cold.1,
+        inverted_tets: inv,
+        min_volume_ratio: min_ratio,
+        joint_limit_violation_deg: jlv,
+        bone_length_error_mean: ble,
+        marker_residual_mm_rms: res2.sqrt(),
+    };
+    eprintln!("{}: {t:?}", toml_path.display());
+    t
+}
+
+/// The checks both real meshes must pass. Inverted tets: the target is none, which the
+/// MakeHuman body meets; on the WebXR hand per-vertex ARAP still folds two tets at the
+/// index knuckle under flexion with sideways swing, down to −0.34 of their rest volume
+/// (README, "Why it still misses"). Held here: no fold on the cold start, at most a few
+/// tets folded, none past half its volume.
+fn assert_tracked(t: &Tracked, residual_limit_mm: f64) {
+    assert!(t.cold_inverted_tets == 0 && t.cold_min_volume_ratio > 0.0, "{t:?}");
+    assert!(t.inverted_tets <= 4 && t.min_volume_ratio > -0.5, "{t:?}");
+    assert!(t.joint_limit_violation_deg <= 0.5, "{t:?}");
+    assert!(t.bone_length_error_mean <= 0.005, "{t:?}");
+    assert!(t.marker_residual_mm_rms <= residual_limit_mm, "{t:?}");
+}
+
+#[test]
+fn webxr_hand_bakes_and_tracks() {
+    let Some(glb) = shared("meshes/webxr-generic-hand/right.glb") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut t = format!(
+        "name = \"webxr_right_hand\"\n[mesh]\npath = {:?}\n\n[skeleton.parents]\n",
+        glb
+    );
+    let fingers = [
+        "thumb",
+        "index-finger",
+        "middle-finger",
+        "ring-finger",
+        "pinky-finger",
+    ];
+    for f in fingers {
+        let segs: &[&str] = if f == "thumb" {
+            &["metacarpal", "phalanx-proximal", "phalanx-distal", "tip"]
+        } else {
+            &[
+                "metacarpal",
+                "phalanx-proximal",
+                "phalanx-intermediate",
+                "phalanx-distal",
+                "tip",
+            ]
+        };
+        let mut prev = "wrist".to_string();
+        for s in segs {
+            let _ = writeln!(t, "{f}-{s} = {prev:?}");
+            prev = format!("{f}-{s}");
+        }
+    }
+    for f in fingers {
+        let segs: &[&str] = if f == "thumb" {
+            &["phalanx-proximal", "phalanx-distal"]
+        } else {
+            &["phalanx-proximal", "phalanx-intermediate", "phalanx-distal"]
+        };
+        for (k, s) in segs.iter().enumerate() {
+            let side = if k == 0 { 20 } else { 5 };
+            let _ = writeln!(
+                t,
+                "\n[skeleton.limits.{f}-{s}]\ntwist_deg = [-10, 10]\nbend_deg = [-10, 90]\nside_deg = [-{side}, {side}]"
+            );
+        }
+        // The metacarpals barely move in a real hand (the thumb's a little more).
+        let m = if f == "thumb" { 15 } else { 3 };
+        let _ = writeln!(
+            t,
+            "\n[skeleton.limits.{f}-metacarpal]\ntwist_deg = [-{m}, {m}]\nbend_deg = [-{m}, {m}]\nside_deg = [-{m}, {m}]"
+        );
+        let _ = writeln!(
+            t,
+            "\n[[markers]]\nname = \"{f}_nail\"\nbone = \"{f}-phalanx-distal\""
+        );
+    }
+    for b in [
+        "index-finger-metacarpal",
+        "pinky-finger-metacarpal",
+        "wrist",
+    ] {
+        let _ = writeln!(t, "\n[[markers]]\nname = \"back_{b}\"\nbone = {b:?}");
+    }
+    let path = dir.path().join("hand.toml");
+    std::fs::write(&path, t).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    // Sizes from ../shared/data/README.md: the file's own vertex count is kept.
+    assert_eq!(loaded.character.vertices.len(), 1_360);
+    assert_eq!(loaded.character.triangles.len(), 2_314);
+    assert_eq!(loaded.character.skeleton.len(), 25);
+    assert_tracked(&track(&path, 2.0), 2.0);
+}
+
+#[test]
+fn makehuman_body_bakes_and_tracks() {
+    let (Some(obj), Some(skel)) = (
+        shared("meshes/makehuman/base.obj"),
+        shared("meshes/makehuman/default.mhskel"),
+    ) else {
+        return;
+    };
+    let mh: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(skel).unwrap()).unwrap();
+    let verts = |key: &str| -> Vec<u64> {
+        mh["joints"][key]
+            .as_array()
+            .unwrap_or_else(|| panic!("mhskel has no joint {key}"))
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect()
+    };
+    // (our joint, its parent, MakeHuman joint whose vertices give the position)
+    let mut joints: Vec<(String, Option<String>, String)> = vec![
+        ("root".into(), None, "root____head".into()),
+        (
+            "spine".into(),
+            Some("root".into()),
+            "spine03____head".into(),
+        ),
+        (
+            "chest".into(),
+            Some("spine".into()),
+            "spine01____head".into(),
+        ),
+        ("neck".into(), Some("chest".into()), "neck01____head".into()),
+        ("head".into(), Some("neck".into()), "head____head".into()),
+        (
+            "head_top".into(),
+            Some("head".into()),
+            "head____tail".into(),
+        ),
+    ];
+    for s in ["L", "R"] {
+        let arm = [
+            ("clavicle", "chest", "clavicle"),
+            ("upperarm", "clavicle", "upperarm01"),
+            ("forearm", "upperarm", "lowerarm01"),
+            ("hand", "forearm", "wrist"),
+        ];
+        for (name, parent, mhb) in arm {
+            let parent = if parent == "chest" {
+                parent.to_string()
+            } else {
+                format!("{parent}.{s}")
+            };
+            joints.push((
+                format!("{name}.{s}"),
+                Some(parent),
+                format!("{mhb}.{s}____head"),
+            ));
+        }
+        joints.push((
+            format!("hand_end.{s}"),
+            Some(format!("hand.{s}")),
+            format!("wrist.{s}____tail"),
+        ));
+        let leg = [
+            ("thigh", "root", "upperleg01"),
+            ("shin", "thigh", "lowerleg01"),
+            ("foot", "shin", "foot"),
+        ];
+        for (name, parent, mhb) in leg {
+            let parent = if parent == "root" {
+                "root".to_string()
+            } else {
+                format!("{parent}.{s}")
+            };
+            joints.push((
+                format!("{name}.{s}"),
+                Some(parent),
+                format!("{mhb}.{s}____head"),
+            ));
+        }
+        joints.push((
+            format!("toe.{s}"),
+            Some(format!("foot.{s}")),
+            format!("foot.{s}____tail"),
+        ));
+    }
+    let mut t = format!(
+        "name = \"makehuman\"\n[mesh]\npath = {obj:?}\nunits = \"dm\"\ngroups = [\"body\"]\n"
+    );
+    for (name, parent, key) in &joints {
+        let _ = writeln!(t, "\n[[skeleton.joints]]\nname = {name:?}");
+        if let Some(p) = parent {
+            let _ = writeln!(t, "parent = {p:?}");
+        }
+        let _ = writeln!(t, "rest_vertices = {:?}", verts(key));
+    }
+    for s in ["L", "R"] {
+        let _ = writeln!(
+            t,
+            "\n[skeleton.limits.\"shin.{s}\"]\ntwist_deg = [-5, 5]\nbend_deg = [0, 120]\nside_deg = [-3, 3]\nbend_axis = [-1, 0, 0]"
+        );
+        let _ = writeln!(
+            t,
+            "\n[skeleton.limits.\"forearm.{s}\"]\ntwist_deg = [-60, 60]\nbend_deg = [0, 130]\nside_deg = [-3, 3]\nbend_axis = [0, 0, 1]"
+        );
+    }
+    for (name, _, _) in &joints {
+        if !name.ends_with("_top") && !name.starts_with("hand_end") && !name.starts_with("toe") {
+            let _ = writeln!(t, "\n[[markers]]\nname = \"m_{name}\"\nbone = {name:?}");
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("makehuman.toml");
+    std::fs::write(&path, t).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    // The body group alone: 13,380 vertices and 13,378 quads (README).
+    assert_eq!(loaded.character.vertices.len(), 13_380);
+    assert_eq!(loaded.character.triangles.len(), 2 * 13_378);
+    let h = loaded
+        .character
+        .vertices
+        .iter()
+        .map(|v| v.y)
+        .fold(f64::MIN, f64::max)
+        - loaded
+            .character
+            .vertices
+            .iter()
+            .map(|v| v.y)
+            .fold(f64::MAX, f64::min);
+    assert!(
+        (1.5..1.8).contains(&h),
+        "height {h} m after the decimetre conversion"
+    );
+    // The 2 mm residual target scaled from a hand to a body (1.66 m against 0.2 m).
+    let t = track(&path, 1.0);
+    assert_tracked(&t, 2.0 * 1.66 / 0.2);
+    assert_eq!(t.inverted_tets, 0, "{t:?}");
+}
