@@ -44,6 +44,13 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write the procedural hand as a mesh (OBJ) and a character file (TOML) into a
+    /// folder: a complete example of the character format to start from, ready for
+    /// `rigless bake DIR/hand.toml`.
+    ExportHand {
+        /// Folder to write `hand.obj` and `hand.toml` into (created if missing).
+        dir: PathBuf,
+    },
     /// Run a benchmark suite and print one line per case (a table, or JSON with --json).
     Bench {
         /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared
@@ -84,6 +91,16 @@ fn main() -> Result<()> {
             force,
             json,
         } => bake(&character, force, json),
+        Command::ExportHand { dir } => {
+            let path = rigless::character::file::write_character_files(
+                &characters::demo_hand(),
+                Some(&characters::hand_bind_params()),
+                &dir,
+            )
+            .with_context(|| format!("writing the hand into {}", dir.display()))?;
+            println!("wrote {} and its mesh; try: rigless bake {}", path.display(), path.display());
+            Ok(())
+        }
         Command::Bench {
             suite: Suite::Capsules,
             json,
