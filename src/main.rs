@@ -98,7 +98,11 @@ fn main() -> Result<()> {
                 &dir,
             )
             .with_context(|| format!("writing the hand into {}", dir.display()))?;
-            println!("wrote {} and its mesh; try: rigless bake {}", path.display(), path.display());
+            println!(
+                "wrote {} and its mesh; try: rigless bake {}",
+                path.display(),
+                path.display()
+            );
             Ok(())
         }
         Command::Bench {

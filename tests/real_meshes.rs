@@ -102,7 +102,10 @@ fn track(toml_path: &Path, seconds: f64) -> Tracked {
 /// (README, "Why it still misses"). Held here: no fold on the cold start, at most a few
 /// tets folded, none past half its volume.
 fn assert_tracked(t: &Tracked, residual_limit_mm: f64) {
-    assert!(t.cold_inverted_tets == 0 && t.cold_min_volume_ratio > 0.0, "{t:?}");
+    assert!(
+        t.cold_inverted_tets == 0 && t.cold_min_volume_ratio > 0.0,
+        "{t:?}"
+    );
     assert!(t.inverted_tets <= 4 && t.min_volume_ratio > -0.5, "{t:?}");
     assert!(t.joint_limit_violation_deg <= 0.5, "{t:?}");
     assert!(t.bone_length_error_mean <= 0.005, "{t:?}");
@@ -225,39 +228,21 @@ fn makehuman_body_bakes_and_tracks() {
         ),
     ];
     for s in ["L", "R"] {
-        let arm = [
+        // (our joint, its parent, MakeHuman bone whose head is the joint); the trunk
+        // joints have no side.
+        let limbs = [
             ("clavicle", "chest", "clavicle"),
             ("upperarm", "clavicle", "upperarm01"),
             ("forearm", "upperarm", "lowerarm01"),
             ("hand", "forearm", "wrist"),
-        ];
-        for (name, parent, mhb) in arm {
-            let parent = if parent == "chest" {
-                parent.to_string()
-            } else {
-                format!("{parent}.{s}")
-            };
-            joints.push((
-                format!("{name}.{s}"),
-                Some(parent),
-                format!("{mhb}.{s}____head"),
-            ));
-        }
-        joints.push((
-            format!("hand_end.{s}"),
-            Some(format!("hand.{s}")),
-            format!("wrist.{s}____tail"),
-        ));
-        let leg = [
             ("thigh", "root", "upperleg01"),
             ("shin", "thigh", "lowerleg01"),
             ("foot", "shin", "foot"),
         ];
-        for (name, parent, mhb) in leg {
-            let parent = if parent == "root" {
-                "root".to_string()
-            } else {
-                format!("{parent}.{s}")
+        for (name, parent, mhb) in limbs {
+            let parent = match parent {
+                "chest" | "root" => parent.to_string(),
+                p => format!("{p}.{s}"),
             };
             joints.push((
                 format!("{name}.{s}"),
@@ -265,11 +250,14 @@ fn makehuman_body_bakes_and_tracks() {
                 format!("{mhb}.{s}____head"),
             ));
         }
-        joints.push((
-            format!("toe.{s}"),
-            Some(format!("foot.{s}")),
-            format!("foot.{s}____tail"),
-        ));
+        for (end, of) in [("hand_end", "hand"), ("toe", "foot")] {
+            let bone = if of == "hand" { "wrist" } else { "foot" };
+            joints.push((
+                format!("{end}.{s}"),
+                Some(format!("{of}.{s}")),
+                format!("{bone}.{s}____tail"),
+            ));
+        }
     }
     let mut t = format!(
         "name = \"makehuman\"\n[mesh]\npath = {obj:?}\nunits = \"dm\"\ngroups = [\"body\"]\n"
