@@ -246,12 +246,78 @@ fn bake(path: &std::path::Path, force: bool, json: bool) -> Result<()> {
 }
 
 fn bench_characters(json: bool) -> Result<()> {
-    let rec =
-        characters::run_hand(10.0, 120.0, 0.0, |_, _| {}).context("binding the procedural hand")?;
-    if json {
-        println!("{}", serde_json::to_string(&rec)?);
-    } else {
-        println!("{}", serde_json::to_string_pretty(&rec)?);
+    use characters::{
+        body_bind_params, demo_body, demo_hand, hand_bind_params, run_character, CharacterRun,
+        Motion,
+    };
+    use rigless::character::body::BodyMotion;
+    use rigless::solve::frame::SolverParams;
+    let run = CharacterRun {
+        seconds: 10.0,
+        rate_hz: 120.0,
+        noise_m: 0.0,
+        frame_budget_s: 1.0 / 120.0,
+    };
+    let hand = demo_hand();
+    let body = demo_body();
+    let cases = [
+        (&hand, hand_bind_params(), Motion::FingerPlay, 1.0),
+        (
+            &body,
+            body_bind_params(),
+            Motion::Body(BodyMotion::Walk),
+            4.0,
+        ),
+        (
+            &body,
+            body_bind_params(),
+            Motion::Body(BodyMotion::Reach),
+            4.0,
+        ),
+    ];
+    if !json {
+        println!(
+            "{:<6} {:<12} {:>6} {:>5} {:>9} {:>9} {:>6} {:>8} {:>8} {:>8} {:>7} {:>7} {:>5} {:>8}",
+            "char",
+            "motion",
+            "verts",
+            "n",
+            "p50 ms",
+            "p99 ms",
+            "iters",
+            "bone_err",
+            "limit°",
+            "res mm",
+            "vol",
+            "gt %",
+            "inv",
+            "target"
+        );
+    }
+    for (ch, bind, motion, target_ms) in cases {
+        let rec = run_character(ch, &bind, SolverParams::default(), motion, run, |_, _| {})
+            .with_context(|| format!("binding the procedural {}", ch.name))?;
+        if json {
+            println!("{}", serde_json::to_string(&rec)?);
+        } else {
+            println!(
+                "{:<6} {:<12} {:>6} {:>5} {:>9.3} {:>9.3} {:>6.2} {:>8.4} {:>8.3} {:>8.2} {:>7.3} {:>7.2} {:>5} {:>8}",
+                rec.character,
+                rec.motion,
+                rec.mesh_vertices,
+                rec.n,
+                rec.frame_ms_p50,
+                rec.frame_ms_p99,
+                rec.iterations_mean,
+                rec.bone_length_error_mean,
+                rec.joint_limit_violation_deg_max,
+                rec.marker_residual_mm_rms,
+                rec.volume_error_mean,
+                rec.gt_vertex_error_mean * 100.0,
+                rec.inverted_tets_max,
+                format!("p99≤{target_ms}")
+            );
+        }
     }
     Ok(())
 }

@@ -143,14 +143,15 @@ fn warm_start_needs_no_more_iterations_than_cold() {
 
 #[test]
 fn the_hand_follows_finger_play_within_the_quality_targets() {
-    use rigless::bench::characters::{run_hand_with, HandRun};
+    use rigless::bench::characters::{run_character, CharacterRun, Motion};
     let ch = demo_hand();
     let mut worst_limit_deg = 0.0f64;
-    let rec = run_hand_with(
+    let rec = run_character(
         &ch,
         &hand_bind_params(),
         SolverParams::default(),
-        HandRun {
+        Motion::FingerPlay,
+        CharacterRun {
             seconds: 2.5,
             rate_hz: 120.0,
             noise_m: 0.0,

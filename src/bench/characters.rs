@@ -1,11 +1,14 @@
-//! The `characters` suite: procedural characters playing their motions at 120 Hz through
+//! The `characters` suite: procedural characters (the hand and the body) playing their
+//! motions at 120 Hz through
 //! the frame solver (warm-started, solved to convergence), compared against the known
 //! truth every frame.
 
 use super::Spread;
+use crate::character::body::{body, body_pose, BodyMotion};
 use crate::character::procedural::{
-    hand, hand_pose, mesh_volume, skin_pose, Character, HandMotion,
+    hand, hand_pose, mesh_volume, skin_pose, Character, HandMotion, Pose,
 };
+use crate::character::skeleton::Skeleton;
 use crate::markers::MarkerFrame;
 use crate::rig::bind::{BindError, BindParams, Rig};
 use crate::solve::frame::{SolveReport, Solver, SolverParams};
@@ -65,6 +68,48 @@ pub struct CharacterRecord {
     pub gt_vertex_error_max: f64,
 }
 
+/// A procedural character's motion: its name and the pose at a time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Motion {
+    FingerPlay,
+    Body(BodyMotion),
+}
+
+impl Motion {
+    pub fn name(self) -> &'static str {
+        match self {
+            Motion::FingerPlay => "finger_play",
+            Motion::Body(m) => m.name(),
+        }
+    }
+
+    /// The pose at `t_s` seconds.
+    pub fn pose(self, sk: &Skeleton, t_s: f64) -> Pose {
+        match self {
+            Motion::FingerPlay => hand_pose(sk, HandMotion::FingerPlay, t_s),
+            Motion::Body(m) => body_pose(sk, m, t_s),
+        }
+    }
+}
+
+/// Binding parameters for the procedural body (cells about 5 cm: the arms are two cells
+/// across, the fingers are a mitten).
+pub fn body_bind_params() -> BindParams {
+    BindParams {
+        cell_size_m: 0.05,
+        skeleton_step_m: 0.045,
+        w_shape: 1.0,
+        w_marker: 30.0,
+        w_skeleton: 1000.0,
+        max_marker_distance_m: 0.15,
+    }
+}
+
+/// The procedural body used by the benchmarks and tests (about 10,000 vertices).
+pub fn demo_body() -> Character {
+    body(0.01, 20_000)
+}
+
 /// Plays `seconds` of the hand's finger play at `rate_hz` through a solver, comparing
 /// with the truth. `noise_m`: uniform marker noise amplitude (0 for none).
 pub fn run_hand(
@@ -73,11 +118,12 @@ pub fn run_hand(
     noise_m: f64,
     on_frame: impl FnMut(usize, &SolveReport),
 ) -> Result<CharacterRecord, BindError> {
-    run_hand_with(
+    run_character(
         &demo_hand(),
         &hand_bind_params(),
         SolverParams::default(),
-        HandRun {
+        Motion::FingerPlay,
+        CharacterRun {
             seconds,
             rate_hz,
             noise_m,
@@ -89,7 +135,7 @@ pub fn run_hand(
 
 /// How to play a motion through the solver.
 #[derive(Clone, Copy, Debug)]
-pub struct HandRun {
+pub struct CharacterRun {
     /// Seconds of motion.
     pub seconds: f64,
     /// Frame rate, Hz.
@@ -101,15 +147,17 @@ pub struct HandRun {
     pub frame_budget_s: f64,
 }
 
-/// [`run_hand`] with explicit character and parameters (for tuning and tests).
-pub fn run_hand_with(
+/// Plays a procedural character's motion through a solver, comparing every frame with
+/// the skinned truth.
+pub fn run_character(
     ch: &Character,
     bind: &BindParams,
     solver_params: SolverParams,
-    run: HandRun,
+    motion: Motion,
+    run: CharacterRun,
     mut on_frame: impl FnMut(usize, &SolveReport),
 ) -> Result<CharacterRecord, BindError> {
-    let HandRun {
+    let CharacterRun {
         seconds,
         rate_hz,
         noise_m,
@@ -132,7 +180,7 @@ pub fn run_hand_with(
     let mut rec = CharacterRecord {
         suite: "characters",
         character: ch.name.clone(),
-        motion: "finger_play".into(),
+        motion: motion.name().into(),
         frames,
         rate_hz,
         mesh_vertices: nv,
@@ -171,7 +219,7 @@ pub fn run_hand_with(
     let mut res2 = 0.0;
     for f in 0..frames {
         let t = f as f64 / rate_hz;
-        let pose = hand_pose(&ch.skeleton, HandMotion::FingerPlay, t);
+        let pose = motion.pose(&ch.skeleton, t);
         skin_pose(ch, &pose, &mut truth, &mut markers);
         let noisy: Vec<DVec3> = markers
             .iter()

@@ -16,13 +16,66 @@ use std::collections::HashMap;
 
 pub use super::{Character, MarkerDef, Skin};
 
-/// A bone as a tapered capsule: owner joint, endpoints and radii.
+/// A tapered capsule: endpoints and radii.
 #[derive(Clone, Copy, Debug)]
-struct Capsule {
-    a: DVec3,
-    b: DVec3,
-    ra: f64,
-    rb: f64,
+pub(crate) struct Capsule {
+    pub a: DVec3,
+    pub b: DVec3,
+    pub ra: f64,
+    pub rb: f64,
+}
+
+/// A primitive of a procedural character's flesh (for meshing and skinning).
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Shape {
+    Capsule(Capsule),
+    /// Axis-aligned ellipsoid: centre and radii.
+    Ellipsoid {
+        c: DVec3,
+        r: DVec3,
+    },
+}
+
+impl Shape {
+    /// Signed distance (exact for capsules; for ellipsoids the usual bound
+    /// `(‖p/r‖ − 1)·min(r)`, exact on the surface).
+    pub fn sdf(&self, p: DVec3) -> f64 {
+        match self {
+            Shape::Capsule(c) => capsule_sdf(c, p),
+            Shape::Ellipsoid { c, r } => (((p - *c) / *r).length() - 1.0) * r.min_element(),
+        }
+    }
+}
+
+/// The point `offset_m` outside the zero crossing of `sdf` met when marching from
+/// `from` (inside) along unit `dir`, at most `reach_m` far (bisection to round-off).
+pub(crate) fn on_skin(
+    sdf: &dyn Fn(DVec3) -> f64,
+    from: DVec3,
+    dir: DVec3,
+    reach_m: f64,
+    offset_m: f64,
+) -> DVec3 {
+    let step = reach_m / 400.0;
+    let (mut lo, mut hi) = (0.0, reach_m);
+    let mut t = 0.0;
+    while t < reach_m {
+        if sdf(from + dir * t) > 0.0 {
+            hi = t;
+            break;
+        }
+        lo = t;
+        t += step;
+    }
+    for _ in 0..60 {
+        let m = 0.5 * (lo + hi);
+        if sdf(from + dir * m) > 0.0 {
+            hi = m;
+        } else {
+            lo = m;
+        }
+    }
+    from + dir * (0.5 * (lo + hi) + offset_m)
 }
 
 fn capsule_sdf(c: &Capsule, p: DVec3) -> f64 {
@@ -37,7 +90,7 @@ fn rounded_box_sdf(center: DVec3, half: DVec3, radius: f64, p: DVec3) -> f64 {
 }
 
 /// Polynomial smooth minimum (Quilez), blend width `k` in metres.
-fn smin(a: f64, b: f64, k: f64) -> f64 {
+pub(crate) fn smin(a: f64, b: f64, k: f64) -> f64 {
     let h = (0.5 + 0.5 * (b - a) / k).clamp(0.0, 1.0);
     b + (a - b) * h - k * h * (1.0 - h)
 }
@@ -239,38 +292,17 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
     );
     let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
     // Skin: weights from distance to each bone capsule surface, owned by its joint.
-    let bones: Vec<(usize, Capsule)> = capsules
+    let bones: Vec<(usize, Shape)> = capsules
         .iter()
-        .cloned()
-        .chain(std::iter::once((0usize, forearm)))
+        .map(|&(j, c)| (j, Shape::Capsule(c)))
+        .chain(std::iter::once((0usize, Shape::Capsule(forearm))))
         .collect();
     let skin = skin_by_distance(&vertices, &bones, 0.006);
     // Markers: 5 on the nails (dorsal side of each distal segment near the tip), 3 on the
     // back of the hand; 6 mm off the skin (a 12 mm marker ball's centre).
     let mut markers = Vec::new();
     let dorsal = DVec3::new(0.0, 0.0, -1.0);
-    let on_skin = |from: DVec3, dir: DVec3| {
-        // March from inside along `dir` to the zero crossing, then bisect.
-        let (mut lo, mut hi) = (0.0, 0.0);
-        let mut t = 0.0;
-        while t < 0.1 {
-            if sdf(from + dir * t) > 0.0 {
-                hi = t;
-                break;
-            }
-            lo = t;
-            t += 0.0005;
-        }
-        for _ in 0..40 {
-            let m = 0.5 * (lo + hi);
-            if sdf(from + dir * m) > 0.0 {
-                hi = m;
-            } else {
-                lo = m;
-            }
-        }
-        from + dir * (0.5 * (lo + hi) + 0.006)
-    };
+    let on_skin = |from: DVec3, dir: DVec3| on_skin(&sdf, from, dir, 0.1, 0.006);
     for name in ["thumb", "index", "middle", "ring", "pinky"] {
         let j3 = skeleton
             .joints
@@ -371,15 +403,19 @@ pub fn simplify(
     (new_v, new_t)
 }
 
-/// Linear-blend skin weights from the distance to each bone's capsule surface: weight
+/// Linear-blend skin weights from the distance to each bone's surface: weight
 /// `∝ exp(−(d − d_min)/falloff)` over the four nearest owners.
-fn skin_by_distance(vertices: &[DVec3], bones: &[(usize, Capsule)], falloff_m: f64) -> Skin {
+pub(crate) fn skin_by_distance(
+    vertices: &[DVec3],
+    bones: &[(usize, Shape)],
+    falloff_m: f64,
+) -> Skin {
     let influences = vertices
         .iter()
         .map(|&p| {
             let mut best: HashMap<usize, f64> = HashMap::new();
             for (owner, c) in bones {
-                let d = capsule_sdf(c, p);
+                let d = c.sdf(p);
                 let e = best.entry(*owner).or_insert(f64::INFINITY);
                 *e = e.min(d);
             }

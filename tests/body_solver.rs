@@ -1,0 +1,42 @@
+//! The procedural body follows its walk and reach within the quality targets.
+
+use rigless::bench::characters::{
+    body_bind_params, demo_body, run_character, CharacterRun, Motion,
+};
+use rigless::character::body::BodyMotion;
+use rigless::solve::frame::SolverParams;
+
+#[test]
+fn the_body_walks_and_reaches_within_the_quality_targets() {
+    let body = demo_body();
+    for motion in [BodyMotion::Walk, BodyMotion::Reach] {
+        let mut worst_limit_deg = 0.0f64;
+        let rec = run_character(
+            &body,
+            &body_bind_params(),
+            SolverParams::default(),
+            Motion::Body(motion),
+            CharacterRun {
+                // A full gait cycle (1.1 s) and most of the reach (3.2 s cycle, its
+                // farthest point at 1.6 s).
+                seconds: 1.8,
+                rate_hz: 120.0,
+                noise_m: 0.0,
+                // Quality must not depend on this machine's speed: no deadline stops.
+                frame_budget_s: 10.0,
+            },
+            |_, r| worst_limit_deg = worst_limit_deg.max(r.joint_limit_violation_deg),
+        )
+        .expect("body binds");
+        // The targets (DESIGN.md's quality table).
+        assert!(
+            worst_limit_deg <= 0.5,
+            "{motion:?}: limits exceeded by {worst_limit_deg}°"
+        );
+        assert!(rec.bone_length_error_mean <= 0.005, "{rec:?}");
+        assert!(rec.marker_residual_mm_rms <= 2.0, "{rec:?}");
+        assert!(rec.volume_error_mean <= 0.02, "{rec:?}");
+        assert_eq!(rec.inverted_tets_max, 0, "{rec:?}");
+        assert!(rec.gt_vertex_error_mean <= 0.02, "{rec:?}");
+    }
+}
