@@ -14,6 +14,10 @@ use glam::{DMat3, DQuat, DVec3};
 /// Stop when the correction angle in radians falls below this.
 pub const POLAR_ANGLE_TOL_RAD: f64 = 1e-10;
 
+/// A full Newton step smaller than this ends the iteration (the error left is of order
+/// its square).
+pub const POLAR_QUADRATIC_STOP_RAD: f64 = 1e-5;
+
 /// Iteration cap for one extraction. A cold start from identity converges well within it
 /// for any matrix; warm starts need 1–3 iterations.
 pub const POLAR_MAX_ITERS: usize = 32;
@@ -71,7 +75,20 @@ pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
         // A full Newton step larger than a quarter turn is outside the quadratic model's
         // trust region: shorten it.
         let w_step = w.min(std::f64::consts::FRAC_PI_4);
-        *q = (DQuat::from_axis_angle(omega / w, w_step) * *q).normalize();
+        let dq = if w_step < 1e-2 {
+            // exp(ω/2) to third order, made unit by the normalisation below.
+            let h = omega * 0.5;
+            DQuat::from_xyzw(h.x, h.y, h.z, 1.0 - h.length_squared() * 0.5)
+        } else {
+            DQuat::from_axis_angle(omega / w, w_step)
+        };
+        *q = (dq * *q).normalize();
+        // Newton converges quadratically here (H positive definite): after a step below
+        // POLAR_QUADRATIC_STOP_RAD the error left is of order its square, under the
+        // tolerance, so a pass only to confirm it is not needed.
+        if w < POLAR_QUADRATIC_STOP_RAD && d1 > eps && d2 > eps && d3 > eps {
+            return it + 1;
+        }
     }
     POLAR_MAX_ITERS
 }
