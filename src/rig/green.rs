@@ -109,14 +109,14 @@ pub fn green_coordinates(
     }
 }
 
-/// Rest data of one cage face, for its stretch factor: `(u·v, ‖u‖², ‖v‖², √8 area)` with
+/// Rest data of one cage face, for its stretch factor: `(u·v, ‖u‖², ‖v‖², 8 area²)` with
 /// `u = b − a`, `v = c − a`.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct FaceRest {
     uv: f64,
     uu: f64,
     vv: f64,
-    sqrt8_area: f64,
+    eight_area_sq: f64,
 }
 
 /// The full mesh's Green coordinates in its control tets (bind-time, immutable).
@@ -179,7 +179,7 @@ impl GreenEmbedding {
                         uv: u.dot(v),
                         uu: u.length_squared(),
                         vv: v.length_squared(),
-                        sqrt8_area: 8f64.sqrt() * 0.5 * u.cross(v).length(),
+                        eight_area_sq: 2.0 * u.cross(v).length_squared(),
                     }
                 }));
                 (tets.len() - 1) as u32
@@ -229,11 +229,16 @@ impl GreenEmbedding {
             for (k, [a, b, c]) in TET_FACES.into_iter().enumerate() {
                 let (u, v) = (p[b] - p[a], p[c] - p[a]);
                 let r = rest[k];
+                // s n̂ = n · sqrt(s_num² / (8 A² ‖n‖²)): one square root, one division.
                 let n = u.cross(v);
                 let s2 =
                     u.length_squared() * r.vv - 2.0 * u.dot(v) * r.uv + v.length_squared() * r.uu;
-                let s = s2.max(0.0).sqrt() / r.sqrt8_area;
-                terms[k] = n.normalize_or_zero() * s;
+                let den = r.eight_area_sq * n.length_squared();
+                terms[k] = if den > 0.0 {
+                    n * (s2.max(0.0) / den).sqrt()
+                } else {
+                    DVec3::ZERO
+                };
             }
         }
         for (o, ((&t, phi), psi)) in out
