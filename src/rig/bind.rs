@@ -52,22 +52,35 @@ pub enum BindStage {
 /// What binding measured (printed by `rigless bake`).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct BindStats {
+    /// Vertices of the control mesh (the solver's unknowns).
     pub control_vertices: usize,
+    /// Tets of the control mesh.
     pub control_tets: usize,
+    /// Lattice cells, counting a cell once per skeleton segment it is instanced for.
     pub cell_instances: usize,
+    /// Cell instances beyond the first of their cell (parts kept apart: virtual nodes).
     pub duplicated_cells: usize,
+    /// Smallest dihedral angle of any control tet, degrees.
     pub min_dihedral_deg: f64,
+    /// Edges whose cotangent weight was negative and clamped to zero.
     pub clamped_weights: usize,
+    /// Vertices of the full-resolution mesh (the file's count).
     pub mesh_vertices: usize,
+    /// Of those, the ones inside the control tet that carries them.
     pub mesh_vertices_inside: usize,
+    /// Points sampled along the skeleton's bones (each an ARAP row).
     pub skeleton_samples: usize,
+    /// Stored values of the Cholesky factor (its fill).
     pub factor_len: usize,
     /// Mesh vertices whose Green coordinates fell back to barycentric ones.
     pub green_fallback_vertices: usize,
     /// Largest rest reproduction error of the embedding, metres.
     pub green_max_rest_error_m: f64,
+    /// Seconds for the lattice, virtual nodes and locating every point in it.
     pub seconds_lattice: f64,
+    /// Seconds for the Green coordinates.
     pub seconds_green: f64,
+    /// Seconds for the cotangent weights and the factorization.
     pub seconds_weights_factor: f64,
 }
 

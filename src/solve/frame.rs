@@ -56,13 +56,20 @@ pub struct SolveReport {
     pub ik_marker_rms_mm: f64,
     /// Time spent in the skeleton step's posture fit, ms (part of `solve_ms`).
     pub ik_ms: f64,
+    /// Why the iterations stopped.
     pub stop: StopReason,
+    /// Relative ARAP residual of the control mesh (DESIGN.md).
     pub rrms: f64,
+    /// Mean relative length error of the skeleton's sub-edges on the control mesh.
     pub bone_length_error: f64,
+    /// Largest excess over any joint limit of the posture the control mesh shows, degrees.
     pub joint_limit_violation_deg: f64,
+    /// RMS and largest distance between each marker and its bound point, mm.
     pub marker_residual_rms_mm: f64,
     pub marker_residual_max_mm: f64,
+    /// Time from the call to the control mesh solved (skeleton step included), ms.
     pub solve_ms: f64,
+    /// Time to move the full mesh with the Green coordinates, ms.
     pub gc_ms: f64,
 }
 
