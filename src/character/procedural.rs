@@ -1,8 +1,8 @@
 //! Procedural characters with known truth, owned by the project: a right hand (wrist plus
 //! three joints per finger, finger joint limits, 8 markers as in Le Naour et al.).
 //!
-//! The surface is an implicit smooth union of tapered capsules (one per bone) and a
-//! rounded palm block, meshed by marching tetrahedra on a Kuhn lattice (watertight and
+//! The surface is an implicit smooth union of tapered capsules (one per bone), an oval
+//! palm pad and a thenar pad, meshed by marching tetrahedra on a Kuhn lattice (watertight and
 //! manifold by construction). Truth at any time is the same mesh skinned (linear blend
 //! skinning with distance-based weights) by the same skeleton, so every frame's true mesh
 //! and marker positions are known exactly.
@@ -82,11 +82,6 @@ fn capsule_sdf(c: &Capsule, p: DVec3) -> f64 {
     let ab = c.b - c.a;
     let t = ((p - c.a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
     (p - (c.a + ab * t)).length() - (c.ra + (c.rb - c.ra) * t)
-}
-
-fn rounded_box_sdf(center: DVec3, half: DVec3, radius: f64, p: DVec3) -> f64 {
-    let q = (p - center).abs() - (half - DVec3::splat(radius));
-    q.max(DVec3::ZERO).length() + q.max_element().min(0.0) - radius
 }
 
 /// Polynomial smooth minimum (Quilez), blend width `k` in metres.
@@ -267,8 +262,16 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         capsules.push((0, *m));
     }
     let skeleton = Skeleton::new(joints).expect("procedural hand skeleton is valid");
-    let palm_center = DVec3::new(0.0, 0.045, 0.0);
-    let palm_half = DVec3::new(0.041, 0.047, 0.0135);
+    // The palm: an oval pad (narrow at the wrist, full at the knuckles, where the
+    // metacarpals widen it) and the thenar pad at the thumb's base.
+    let palm = Shape::Ellipsoid {
+        c: DVec3::new(0.0, 0.05, 0.0),
+        r: DVec3::new(0.043, 0.054, 0.0145),
+    };
+    let thenar = Shape::Ellipsoid {
+        c: DVec3::new(-0.021, 0.03, 0.005),
+        r: DVec3::new(0.02, 0.032, 0.0135),
+    };
     let forearm = Capsule {
         a: DVec3::new(0.0, -0.05, 0.0),
         b: DVec3::new(0.0, 0.0, 0.0),
@@ -276,9 +279,9 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         rb: 0.022,
     };
     let sdf = |p: DVec3| {
-        let palm = rounded_box_sdf(palm_center, palm_half, 0.011, p);
+        let pad = smin(palm.sdf(p), thenar.sdf(p), 0.01);
         let arm = capsule_sdf(&forearm, p).max(-(p.y + 0.045));
-        let mut d = smin(palm, arm, 0.012);
+        let mut d = smin(pad, arm, 0.012);
         for (_, c) in &capsules {
             d = smin(d, capsule_sdf(c, p), 0.0025);
         }
