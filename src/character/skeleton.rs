@@ -145,6 +145,21 @@ impl Skeleton {
         d.normalize_or(DVec3::Y)
     }
 
+    /// The joint whose local rotation in `local` (relative to rest, one per joint) exceeds
+    /// its limits the most, and by how much (radians); `None` when all are inside.
+    pub fn worst_limit_excess(&self, local: &[DQuat]) -> Option<(usize, f64)> {
+        let mut worst: Option<(usize, f64)> = None;
+        for (j, joint) in self.joints.iter().enumerate() {
+            if let Some(l) = &joint.limits {
+                let (_, excess) = clamp_to_limits(local[j], self.twist_axis(j), joint.bend_axis, l);
+                if excess > 0.0 && worst.is_none_or(|(_, e)| excess > e) {
+                    worst = Some((j, excess));
+                }
+            }
+        }
+        worst
+    }
+
     /// Forward kinematics: world rotations and positions of every joint from local
     /// rotations (relative to rest) and a root translation (added to root rest positions).
     pub fn forward(
