@@ -172,3 +172,30 @@ fn the_hand_follows_finger_play_within_the_quality_targets() {
     assert!(rec.gt_vertex_error_mean <= 0.02, "{rec:?}");
     assert!(rec.converged_fraction >= 0.99, "{rec:?}");
 }
+
+#[test]
+fn a_rigid_rotation_of_all_markers_rotates_the_mesh_exactly_from_a_cold_start() {
+    use glam::DQuat;
+    let (ch, rig) = setup();
+    let mut solver = Solver::new(Arc::clone(&rig), tight());
+    // 34° about a tilted axis through a point off the hand, plus a translation.
+    let q = DQuat::from_axis_angle(DVec3::new(0.3, 1.0, -0.4).normalize(), 34f64.to_radians());
+    let (c, t) = (DVec3::new(0.02, 0.1, -0.03), DVec3::new(0.05, 0.0, 0.1));
+    let moved = |p: DVec3| c + q * (p - c) + t;
+    let frame = MarkerFrame::all_present(0.0, ch.markers.iter().map(|m| moved(m.rest)).collect());
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    let rep = solver.solve(&frame, far_deadline(), &mut out);
+    let worst = out
+        .iter()
+        .zip(&ch.vertices)
+        .map(|(a, b)| (*a - moved(*b)).length())
+        .fold(0.0, f64::max);
+    // The posture fit finds the root's rotation, the warm start carries the control mesh
+    // rigidly with it, and ARAP has nothing left to do: zero energy, the moved mesh.
+    assert!(
+        worst < 1e-9 * rig.height_m,
+        "max deviation from the rotated pose {worst} m after {rep:?}"
+    );
+    assert!(rep.rrms < 1e-6 && rep.bone_length_error < 1e-9, "{rep:?}");
+    assert!(rep.iterations <= 2, "{rep:?}");
+}
