@@ -16,10 +16,17 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Play the procedural hand's finger-play motion through the solver and print per-frame
-    /// figures (iterations, how the frame stopped, rrms, bone length error, marker
-    /// residual, solve time), then the session's summary against the known truth.
+    /// Play a procedural character's motion (the hand's finger play by default, or the
+    /// body's walk or reach) through the solver and print per-frame figures (iterations,
+    /// how the frame stopped, rrms, bone length error, marker residual, solve time), then
+    /// the session's summary against the known truth.
     Demo {
+        /// Which procedural character: the hand (8 markers) or the body (36 markers).
+        #[arg(long, value_enum, default_value_t = DemoCharacter::Hand)]
+        character: DemoCharacter,
+        /// The body's motion (the hand always plays its finger play).
+        #[arg(long, value_enum, default_value_t = DemoMotion::Walk)]
+        motion: DemoMotion,
         /// Seconds of motion to play (at 120 Hz).
         #[arg(long, default_value_t = 5.0)]
         seconds: f64,
@@ -67,6 +74,18 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum DemoCharacter {
+    Hand,
+    Body,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum DemoMotion {
+    Walk,
+    Reach,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum Suite {
     Capsules,
     Characters,
@@ -82,10 +101,12 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Demo {
+            character,
+            motion,
             seconds,
             every,
             noise_mm,
-        } => demo(seconds, every.max(1), noise_mm),
+        } => demo(character, motion, seconds, every.max(1), noise_mm),
         Command::Bake {
             character,
             force,
@@ -118,16 +139,54 @@ fn main() -> Result<()> {
     }
 }
 
-fn demo(seconds: f64, every: usize, noise_mm: f64) -> Result<()> {
+fn demo(
+    character: DemoCharacter,
+    motion: DemoMotion,
+    seconds: f64,
+    every: usize,
+    noise_mm: f64,
+) -> Result<()> {
+    use characters::{
+        body_bind_params, demo_body, demo_hand, hand_bind_params, run_character, CharacterRun,
+        Motion,
+    };
+    use rigless::character::body::BodyMotion;
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds, got {seconds}");
     }
-    println!("procedural hand, finger play, 120 Hz, {seconds} s (binding...)");
+    if !(noise_mm.is_finite() && noise_mm >= 0.0) {
+        bail!("--noise-mm must be a non-negative number of millimetres, got {noise_mm}");
+    }
+    let (ch, bind, motion) = match (character, motion) {
+        (DemoCharacter::Hand, _) => (demo_hand(), hand_bind_params(), Motion::FingerPlay),
+        (DemoCharacter::Body, m) => (
+            demo_body(),
+            body_bind_params(),
+            Motion::Body(match m {
+                DemoMotion::Walk => BodyMotion::Walk,
+                DemoMotion::Reach => BodyMotion::Reach,
+            }),
+        ),
+    };
+    println!(
+        "procedural {}, {}, 120 Hz, {seconds} s, {} mesh vertices, {} markers",
+        ch.name,
+        motion.name(),
+        ch.vertices.len(),
+        ch.markers.len()
+    );
     println!(
         "{:>6} {:>5} {:>13} {:>8} {:>9} {:>11} {:>9}",
         "frame", "iters", "stop", "rrms", "bone_err", "marker_mm", "solve_ms"
     );
-    let rec = characters::run_hand(seconds, 120.0, noise_mm * 1e-3, |f, r| {
+    let run = CharacterRun {
+        seconds,
+        rate_hz: 120.0,
+        noise_m: noise_mm * 1e-3,
+        frame_budget_s: 1.0 / 120.0,
+    };
+    let params = rigless::solve::frame::SolverParams::default();
+    let rec = run_character(&ch, &bind, params, motion, run, |f, r| {
         if f % every == 0 {
             println!(
                 "{:>6} {:>5} {:>13} {:>8.4} {:>9.5} {:>11.2} {:>9.3}",
@@ -141,7 +200,7 @@ fn demo(seconds: f64, every: usize, noise_mm: f64) -> Result<()> {
             );
         }
     })
-    .context("binding the procedural hand")?;
+    .with_context(|| format!("binding the procedural {}", ch.name))?;
     println!("{}", serde_json::to_string_pretty(&rec)?);
     Ok(())
 }

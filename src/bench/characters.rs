@@ -110,29 +110,6 @@ pub fn demo_body() -> Character {
     body(0.01, 20_000)
 }
 
-/// Plays `seconds` of the hand's finger play at `rate_hz` through a solver, comparing
-/// with the truth. `noise_m`: uniform marker noise amplitude (0 for none).
-pub fn run_hand(
-    seconds: f64,
-    rate_hz: f64,
-    noise_m: f64,
-    on_frame: impl FnMut(usize, &SolveReport),
-) -> Result<CharacterRecord, BindError> {
-    run_character(
-        &demo_hand(),
-        &hand_bind_params(),
-        SolverParams::default(),
-        Motion::FingerPlay,
-        CharacterRun {
-            seconds,
-            rate_hz,
-            noise_m,
-            frame_budget_s: 1.0 / rate_hz,
-        },
-        on_frame,
-    )
-}
-
 /// How to play a motion through the solver.
 #[derive(Clone, Copy, Debug)]
 pub struct CharacterRun {
