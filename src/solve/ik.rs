@@ -307,6 +307,13 @@ impl IkModel {
             cols: Vec::with_capacity(self.max_chain_params()),
             mu: 1e-3,
         };
+        self.refresh(&mut st);
+        st
+    }
+
+    /// Recomputes the forward kinematics (`world_rot`, `world_pos`, `predicted`) of the
+    /// state's own posture.
+    fn refresh(&self, st: &mut IkState) {
         self.forward(
             &st.angles,
             &st.root_rot,
@@ -315,7 +322,6 @@ impl IkModel {
             &mut st.world_pos,
             &mut st.predicted,
         );
-        st
     }
 
     /// Local rotation of an Angles joint from its parameters.
@@ -713,14 +719,7 @@ pub(crate) mod tests_support {
         ) {
             s.angles[i] += h;
         }
-        m.forward(
-            &s.angles,
-            &s.root_rot,
-            &s.root_pos,
-            &mut s.world_rot,
-            &mut s.world_pos,
-            &mut s.predicted,
-        );
+        m.refresh(&mut s);
         s
     }
 }
@@ -741,14 +740,7 @@ mod tests {
         st.prev_angles.iter_mut().for_each(|a| *a = 0.05);
         st.root_rot[0] = DQuat::from_scaled_axis(DVec3::new(0.2, -0.4, 0.3));
         st.root_pos[0] = DVec3::new(0.01, 0.02, -0.03);
-        m.forward(
-            &st.angles,
-            &st.root_rot,
-            &st.root_pos,
-            &mut st.world_rot,
-            &mut st.world_pos,
-            &mut st.predicted,
-        );
+        m.refresh(&mut st);
         let targets: Vec<DVec3> = st
             .predicted
             .iter()
@@ -785,14 +777,7 @@ mod tests {
         }
         truth.root_rot[0] = DQuat::from_scaled_axis(DVec3::new(0.1, 0.3, -0.2));
         truth.root_pos[0] = DVec3::new(0.02, -0.01, 0.03);
-        m.forward(
-            &truth.angles,
-            &truth.root_rot,
-            &truth.root_pos,
-            &mut truth.world_rot,
-            &mut truth.world_pos,
-            &mut truth.predicted,
-        );
+        m.refresh(&mut truth);
         let mut st = m.new_state();
         let params = IkParams {
             rest_prior: 0.0,
