@@ -13,10 +13,13 @@
 //! Module map (data flows top to bottom; a module only imports those above it):
 //! - [`rig`]: control mesh construction and binding (offline).
 //! - [`solve`]: per-frame math, no I/O.
+//! - [`markers`]: marker samples and frames, the marker buffer and its gap filling.
+//! - [`protocol`]: pure wire codecs (the vertex stream).
 //! - [`bench`]: the benchmark suites behind `rigless bench`.
 
 pub mod bench;
 pub mod character;
 pub mod markers;
+pub mod protocol;
 pub mod rig;
 pub mod solve;

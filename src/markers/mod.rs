@@ -1,28 +1,103 @@
-//! Marker frames: what the solver consumes each tick. (The marker buffer and its gap
-//! filling policies come with the live daemon.)
+//! Markers between the inputs and the solver: [`MarkerSample`] (what an input sends, one
+//! marker at one instant), [`MarkerFrame`] (what the solver consumes each tick, every
+//! marker with a position and a [`FillState`]), and the [`buffer::MarkerBuffer`] that
+//! turns the first into the second with gap filling.
+
+pub mod buffer;
 
 use glam::DVec3;
+
+/// How a marker's position in a [`MarkerFrame`] was obtained. The discriminants are the
+/// vertex stream's wire codes (`protocols/vertex-stream.md`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[repr(u8)]
+pub enum FillState {
+    /// A sample from an input, recent enough to count as this frame's.
+    Measured = 0,
+    /// Short gap: extrapolated from the marker's own recent motion.
+    Predicted = 1,
+    /// Carried rigidly by three or more measured markers of the same body segment.
+    RigidFilled = 2,
+    /// No information: the solver keeps the marker's bound point where its bone takes it.
+    Held = 3,
+}
+
+impl FillState {
+    pub const ALL: [FillState; 4] = [
+        FillState::Measured,
+        FillState::Predicted,
+        FillState::RigidFilled,
+        FillState::Held,
+    ];
+
+    /// The snake_case name used in logs, JSON and the stream documentation.
+    pub fn name(self) -> &'static str {
+        match self {
+            FillState::Measured => "measured",
+            FillState::Predicted => "predicted",
+            FillState::RigidFilled => "rigid_filled",
+            FillState::Held => "held",
+        }
+    }
+
+    /// The state for a wire code, if valid.
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.get(code as usize).copied()
+    }
+}
+
+/// One marker observed at one instant, as an input adapter sends it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MarkerSample {
+    /// Index in the character's marker layout (adapters map names once, at start).
+    pub marker: u32,
+    /// When the sample was taken, seconds on the daemon's clock (adapters map the
+    /// source's clock onto it; replay uses the file's clock shifted to start now).
+    pub time_s: f64,
+    /// The source's own timestamp, seconds (device time when the protocol has one).
+    pub source_time_s: f64,
+    /// Position, metres, world frame (right-handed, Y up). Non-finite means occluded.
+    pub position_m: DVec3,
+    /// The source flags this marker occluded (its position is then ignored).
+    pub occluded: bool,
+}
 
 /// One full frame of markers in the rig's layout order, metres, world frame.
 #[derive(Clone, Debug)]
 pub struct MarkerFrame {
     /// Source timestamp in seconds (device time when the protocol has one).
     pub source_time_s: f64,
-    /// Position per marker.
+    /// Position per marker (for `Held` markers: the last known one, for display only).
     pub positions: Vec<DVec3>,
-    /// `false` where the marker has no information this frame (held: the solver keeps
-    /// its previous target, so the factorization never changes).
-    pub present: Vec<bool>,
+    /// How each position was obtained.
+    pub states: Vec<FillState>,
 }
 
 impl MarkerFrame {
-    /// A frame where every marker is present.
+    /// A frame where every marker is measured.
     pub fn all_present(source_time_s: f64, positions: Vec<DVec3>) -> Self {
-        let present = vec![true; positions.len()];
+        let states = vec![FillState::Measured; positions.len()];
         Self {
             source_time_s,
             positions,
-            present,
+            states,
         }
+    }
+
+    /// A frame of `n` held markers at the origin (a buffer to fill in place).
+    pub fn empty(n: usize) -> Self {
+        Self {
+            source_time_s: 0.0,
+            positions: vec![DVec3::ZERO; n],
+            states: vec![FillState::Held; n],
+        }
+    }
+
+    /// Whether marker `k` carries information for the solver (any state but `Held`, and a
+    /// finite position).
+    pub fn is_present(&self, k: usize) -> bool {
+        self.states.get(k).is_some_and(|s| *s != FillState::Held)
+            && self.positions.get(k).is_some_and(|p| p.is_finite())
     }
 }

@@ -123,6 +123,9 @@ pub struct Rig {
     /// Rest twist axis per joint ([`Skeleton::twist_axis`]), precomputed for the solver.
     pub twist_axis: Vec<DVec3>,
     pub marker_names: Vec<String>,
+    /// Rest position of each marker, metres, world frame (the gap filler's default
+    /// rigid layout).
+    pub marker_rest: Vec<DVec3>,
     /// Full-resolution mesh at rest, in the file's vertex order.
     pub mesh_rest: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
@@ -488,6 +491,7 @@ impl Rig {
             skeleton: sk.clone(),
             twist_axis,
             marker_names: ch.markers.iter().map(|m| m.name.clone()).collect(),
+            marker_rest: marker_rest.clone(),
             mesh_rest: ch.vertices.clone(),
             triangles: ch.triangles.clone(),
             control,

@@ -87,6 +87,8 @@ pub struct Solver {
     /// Joint world rotations read off the control mesh (joint limit measurement).
     measured_rot: Vec<DQuat>,
     green_scratch: GreenScratch,
+    /// Marker targets handed to the posture fit (NaN where held).
+    ik_targets: Vec<DVec3>,
 }
 
 impl Solver {
@@ -96,6 +98,7 @@ impl Solver {
         let nj = rig.skeleton.len();
         let ns = rig.samples.len();
         let green_scratch = rig.green.scratch();
+        let nm = rig.n_markers;
         Self {
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
@@ -106,6 +109,7 @@ impl Solver {
             sample_pos: vec![DVec3::ZERO; ns],
             measured_rot: vec![DQuat::IDENTITY; nj],
             green_scratch,
+            ik_targets: vec![DVec3::ZERO; nm],
         }
     }
 
@@ -131,7 +135,8 @@ impl Solver {
 
     /// Solves one frame, warm-started from the previous one, and writes the full-resolution
     /// vertices (file order, metres) into `vertices_out` (`len` = mesh vertex count).
-    /// Markers not `present` keep their previous target.
+    /// Held markers (see [`MarkerFrame::is_present`]) are left out of the posture fit and
+    /// their bound points follow their bones.
     pub fn solve(
         &mut self,
         frame: &MarkerFrame,
@@ -142,9 +147,12 @@ impl Solver {
         let rig = Arc::clone(&self.rig);
         let sys = &rig.system;
         let nm = rig.n_markers;
-        for k in 0..nm.min(frame.positions.len()) {
-            if frame.present[k] && frame.positions[k].is_finite() {
+        for k in 0..nm {
+            if frame.is_present(k) {
                 self.st.targets[k] = frame.positions[k];
+                self.ik_targets[k] = frame.positions[k];
+            } else {
+                self.ik_targets[k] = DVec3::NAN;
             }
         }
         // 1. Skeleton step.
@@ -153,7 +161,7 @@ impl Solver {
         rig.ik.begin_frame(&mut self.ik);
         let ik_rep = rig
             .ik
-            .solve(&mut self.ik, &self.st.targets[..nm], &self.params.ik);
+            .solve(&mut self.ik, &self.ik_targets, &self.params.ik);
         let t_ik = Instant::now();
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
@@ -172,6 +180,13 @@ impl Solver {
             let delta = wr[j] * self.prev_rot[j].conjugate();
             *p = wp[j] + delta * (*p - self.prev_pos[j]);
             *q = (delta * *q).normalize();
+        }
+        // A held marker's bound point goes where its bone took it: its target is the bound
+        // point on the carried mesh, so it neither pulls nor changes the factorization.
+        for k in 0..nm {
+            if !frame.is_present(k) {
+                self.st.targets[k] = sys.rows.eval(k, &self.st.positions);
+            }
         }
         // 3. ARAP alternation.
         let mut prev: Option<f64> = None;

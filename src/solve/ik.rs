@@ -383,6 +383,7 @@ impl IkModel {
         let fit: f64 = predicted
             .iter()
             .zip(m)
+            .filter(|(_, t)| t.is_finite())
             .map(|(p, t)| (*p - *t).length_squared())
             .sum();
         let mut prior = 0.0;
@@ -403,7 +404,8 @@ impl IkModel {
     }
 
     /// Fits the posture to the marker targets `m` (one per marker, metres), warm-started
-    /// from the state's posture. On return `st.world_rot`/`st.world_pos` hold its forward
+    /// from the state's posture. A non-finite target is a marker with no information: it
+    /// is left out of the fit (the priors keep the posture determinate). On return `st.world_rot`/`st.world_pos` hold its forward
     /// kinematics.
     pub fn solve(&self, st: &mut IkState, m: &[DVec3], params: &IkParams) -> IkReport {
         let np = self.n_params;
@@ -489,11 +491,12 @@ impl IkModel {
                 break;
             }
         }
-        let n = m.len().max(1) as f64;
+        let n = m.iter().filter(|t| t.is_finite()).count().max(1) as f64;
         let fit: f64 = st
             .predicted
             .iter()
             .zip(m)
+            .filter(|(_, t)| t.is_finite())
             .map(|(p, t)| (*p - *t).length_squared())
             .sum();
         IkReport {
@@ -524,6 +527,9 @@ impl IkModel {
         }
         // Per marker: 3 rows, nonzero only in its chain's columns.
         for (k, &target) in m.iter().enumerate().take(self.marker_joint.len()) {
+            if !target.is_finite() {
+                continue;
+            }
             let p = st.predicted[k];
             let r = p - target;
             let cols = &mut st.cols;

@@ -1,0 +1,719 @@
+//! The marker buffer: a short history of timestamped samples per marker, from any input,
+//! and [`MarkerBuffer::sample_at`], which turns it into a full [`MarkerFrame`] with every
+//! gap filled and labelled ([`FillState`]).
+//!
+//! Policies, in order, for a marker with no sample in the last `measured_window_secs`:
+//! 1. `rigid_filled`: three or more markers of the same body segment (same joint) are
+//!    measured now, spread in a plane: the missing one moves with them, by the best-fit
+//!    rigid motion (Kabsch) from their reference layout (the last frame where the whole
+//!    segment was measured, or the rest layout) to now. Used once the gap is longer than
+//!    `rigid_after_secs`.
+//! 2. `predicted`: gaps up to `predict_max_gap_secs`: constant velocity (least-squares
+//!    slope over the last `velocity_window_secs`), with the velocity decaying as
+//!    `exp(-gap / prediction_decay_secs)`, so the marker coasts to a stop instead of
+//!    flying off; the frame's `confidence` is that same factor.
+//! 3. `held`: no information; the solver leaves the marker's bound point where its bone
+//!    takes it.
+//!
+//! An innovation gate rejects samples that land too far from the marker's own
+//! prediction (jumps, and label swaps: a rejected sample near another marker's prediction
+//! is counted as a swap); a marker whose rejected samples agree with each other for
+//! `reacquire_samples` samples is re-acquired there.
+//!
+//! No allocation after construction: histories are fixed rings, frames are filled in
+//! place. Time is passed in; nothing here reads a clock.
+
+use super::{FillState, MarkerFrame, MarkerSample};
+use crate::solve::polar::rotation_of;
+use glam::{DMat3, DVec3};
+
+/// Gap filling and gating settings (the `[buffer]` table of a stage config).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BufferConfig {
+    /// A marker whose newest sample is at most this old counts as measured, seconds
+    /// (cover one source period plus jitter).
+    pub measured_window_secs: f64,
+    /// Longest gap filled by prediction, seconds; longer gaps are held.
+    pub predict_max_gap_secs: f64,
+    /// Time constant of the predicted velocity's decay (and of the confidence), seconds.
+    pub prediction_decay_secs: f64,
+    /// Span of recent samples the velocity is fitted over, seconds.
+    pub velocity_window_secs: f64,
+    /// Gaps longer than this are filled rigidly when the segment allows, seconds
+    /// (shorter ones are predicted).
+    pub rigid_after_secs: f64,
+    /// Samples kept per marker.
+    pub history_len: usize,
+    /// Innovation gate: a sample farther than `gate_floor_m + ½·gate_max_accel_m_s2·dt²`
+    /// from the marker's prediction is rejected (`dt`: time since its last sample).
+    pub gate_floor_m: f64,
+    /// See `gate_floor_m`, metres per second squared.
+    pub gate_max_accel_m_s2: f64,
+    /// Consecutive rejected samples that agree with each other before the marker is
+    /// re-acquired at their position.
+    pub reacquire_samples: u32,
+}
+
+impl Default for BufferConfig {
+    fn default() -> Self {
+        Self {
+            measured_window_secs: 0.025,
+            predict_max_gap_secs: 0.25,
+            prediction_decay_secs: 0.1,
+            velocity_window_secs: 0.05,
+            rigid_after_secs: 0.0,
+            history_len: 32,
+            gate_floor_m: 0.02,
+            gate_max_accel_m_s2: 200.0,
+            reacquire_samples: 3,
+        }
+    }
+}
+
+impl BufferConfig {
+    /// Every problem with these settings (empty when valid), each naming its key.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut positive = |name: &str, v: f64| {
+            if !(v.is_finite() && v > 0.0) {
+                out.push(format!(
+                    "buffer.{name} must be a positive number of seconds or metres, got {v}"
+                ));
+            }
+        };
+        positive("measured_window_secs", self.measured_window_secs);
+        positive("predict_max_gap_secs", self.predict_max_gap_secs);
+        positive("prediction_decay_secs", self.prediction_decay_secs);
+        positive("velocity_window_secs", self.velocity_window_secs);
+        positive("gate_floor_m", self.gate_floor_m);
+        positive("gate_max_accel_m_s2", self.gate_max_accel_m_s2);
+        if !(self.rigid_after_secs.is_finite() && self.rigid_after_secs >= 0.0) {
+            out.push(format!(
+                "buffer.rigid_after_secs must be zero or more, got {}",
+                self.rigid_after_secs
+            ));
+        }
+        if !(2..=4096).contains(&self.history_len) {
+            out.push(format!(
+                "buffer.history_len must be between 2 and 4096, got {}",
+                self.history_len
+            ));
+        }
+        if self.reacquire_samples == 0 {
+            out.push("buffer.reacquire_samples must be at least 1".into());
+        }
+        out
+    }
+}
+
+/// What happened to every sample and frame since the buffer was made (monotonic).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct BufferCounters {
+    /// Samples accepted into a history.
+    pub accepted: u64,
+    /// Samples flagged occluded or with a non-finite position.
+    pub occluded: u64,
+    /// Samples naming a marker outside the layout, or with a non-finite time.
+    pub invalid: u64,
+    /// Samples older than the marker's newest (dropped).
+    pub late: u64,
+    /// Samples rejected by the innovation gate (label swaps included).
+    pub gate_rejected: u64,
+    /// Rejected samples that matched another marker's prediction.
+    pub label_swaps: u64,
+    /// Markers re-acquired after consistent rejected samples.
+    pub reacquired: u64,
+    /// Frames produced by `sample_at`.
+    pub frames: u64,
+    /// Marker-frames per fill state, indexed by the state's code.
+    pub filled: [u64; 4],
+}
+
+/// Per-marker state.
+#[derive(Clone, Debug)]
+struct Track {
+    /// Ring of `(time_s, position)`, `len` valid entries ending at `head - 1`.
+    ring: Vec<(f64, DVec3)>,
+    head: usize,
+    len: usize,
+    /// Newest occlusion report newer than the newest sample (time), if any.
+    occluded_at: Option<f64>,
+    /// A run of rejected samples that agree with each other: newest time, position, count.
+    candidate: Option<(f64, DVec3, u32)>,
+    /// Source time of the newest accepted sample.
+    source_time_s: f64,
+}
+
+impl Track {
+    fn newest(&self) -> Option<(f64, DVec3)> {
+        (self.len > 0).then(|| self.ring[(self.head + self.ring.len() - 1) % self.ring.len()])
+    }
+
+    /// The `i`-th newest sample (0 = newest), `i < len`.
+    fn nth_newest(&self, i: usize) -> (f64, DVec3) {
+        let cap = self.ring.len();
+        self.ring[(self.head + cap - 1 - i) % cap]
+    }
+
+    fn push(&mut self, t: f64, p: DVec3) {
+        let cap = self.ring.len();
+        self.ring[self.head] = (t, p);
+        self.head = (self.head + 1) % cap;
+        self.len = (self.len + 1).min(cap);
+    }
+
+    fn clear(&mut self) {
+        self.len = 0;
+        self.occluded_at = None;
+        self.candidate = None;
+    }
+
+    /// Least-squares velocity over the samples within `window_s` of the newest, m/s
+    /// (zero with fewer than two).
+    fn velocity(&self, window_s: f64) -> DVec3 {
+        let Some((t_new, _)) = self.newest() else {
+            return DVec3::ZERO;
+        };
+        let (mut n, mut st, mut sp) = (0usize, 0.0, DVec3::ZERO);
+        while n < self.len {
+            let (t, p) = self.nth_newest(n);
+            if t_new - t > window_s {
+                break;
+            }
+            st += t;
+            sp += p;
+            n += 1;
+        }
+        if n < 2 {
+            return DVec3::ZERO;
+        }
+        let (tm, pm) = (st / n as f64, sp / n as f64);
+        let (mut stt, mut stp) = (0.0, DVec3::ZERO);
+        for i in 0..n {
+            let (t, p) = self.nth_newest(i);
+            stt += (t - tm) * (t - tm);
+            stp += (p - pm) * (t - tm);
+        }
+        if stt <= 0.0 {
+            DVec3::ZERO
+        } else {
+            stp / stt
+        }
+    }
+
+    /// Damped constant-velocity prediction at `t` and its confidence in `(0, 1]`.
+    fn predict(&self, t: f64, cfg: &BufferConfig) -> Option<(DVec3, f64)> {
+        let (t_last, p_last) = self.newest()?;
+        let gap = (t - t_last).max(0.0);
+        let tau = cfg.prediction_decay_secs;
+        let decay = (-gap / tau).exp();
+        let v = self.velocity(cfg.velocity_window_secs);
+        Some((p_last + v * (tau * (1.0 - decay)), decay))
+    }
+}
+
+/// Markers of one body segment (same joint) and their reference layout.
+#[derive(Clone, Debug)]
+struct Segment {
+    markers: Vec<usize>,
+    /// Reference position per marker of the segment (same order).
+    reference: Vec<DVec3>,
+}
+
+/// Per-marker sample history and gap filling for one character's marker layout.
+#[derive(Clone, Debug)]
+pub struct MarkerBuffer {
+    cfg: BufferConfig,
+    tracks: Vec<Track>,
+    segments: Vec<Segment>,
+    /// Segment index of each marker.
+    segment_of: Vec<usize>,
+    counters: BufferCounters,
+    /// Newest source time seen.
+    source_time_s: f64,
+    /// Confidence of each marker in the last frame (1 measured, decay factor predicted,
+    /// 1 rigid-filled, 0 held).
+    confidence: Vec<f64>,
+    /// Scratch for the rigid fill.
+    scratch_ref: Vec<DVec3>,
+    scratch_cur: Vec<DVec3>,
+}
+
+impl MarkerBuffer {
+    /// A buffer for a layout: each marker's rest position and the joint that carries it
+    /// (markers with the same joint form a rigid segment).
+    pub fn new(cfg: BufferConfig, marker_rest: &[DVec3], marker_joint: &[usize]) -> Self {
+        let n = marker_rest.len();
+        let cap = cfg.history_len.max(2);
+        let track = Track {
+            ring: vec![(f64::NEG_INFINITY, DVec3::ZERO); cap],
+            head: 0,
+            len: 0,
+            occluded_at: None,
+            candidate: None,
+            source_time_s: 0.0,
+        };
+        let mut segments: Vec<Segment> = Vec::new();
+        let mut joints: Vec<usize> = Vec::new();
+        let mut segment_of = vec![0; n];
+        for k in 0..n {
+            let j = marker_joint.get(k).copied().unwrap_or(usize::MAX);
+            let s = match joints.iter().position(|&x| x == j) {
+                Some(s) => s,
+                None => {
+                    joints.push(j);
+                    segments.push(Segment {
+                        markers: Vec::new(),
+                        reference: Vec::new(),
+                    });
+                    segments.len() - 1
+                }
+            };
+            segments[s].markers.push(k);
+            segments[s].reference.push(marker_rest[k]);
+            segment_of[k] = s;
+        }
+        let widest = segments.iter().map(|s| s.markers.len()).max().unwrap_or(0);
+        Self {
+            cfg,
+            tracks: vec![track; n],
+            segments,
+            segment_of,
+            counters: BufferCounters::default(),
+            source_time_s: 0.0,
+            confidence: vec![0.0; n],
+            scratch_ref: Vec::with_capacity(widest),
+            scratch_cur: Vec::with_capacity(widest),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.tracks.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tracks.is_empty()
+    }
+
+    pub fn config(&self) -> &BufferConfig {
+        &self.cfg
+    }
+
+    pub fn counters(&self) -> &BufferCounters {
+        &self.counters
+    }
+
+    /// Confidence of each marker in the last frame: 1 measured or rigid-filled, the
+    /// prediction's decay factor when predicted, 0 held.
+    pub fn confidence(&self) -> &[f64] {
+        &self.confidence
+    }
+
+    /// Forgets every sample (the reference layouts are kept).
+    pub fn clear(&mut self) {
+        for t in &mut self.tracks {
+            t.clear();
+        }
+    }
+
+    /// Gate radius for a prediction `dt` seconds past the last sample, metres.
+    fn gate_m(&self, dt: f64) -> f64 {
+        self.cfg.gate_floor_m + 0.5 * self.cfg.gate_max_accel_m_s2 * dt * dt
+    }
+
+    /// Takes one sample from an input.
+    pub fn push(&mut self, s: &MarkerSample) {
+        let k = s.marker as usize;
+        if k >= self.tracks.len() || !s.time_s.is_finite() {
+            self.counters.invalid += 1;
+            return;
+        }
+        if s.source_time_s.is_finite() {
+            self.source_time_s = self.source_time_s.max(s.source_time_s);
+        }
+        let newest = self.tracks[k].newest();
+        if let Some((t_last, _)) = newest {
+            if s.time_s < t_last {
+                self.counters.late += 1;
+                return;
+            }
+        }
+        if s.occluded || !s.position_m.is_finite() {
+            self.counters.occluded += 1;
+            let tr = &mut self.tracks[k];
+            if newest.is_none_or(|(t_last, _)| s.time_s > t_last) {
+                tr.occluded_at = Some(s.time_s);
+            }
+            return;
+        }
+        // Innovation gate (only while the marker's own prediction means something).
+        if let Some((t_last, _)) = newest {
+            let dt = s.time_s - t_last;
+            if dt <= self.cfg.predict_max_gap_secs {
+                let (pred, _) = self.tracks[k]
+                    .predict(s.time_s, &self.cfg)
+                    .expect("track has a sample");
+                let gate = self.gate_m(dt);
+                if (s.position_m - pred).length() > gate {
+                    self.reject(k, s, gate);
+                    return;
+                }
+            }
+        }
+        let tr = &mut self.tracks[k];
+        if newest.is_some_and(|(t_last, _)| t_last == s.time_s) {
+            // Same instant again: the newer report replaces the older.
+            let cap = tr.ring.len();
+            let i = (tr.head + cap - 1) % cap;
+            tr.ring[i].1 = s.position_m;
+        } else {
+            tr.push(s.time_s, s.position_m);
+        }
+        tr.occluded_at = None;
+        tr.candidate = None;
+        tr.source_time_s = s.source_time_s;
+        self.counters.accepted += 1;
+    }
+
+    /// Handles a sample the gate rejected: counts it, checks for a label swap, and
+    /// re-acquires the marker once enough rejected samples agree.
+    fn reject(&mut self, k: usize, s: &MarkerSample, gate: f64) {
+        self.counters.gate_rejected += 1;
+        let swapped = (0..self.tracks.len()).any(|o| {
+            o != k
+                && self.tracks[o]
+                    .predict(s.time_s, &self.cfg)
+                    .is_some_and(|(p, _)| (p - s.position_m).length() <= gate)
+        });
+        if swapped {
+            self.counters.label_swaps += 1;
+        }
+        let gate_floor = self.cfg.gate_floor_m;
+        let max_accel = self.cfg.gate_max_accel_m_s2;
+        let need = self.cfg.reacquire_samples;
+        let tr = &mut self.tracks[k];
+        let run = match tr.candidate {
+            Some((t, p, count)) => {
+                let dt = s.time_s - t;
+                let agree = (s.position_m - p).length() <= gate_floor + 0.5 * max_accel * dt * dt;
+                if agree {
+                    count + 1
+                } else {
+                    1
+                }
+            }
+            None => 1,
+        };
+        tr.candidate = Some((s.time_s, s.position_m, run));
+        if run >= need {
+            tr.clear();
+            tr.push(s.time_s, s.position_m);
+            tr.source_time_s = s.source_time_s;
+            self.counters.reacquired += 1;
+            self.counters.accepted += 1;
+        }
+    }
+
+    /// Fills `out` (resized to the layout once, then reused) with every marker at time `t`
+    /// (daemon clock, seconds): positions and fill states.
+    pub fn sample_at(&mut self, t: f64, out: &mut MarkerFrame) {
+        let n = self.tracks.len();
+        out.positions.resize(n, DVec3::ZERO);
+        out.states.resize(n, FillState::Held);
+        out.source_time_s = self.source_time_s;
+        let cfg = &self.cfg;
+        // Measured markers first: the rigid fill needs them.
+        for (k, tr) in self.tracks.iter().enumerate() {
+            let measured = match tr.newest() {
+                Some((t_last, p)) => {
+                    let fresh = t - t_last <= cfg.measured_window_secs;
+                    let occluded = tr.occluded_at.is_some_and(|to| to <= t);
+                    out.positions[k] = p;
+                    fresh && !occluded
+                }
+                None => false,
+            };
+            out.states[k] = if measured {
+                FillState::Measured
+            } else {
+                FillState::Held
+            };
+            self.confidence[k] = if measured { 1.0 } else { 0.0 };
+        }
+        // Reference layouts from segments seen whole, at one instant (a stale sample
+        // would bend the layout by the distance moved since).
+        for seg in &mut self.segments {
+            let (mut t_min, mut t_max) = (f64::INFINITY, f64::NEG_INFINITY);
+            let mut whole = seg.markers.len() >= 4;
+            for &k in &seg.markers {
+                whole &= out.states[k] == FillState::Measured;
+                if let Some((t_k, _)) = self.tracks[k].newest() {
+                    t_min = t_min.min(t_k);
+                    t_max = t_max.max(t_k);
+                }
+            }
+            if whole && t_max - t_min <= REFERENCE_SYNC_SECS {
+                for (r, &k) in seg.reference.iter_mut().zip(&seg.markers) {
+                    *r = out.positions[k];
+                }
+            }
+        }
+        for k in 0..n {
+            if out.states[k] == FillState::Measured {
+                continue;
+            }
+            let tr = &self.tracks[k];
+            let gap = tr.newest().map_or(f64::INFINITY, |(t_last, _)| t - t_last);
+            if gap > cfg.rigid_after_secs {
+                if let Some(p) = rigid_fill(
+                    &self.segments[self.segment_of[k]],
+                    k,
+                    out,
+                    &mut self.scratch_ref,
+                    &mut self.scratch_cur,
+                ) {
+                    out.positions[k] = p;
+                    out.states[k] = FillState::RigidFilled;
+                    self.confidence[k] = 1.0;
+                    continue;
+                }
+            }
+            if gap <= cfg.predict_max_gap_secs {
+                if let Some((p, c)) = tr.predict(t, cfg) {
+                    out.positions[k] = p;
+                    out.states[k] = FillState::Predicted;
+                    self.confidence[k] = c;
+                }
+            }
+        }
+        self.counters.frames += 1;
+        for s in &out.states {
+            self.counters.filled[*s as usize] += 1;
+        }
+    }
+}
+
+/// Samples of a segment taken at most this far apart count as one instant for its
+/// reference layout, seconds.
+const REFERENCE_SYNC_SECS: f64 = 1e-3;
+
+/// Smallest spread of the visible markers, as a fraction of the squared largest distance
+/// between them, below which they are too close to a line to carry a rotation.
+const RIGID_MIN_PLANARITY: f64 = 0.05;
+
+/// Position of marker `k` carried by the measured markers of its segment (Kabsch: the
+/// rotation maximising `tr(Rᵀ Σ c rᵀ)` over centred current `c` and reference `r`
+/// positions), or `None` when fewer than three are measured or they are nearly collinear.
+fn rigid_fill(
+    seg: &Segment,
+    k: usize,
+    frame: &MarkerFrame,
+    refs: &mut Vec<DVec3>,
+    curs: &mut Vec<DVec3>,
+) -> Option<DVec3> {
+    refs.clear();
+    curs.clear();
+    let mut target_ref = None;
+    for (&m, &r) in seg.markers.iter().zip(&seg.reference) {
+        if m == k {
+            target_ref = Some(r);
+        } else if frame.states[m] == FillState::Measured {
+            refs.push(r);
+            curs.push(frame.positions[m]);
+        }
+    }
+    let target_ref = target_ref?;
+    if curs.len() < 3 {
+        return None;
+    }
+    let nf = curs.len() as f64;
+    let rc = refs.iter().sum::<DVec3>() / nf;
+    let cc = curs.iter().sum::<DVec3>() / nf;
+    let (mut span2, mut area2) = (0.0f64, 0.0f64);
+    for i in 0..curs.len() {
+        for j in i + 1..curs.len() {
+            span2 = span2.max((curs[j] - curs[i]).length_squared());
+            for l in j + 1..curs.len() {
+                area2 = area2.max((curs[j] - curs[i]).cross(curs[l] - curs[i]).length());
+            }
+        }
+    }
+    if area2 < RIGID_MIN_PLANARITY * span2 {
+        return None;
+    }
+    let mut a = DMat3::ZERO;
+    for (r, c) in refs.iter().zip(curs.iter()) {
+        let (r, c) = (*r - rc, *c - cc);
+        a += DMat3::from_cols(c * r.x, c * r.y, c * r.z);
+    }
+    let rot = rotation_of(&a);
+    Some(cc + rot * (target_ref - rc))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DQuat;
+
+    /// Four markers on one segment (a tetrahedron 10 cm across) and one alone.
+    fn layout() -> (Vec<DVec3>, Vec<usize>) {
+        let rest = vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(0.1, 0.0, 0.0),
+            DVec3::new(0.0, 0.1, 0.0),
+            DVec3::new(0.0, 0.0, 0.1),
+            DVec3::new(0.5, 0.5, 0.5),
+        ];
+        (rest, vec![0, 0, 0, 0, 1])
+    }
+
+    fn sample(k: u32, t: f64, p: DVec3) -> MarkerSample {
+        MarkerSample {
+            marker: k,
+            time_s: t,
+            source_time_s: t,
+            position_m: p,
+            occluded: false,
+        }
+    }
+
+    /// The segment's rigid motion at time `t`: rotating about Y at 1 rad/s, moving along X
+    /// at 0.3 m/s.
+    fn motion(t: f64, p: DVec3) -> DVec3 {
+        DQuat::from_rotation_y(t) * p + DVec3::new(0.3 * t, 0.0, 0.0)
+    }
+
+    #[test]
+    fn measured_markers_come_back_as_pushed() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        for (k, p) in rest.iter().enumerate() {
+            b.push(&sample(k as u32, 1.0, *p));
+        }
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(1.01, &mut f);
+        assert_eq!(f.positions, rest);
+        assert!(f.states.iter().all(|s| *s == FillState::Measured));
+        assert_eq!(b.counters().accepted, 5);
+        assert_eq!(b.counters().filled[FillState::Measured as usize], 5);
+    }
+
+    #[test]
+    fn rigid_fill_is_exact_for_a_rigid_segment() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        let mut f = MarkerFrame::empty(0);
+        // 1 s at 100 Hz; marker 3 vanishes after 0.2 s.
+        for i in 0..100 {
+            let t = i as f64 * 0.01;
+            for k in 0..4 {
+                if k != 3 || t < 0.2 {
+                    b.push(&sample(k, t, motion(t, rest[k as usize])));
+                }
+            }
+            b.sample_at(t, &mut f);
+        }
+        assert_eq!(f.states[3], FillState::RigidFilled);
+        // Exact up to the rotation extraction's tolerance (1e-10 rad on 0.1 m).
+        let err = (f.positions[3] - motion(0.99, rest[3])).length();
+        assert!(err < 1e-9, "rigid fill error {err} m");
+    }
+
+    #[test]
+    fn prediction_follows_constant_velocity_then_coasts() {
+        let (rest, joint) = layout();
+        let cfg = BufferConfig::default();
+        let mut b = MarkerBuffer::new(cfg.clone(), &rest, &joint);
+        let v = DVec3::new(1.0, 0.0, 0.0);
+        for i in 0..20 {
+            let t = i as f64 * 0.01;
+            b.push(&sample(4, t, rest[4] + v * t));
+        }
+        let mut f = MarkerFrame::empty(0);
+        // A 50 ms gap: damped displacement τ(1 − e^(−gap/τ)) · v.
+        b.sample_at(0.24, &mut f);
+        assert_eq!(f.states[4], FillState::Predicted);
+        let gap: f64 = 0.05;
+        let tau = cfg.prediction_decay_secs;
+        let expected = rest[4] + v * 0.19 + v * tau * (1.0 - (-gap / tau).exp());
+        assert!((f.positions[4] - expected).length() < 1e-12);
+        assert!((b.confidence()[4] - (-gap / tau).exp()).abs() < 1e-12);
+        // Past the longest predicted gap the marker is held at its last position.
+        b.sample_at(0.19 + cfg.predict_max_gap_secs + 0.01, &mut f);
+        assert_eq!(f.states[4], FillState::Held);
+        assert!((f.positions[4] - (rest[4] + v * 0.19)).length() < 1e-12);
+        assert_eq!(b.confidence()[4], 0.0);
+    }
+
+    #[test]
+    fn occlusion_flags_and_nan_end_measurement_at_once() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        b.push(&sample(4, 0.0, rest[4]));
+        b.push(&MarkerSample {
+            occluded: true,
+            ..sample(4, 0.008, rest[4])
+        });
+        b.push(&sample(0, 0.008, DVec3::NAN));
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(0.01, &mut f);
+        assert_eq!(f.states[4], FillState::Predicted);
+        assert_eq!(b.counters().occluded, 2);
+        assert_eq!(b.counters().accepted, 1);
+    }
+
+    #[test]
+    fn gate_rejects_jumps_counts_swaps_and_reacquires() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        for i in 0..10 {
+            let t = i as f64 * 0.01;
+            b.push(&sample(0, t, rest[0]));
+            b.push(&sample(1, t, rest[1]));
+        }
+        // Labels 0 and 1 swap for one frame: both rejected, both counted as swaps.
+        b.push(&sample(0, 0.1, rest[1]));
+        b.push(&sample(1, 0.1, rest[0]));
+        assert_eq!(b.counters().gate_rejected, 2);
+        assert_eq!(b.counters().label_swaps, 2);
+        // Marker 0 really moved 30 cm: rejected twice, re-acquired on the third sample.
+        let far = rest[0] + DVec3::new(0.3, 0.0, 0.0);
+        b.push(&sample(0, 0.11, far));
+        b.push(&sample(0, 0.12, far));
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(0.12, &mut f);
+        assert_eq!(f.positions[0], rest[0]);
+        b.push(&sample(0, 0.13, far));
+        b.sample_at(0.13, &mut f);
+        assert_eq!(f.positions[0], far);
+        assert_eq!(f.states[0], FillState::Measured);
+        assert_eq!(b.counters().reacquired, 1);
+    }
+
+    #[test]
+    fn bad_samples_cost_only_themselves() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        b.push(&sample(99, 0.0, rest[0]));
+        b.push(&sample(0, f64::NAN, rest[0]));
+        b.push(&sample(0, 1.0, rest[0]));
+        b.push(&sample(0, 0.5, rest[1]));
+        assert_eq!(b.counters().invalid, 2);
+        assert_eq!(b.counters().late, 1);
+        assert_eq!(b.counters().accepted, 1);
+    }
+
+    #[test]
+    fn config_problems_are_all_reported() {
+        let cfg = BufferConfig {
+            measured_window_secs: 0.0,
+            history_len: 1,
+            gate_floor_m: f64::NAN,
+            ..BufferConfig::default()
+        };
+        let p = cfg.problems();
+        assert_eq!(p.len(), 3, "{p:?}");
+        assert!(BufferConfig::default().problems().is_empty());
+    }
+}

@@ -1,0 +1,4 @@
+//! Pure codecs: bytes in, typed messages out (and back), no sockets, no threads, no
+//! clocks. Each wire format is specified in `protocols/`.
+
+pub mod vertex_stream;
