@@ -15,11 +15,17 @@
 //! - [`solve`]: per-frame math, no I/O.
 //! - [`markers`]: marker samples and frames, the marker buffer and its gap filling.
 //! - [`protocol`]: pure wire codecs (the vertex stream).
+//! - [`input`]: sources feeding marker samples into the daemon's channel.
+//! - [`output`]: sinks reading published frames (the vertex stream server).
+//! - [`daemon`]: the clock, latest-value slots and the fixed-rate loop.
 //! - [`bench`]: the benchmark suites behind `rigless bench`.
 
 pub mod bench;
 pub mod character;
+pub mod daemon;
+pub mod input;
 pub mod markers;
+pub mod output;
 pub mod protocol;
 pub mod rig;
 pub mod solve;

@@ -5,6 +5,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use rigless::bench::{capsules, characters};
 use std::path::PathBuf;
 
+mod demo;
+
 /// Animate a character mesh live from a handful of motion-capture markers, with no
 /// rigging step.
 #[derive(Parser)]
@@ -16,10 +18,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Play a procedural character's motion (the hand's finger play by default, or the
-    /// body's walk or reach) through the solver and print per-frame figures (iterations,
-    /// how the frame stopped, rrms, bone length error, marker residual, solve time), then
-    /// the session's summary against the known truth.
+    /// Play a procedural character live through the whole pipeline, in real time: a
+    /// synthetic capture session (the hand's finger play by default, or the body's walk or
+    /// reach, with marker noise and occlusion gaps) feeds the marker buffer, the solver
+    /// thread fills the gaps and solves every frame at 120 Hz, and the vertex stream serves
+    /// the deformed mesh to any client (see protocols/vertex-stream.md). Prints a status
+    /// line every second and a summary at the end; Ctrl-C stops it cleanly.
     Demo {
         /// Which procedural character: the hand (8 markers) or the body (36 markers).
         #[arg(long, value_enum, default_value_t = DemoCharacter::Hand)]
@@ -27,15 +31,27 @@ enum Command {
         /// The body's motion (the hand always plays its finger play).
         #[arg(long, value_enum, default_value_t = DemoMotion::Walk)]
         motion: DemoMotion,
-        /// Seconds of motion to play (at 120 Hz).
-        #[arg(long, default_value_t = 5.0)]
-        seconds: f64,
-        /// Print every Nth frame.
-        #[arg(long, default_value_t = 12)]
-        every: usize,
-        /// Uniform marker noise amplitude in millimetres.
-        #[arg(long, default_value_t = 0.0)]
+        /// Length of the session, seconds.
+        #[arg(long, default_value_t = 20.0)]
+        session_secs: f64,
+        /// Stop after this many seconds (default: at the end of the session).
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Play the session again and again (until --seconds or Ctrl-C).
+        #[arg(long = "loop")]
+        looping: bool,
+        /// Where the vertex stream listens (TCP; port 0 picks a free port).
+        #[arg(long, default_value = "127.0.0.1:7878")]
+        stream: std::net::SocketAddr,
+        /// Uniform marker noise amplitude, millimetres.
+        #[arg(long, default_value_t = 0.5)]
         noise_mm: f64,
+        /// Share of marker samples lost to occlusion gaps, percent.
+        #[arg(long, default_value_t = 5.0)]
+        gap_percent: f64,
+        /// Print the status and the summary as JSON lines instead of text.
+        #[arg(long)]
+        json: bool,
     },
     /// Bind a character: read its TOML file and mesh, build the control mesh, the Green
     /// coordinates and the factorization, print a summary, and cache the result next to
@@ -103,10 +119,29 @@ fn main() -> Result<()> {
         Command::Demo {
             character,
             motion,
+            session_secs,
             seconds,
-            every,
+            looping,
+            stream,
             noise_mm,
-        } => demo(character, motion, seconds, every.max(1), noise_mm),
+            gap_percent,
+            json,
+        } => demo::run(demo::DemoArgs {
+            character: match character {
+                DemoCharacter::Hand => demo::Which::Hand,
+                DemoCharacter::Body => demo::Which::Body(match motion {
+                    DemoMotion::Walk => rigless::character::body::BodyMotion::Walk,
+                    DemoMotion::Reach => rigless::character::body::BodyMotion::Reach,
+                }),
+            },
+            session_secs,
+            seconds,
+            looping,
+            stream,
+            noise_mm,
+            gap_percent,
+            json,
+        }),
         Command::Bake {
             character,
             force,
@@ -137,72 +172,6 @@ fn main() -> Result<()> {
             ..
         } => bench_characters(json),
     }
-}
-
-fn demo(
-    character: DemoCharacter,
-    motion: DemoMotion,
-    seconds: f64,
-    every: usize,
-    noise_mm: f64,
-) -> Result<()> {
-    use characters::{
-        body_bind_params, demo_body, demo_hand, hand_bind_params, run_character, CharacterRun,
-        Motion,
-    };
-    use rigless::character::body::BodyMotion;
-    if !(seconds.is_finite() && seconds > 0.0) {
-        bail!("--seconds must be a positive number of seconds, got {seconds}");
-    }
-    if !(noise_mm.is_finite() && noise_mm >= 0.0) {
-        bail!("--noise-mm must be a non-negative number of millimetres, got {noise_mm}");
-    }
-    let (ch, bind, motion) = match (character, motion) {
-        (DemoCharacter::Hand, _) => (demo_hand(), hand_bind_params(), Motion::FingerPlay),
-        (DemoCharacter::Body, m) => (
-            demo_body(),
-            body_bind_params(),
-            Motion::Body(match m {
-                DemoMotion::Walk => BodyMotion::Walk,
-                DemoMotion::Reach => BodyMotion::Reach,
-            }),
-        ),
-    };
-    println!(
-        "procedural {}, {}, 120 Hz, {seconds} s, {} mesh vertices, {} markers",
-        ch.name,
-        motion.name(),
-        ch.vertices.len(),
-        ch.markers.len()
-    );
-    println!(
-        "{:>6} {:>5} {:>13} {:>8} {:>9} {:>11} {:>9}",
-        "frame", "iters", "stop", "rrms", "bone_err", "marker_mm", "solve_ms"
-    );
-    let run = CharacterRun {
-        seconds,
-        rate_hz: 120.0,
-        noise_m: noise_mm * 1e-3,
-        frame_budget_s: 1.0 / 120.0,
-    };
-    let params = rigless::solve::frame::SolverParams::default();
-    let rec = run_character(&ch, &bind, params, motion, run, |f, r| {
-        if f % every == 0 {
-            println!(
-                "{:>6} {:>5} {:>13} {:>8.4} {:>9.5} {:>11.2} {:>9.3}",
-                f,
-                r.iterations,
-                format!("{:?}", r.stop),
-                r.rrms,
-                r.bone_length_error,
-                r.marker_residual_rms_mm,
-                r.solve_ms
-            );
-        }
-    })
-    .with_context(|| format!("binding the procedural {}", ch.name))?;
-    println!("{}", serde_json::to_string_pretty(&rec)?);
-    Ok(())
 }
 
 fn bake(path: &std::path::Path, force: bool, json: bool) -> Result<()> {

@@ -1,0 +1,320 @@
+//! The fixed-rate loop: every `1 / rate_hz` seconds, drain the input channel into the
+//! marker buffer, sample a gap-filled frame, solve it warm-started within the frame's
+//! deadline, and publish an `Arc<DeformedFrame>` to every sink's latest-value slot.
+//!
+//! [`Pipeline::tick`] is one frame with time passed in (tests call it directly with a
+//! manual clock); [`run_loop`] paces it on a [`Clock`]. The per-frame path does not
+//! allocate once warm: published frames come back to a pool when every sink has let go.
+
+use super::clock::Clock;
+use super::slot::LatestSlot;
+use crate::markers::buffer::MarkerBuffer;
+use crate::markers::{MarkerFrame, MarkerSample};
+use crate::protocol::vertex_stream::{DeformedFrame, StopCode, Topology};
+use crate::rig::bind::Rig;
+use crate::solve::arap::StopReason;
+use crate::solve::frame::{SolveReport, Solver};
+use crossbeam_channel::Receiver;
+use glam::DVec3;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Published frames kept for reuse.
+const POOL_LEN: usize = 8;
+/// Frame times kept for the status line's percentiles.
+const WINDOW_LEN: usize = 1024;
+
+/// Running figures for the status line, refreshed by the loop about once a second.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LoopStatus {
+    /// Frames solved so far.
+    pub frames: u64,
+    /// Frames per second over the last status interval.
+    pub frame_rate_hz: f64,
+    /// Whole-frame time (buffer, solve, full mesh, publish) over the last up to 1,024
+    /// frames: median and 99th percentile, ms.
+    pub frame_ms_p50: f64,
+    pub frame_ms_p99: f64,
+    /// Mean ARAP iterations over the last interval.
+    pub iterations_mean: f64,
+    /// Frames stopped by their deadline, in all.
+    pub deadline_stops: u64,
+    /// Ticks skipped because the loop fell more than a period behind, in all.
+    pub overruns: u64,
+    /// Markers in each fill state in the newest frame (measured, predicted, rigid-filled,
+    /// held).
+    pub fill_now: [usize; 4],
+    /// Samples taken from the channel, in all.
+    pub samples: u64,
+    /// The buffer's counters.
+    pub buffer: crate::markers::buffer::BufferCounters,
+}
+
+/// One frame's outcome.
+#[derive(Clone, Copy, Debug)]
+pub struct TickReport {
+    pub frame: u64,
+    /// Samples drained from the channel this tick.
+    pub samples: usize,
+    pub solve: SolveReport,
+    /// Whole tick, ms.
+    pub frame_ms: f64,
+}
+
+/// Everything the solver thread owns.
+pub struct Pipeline {
+    solver: Solver,
+    buffer: MarkerBuffer,
+    rx: Receiver<MarkerSample>,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    markers: MarkerFrame,
+    vertices: Vec<DVec3>,
+    pool: Vec<Arc<DeformedFrame>>,
+    frame_no: u64,
+    samples: u64,
+    window_ms: Vec<f64>,
+    window_at: usize,
+    deadline_stops: u64,
+    interval_frames: u64,
+    interval_iterations: u64,
+}
+
+impl Pipeline {
+    pub fn new(
+        solver: Solver,
+        buffer: MarkerBuffer,
+        rx: Receiver<MarkerSample>,
+        slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    ) -> Self {
+        let rig = Arc::clone(solver.rig());
+        let (nm, nv) = (rig.n_markers, rig.mesh_rest.len());
+        Self {
+            solver,
+            buffer,
+            rx,
+            slots,
+            markers: MarkerFrame::empty(nm),
+            vertices: vec![DVec3::ZERO; nv],
+            pool: Vec::with_capacity(POOL_LEN),
+            frame_no: 0,
+            samples: 0,
+            window_ms: Vec::with_capacity(WINDOW_LEN),
+            window_at: 0,
+            deadline_stops: 0,
+            interval_frames: 0,
+            interval_iterations: 0,
+        }
+    }
+
+    pub fn rig(&self) -> &Arc<Rig> {
+        self.solver.rig()
+    }
+
+    pub fn buffer(&self) -> &MarkerBuffer {
+        &self.buffer
+    }
+
+    /// The newest marker frame (after gap filling).
+    pub fn markers(&self) -> &MarkerFrame {
+        &self.markers
+    }
+
+    /// The newest full-resolution vertices, metres.
+    pub fn vertices(&self) -> &[DVec3] {
+        &self.vertices
+    }
+
+    /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
+    /// `deadline`), publish (stamped `publish_unix_s`).
+    pub fn tick(&mut self, t_s: f64, deadline: Instant, publish_unix_s: f64) -> TickReport {
+        let start = Instant::now();
+        let mut drained = 0;
+        while let Ok(s) = self.rx.try_recv() {
+            self.buffer.push(&s);
+            drained += 1;
+        }
+        self.samples += drained as u64;
+        self.buffer.sample_at(t_s, &mut self.markers);
+        let solve = self
+            .solver
+            .solve(&self.markers, deadline, &mut self.vertices);
+        let mut frame = self.recycled_frame();
+        {
+            let f = Arc::get_mut(&mut frame).expect("a recycled frame is unshared");
+            f.frame = self.frame_no;
+            f.source_time_s = self.markers.source_time_s;
+            f.publish_time_s = publish_unix_s;
+            let s = &mut f.status;
+            s.iterations = solve.iterations.min(u16::MAX as usize) as u16;
+            s.stop = match solve.stop {
+                StopReason::Converged => StopCode::Converged,
+                StopReason::IterationCap => StopCode::IterationCap,
+                StopReason::Deadline => StopCode::Deadline,
+            };
+            s.solve_ms = solve.solve_ms as f32;
+            s.gc_ms = solve.gc_ms as f32;
+            s.rrms = solve.rrms as f32;
+            s.bone_length_error = solve.bone_length_error as f32;
+            s.joint_limit_violation_deg = solve.joint_limit_violation_deg as f32;
+            s.marker_residual_rms_mm = solve.marker_residual_rms_mm as f32;
+            s.marker_residual_max_mm = solve.marker_residual_max_mm as f32;
+            f.marker_states.copy_from_slice(&self.markers.states);
+            for (o, p) in f.markers_m.iter_mut().zip(&self.markers.positions) {
+                *o = p.as_vec3();
+            }
+            for (o, p) in f.vertices_m.iter_mut().zip(&self.vertices) {
+                *o = p.as_vec3();
+            }
+        }
+        for slot in &self.slots {
+            slot.publish(Arc::clone(&frame));
+        }
+        self.keep_for_reuse(frame);
+        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        if self.window_ms.len() < WINDOW_LEN {
+            self.window_ms.push(frame_ms);
+        } else {
+            self.window_ms[self.window_at] = frame_ms;
+        }
+        self.window_at = (self.window_at + 1) % WINDOW_LEN;
+        self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
+        self.interval_frames += 1;
+        self.interval_iterations += solve.iterations as u64;
+        let report = TickReport {
+            frame: self.frame_no,
+            samples: drained,
+            solve,
+            frame_ms,
+        };
+        self.frame_no += 1;
+        report
+    }
+
+    /// A pooled frame no sink holds any more, or a new one while the pool fills.
+    fn recycled_frame(&mut self) -> Arc<DeformedFrame> {
+        if let Some(i) = self.pool.iter_mut().position(|f| Arc::get_mut(f).is_some()) {
+            return self.pool.swap_remove(i);
+        }
+        let rig = self.solver.rig();
+        Arc::new(DeformedFrame::with_sizes(
+            rig.n_markers,
+            rig.mesh_rest.len(),
+        ))
+    }
+
+    fn keep_for_reuse(&mut self, frame: Arc<DeformedFrame>) {
+        if self.pool.len() >= POOL_LEN {
+            // Every pooled frame is still held by a slow sink: forget the oldest.
+            self.pool.remove(0);
+        }
+        self.pool.push(frame);
+    }
+
+    /// Status since the last call (interval figures) and in all; `overruns` and
+    /// `interval_s` come from the loop.
+    pub fn status(&mut self, interval_s: f64, overruns: u64) -> LoopStatus {
+        let mut sorted = self.window_ms.clone();
+        sorted.sort_by(f64::total_cmp);
+        let pct = |q: f64| {
+            if sorted.is_empty() {
+                0.0
+            } else {
+                sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+            }
+        };
+        let mut fill_now = [0usize; 4];
+        for s in &self.markers.states {
+            fill_now[*s as usize] += 1;
+        }
+        let st = LoopStatus {
+            frames: self.frame_no,
+            frame_rate_hz: self.interval_frames as f64 / interval_s.max(1e-9),
+            frame_ms_p50: pct(0.5),
+            frame_ms_p99: pct(0.99),
+            iterations_mean: self.interval_iterations as f64 / self.interval_frames.max(1) as f64,
+            deadline_stops: self.deadline_stops,
+            overruns,
+            fill_now,
+            samples: self.samples,
+            buffer: *self.buffer.counters(),
+        };
+        self.interval_frames = 0;
+        self.interval_iterations = 0;
+        st
+    }
+}
+
+/// The topology message for a rig's vertex stream.
+pub fn topology(rig: &Rig, character: &str, rate_hz: f64) -> Topology {
+    let sk = &rig.skeleton;
+    Topology {
+        character: character.to_owned(),
+        rate_hz: rate_hz as f32,
+        length_unit: "m".into(),
+        up_axis: "+Y".into(),
+        handedness: "right".into(),
+        vertex_count: rig.mesh_rest.len() as u32,
+        triangles: rig.triangles.clone(),
+        marker_names: rig.marker_names.clone(),
+        joint_names: sk.joints.iter().map(|j| j.name.clone()).collect(),
+        joint_parents: sk
+            .joints
+            .iter()
+            .map(|j| j.parent.map_or(-1, |p| p as i32))
+            .collect(),
+    }
+}
+
+/// How the loop runs.
+#[derive(Clone, Copy, Debug)]
+pub struct LoopParams {
+    pub rate_hz: f64,
+    /// Fraction of the period a frame's solve may use before it stops at its deadline.
+    pub deadline_fraction: f64,
+    /// Stop after this time on the clock, seconds (`None`: until `stop`).
+    pub end_s: Option<f64>,
+    /// Seconds between status updates.
+    pub status_interval_s: f64,
+}
+
+/// Paces [`Pipeline::tick`] at `rate_hz` on `clock` from its current time until `stop` is
+/// set or `end_s`; a tick more than one period late is skipped (counted as an overrun),
+/// never bunched. Status goes to `status` about every `status_interval_s`. Returns the
+/// final status.
+pub fn run_loop(
+    p: &mut Pipeline,
+    clock: &dyn Clock,
+    params: LoopParams,
+    stop: &AtomicBool,
+    status: &LatestSlot<LoopStatus>,
+    deadline_of: &dyn Fn(f64) -> Instant,
+) -> LoopStatus {
+    let period = 1.0 / params.rate_hz;
+    let mut next = clock.now_s();
+    let mut overruns = 0u64;
+    let mut last_status = next;
+    loop {
+        if stop.load(Ordering::Relaxed) || params.end_s.is_some_and(|e| next > e) {
+            break;
+        }
+        clock.sleep_until(next);
+        let now = clock.now_s();
+        if now - next > period {
+            let behind = ((now - next) / period).floor();
+            overruns += behind as u64;
+            next += behind * period;
+        }
+        p.tick(
+            next,
+            deadline_of(next + period * params.deadline_fraction),
+            clock.unix_s(next),
+        );
+        if next - last_status >= params.status_interval_s {
+            status.publish(Arc::new(p.status(next - last_status, overruns)));
+            last_status = next;
+        }
+        next += period;
+    }
+    p.status((clock.now_s() - last_status).max(1e-9), overruns)
+}

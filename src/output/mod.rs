@@ -1,0 +1,3 @@
+//! Sinks that read published frames: the vertex stream server.
+
+pub mod stream;

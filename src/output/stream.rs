@@ -1,0 +1,226 @@
+//! The vertex stream server (TCP): each client gets the topology, then every solved
+//! frame in the format of `protocols/vertex-stream.md`, and a goodbye at shutdown.
+//!
+//! Runs on its own thread with a single-threaded tokio runtime. The solver publishes into
+//! a [`LatestSlot`]; a dispatcher task moves each frame into a `watch` channel that every
+//! client task follows, so a slow client skips to the newest frame (the skipped frames
+//! are counted) and never holds up the loop or the other clients.
+
+use crate::daemon::slot::LatestSlot;
+use crate::protocol::vertex_stream::{
+    encode_frame, encode_goodbye, encode_topology, DeformedFrame, Topology,
+};
+use std::io;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+use tokio::task::JoinSet;
+
+/// A client whose socket accepts nothing for this long is disconnected, seconds.
+pub const WRITE_TIMEOUT_SECS: f64 = 5.0;
+/// How long shutdown waits for clients to take their goodbye, seconds.
+const GOODBYE_TIMEOUT_SECS: f64 = 1.0;
+
+/// What the server has done (monotonic except `clients`).
+#[derive(Debug, Default)]
+pub struct StreamStats {
+    /// Clients connected now.
+    pub clients: AtomicU64,
+    /// Connections accepted in all.
+    pub connections: AtomicU64,
+    /// Frame messages written, over all clients.
+    pub frames_sent: AtomicU64,
+    /// Frames a client skipped because it was slower than the loop, over all clients.
+    pub frames_skipped: AtomicU64,
+    /// Clients dropped on a write error or timeout.
+    pub write_errors: AtomicU64,
+}
+
+type FrameRx = watch::Receiver<Option<Arc<DeformedFrame>>>;
+type ShutdownRx = watch::Receiver<Option<String>>;
+
+/// A running vertex stream server.
+pub struct StreamServer {
+    local_addr: SocketAddr,
+    shutdown: watch::Sender<Option<String>>,
+    thread: Option<JoinHandle<()>>,
+    stats: Arc<StreamStats>,
+}
+
+impl StreamServer {
+    /// Binds `addr` (port 0 picks a free port) and serves frames published to `slot`.
+    pub fn start(
+        addr: SocketAddr,
+        topology: &Topology,
+        slot: Arc<LatestSlot<DeformedFrame>>,
+    ) -> io::Result<Self> {
+        let std_listener = std::net::TcpListener::bind(addr)?;
+        std_listener.set_nonblocking(true)?;
+        let local_addr = std_listener.local_addr()?;
+        let mut topo = Vec::new();
+        encode_topology(topology, &mut topo);
+        let topo = Arc::new(topo);
+        let stats = Arc::new(StreamStats::default());
+        let (shutdown, shutdown_rx) = watch::channel(None);
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        let thread_stats = Arc::clone(&stats);
+        let thread = std::thread::Builder::new()
+            .name("vertex-stream".into())
+            .spawn(move || {
+                rt.block_on(serve(std_listener, topo, slot, shutdown_rx, thread_stats));
+            })?;
+        Ok(Self {
+            local_addr,
+            shutdown,
+            thread: Some(thread),
+            stats,
+        })
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    pub fn stats(&self) -> &Arc<StreamStats> {
+        &self.stats
+    }
+
+    /// Sends every client a goodbye with `reason`, closes, and waits for the thread.
+    pub fn shutdown(mut self, reason: &str) {
+        self.stop(reason);
+    }
+
+    fn stop(&mut self, reason: &str) {
+        self.shutdown.send_replace(Some(reason.to_owned()));
+        if let Some(t) = self.thread.take() {
+            // The thread ends within GOODBYE_TIMEOUT_SECS; a panic there was already
+            // reported by the panic hook.
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for StreamServer {
+    fn drop(&mut self) {
+        if self.thread.is_some() {
+            self.stop("server dropped");
+        }
+    }
+}
+
+async fn serve(
+    std_listener: std::net::TcpListener,
+    topo: Arc<Vec<u8>>,
+    slot: Arc<LatestSlot<DeformedFrame>>,
+    mut shutdown: ShutdownRx,
+    stats: Arc<StreamStats>,
+) {
+    let listener = match TcpListener::from_std(std_listener) {
+        Ok(l) => l,
+        Err(e) => {
+            tracing::error!(error = %e, "vertex stream: cannot register the listener");
+            return;
+        }
+    };
+    let (frames_tx, frames_rx) = watch::channel(None);
+    let mut dispatch_shutdown = shutdown.clone();
+    let dispatcher = tokio::spawn(async move {
+        loop {
+            tokio::select! {
+                f = slot.next() => { frames_tx.send_replace(Some(f)); }
+                _ = dispatch_shutdown.changed() => break,
+            }
+        }
+    });
+    let mut clients = JoinSet::new();
+    loop {
+        tokio::select! {
+            r = listener.accept() => match r {
+                Ok((sock, peer)) => {
+                    stats.connections.fetch_add(1, Ordering::Relaxed);
+                    tracing::info!(%peer, "vertex stream: client connected");
+                    clients.spawn(serve_client(
+                        sock,
+                        Arc::clone(&topo),
+                        frames_rx.clone(),
+                        shutdown.clone(),
+                        Arc::clone(&stats),
+                    ));
+                }
+                Err(e) => tracing::warn!(error = %e, "vertex stream: accept failed"),
+            },
+            _ = shutdown.changed() => break,
+            Some(_) = clients.join_next(), if !clients.is_empty() => {}
+        }
+    }
+    drop(listener);
+    let _ = dispatcher.await;
+    let _ = tokio::time::timeout(Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0), async {
+        while clients.join_next().await.is_some() {}
+    })
+    .await;
+}
+
+async fn write_timed(sock: &mut TcpStream, bytes: &[u8], secs: f64) -> bool {
+    matches!(
+        tokio::time::timeout(Duration::from_secs_f64(secs), sock.write_all(bytes)).await,
+        Ok(Ok(()))
+    )
+}
+
+async fn serve_client(
+    mut sock: TcpStream,
+    topo: Arc<Vec<u8>>,
+    mut frames: FrameRx,
+    mut shutdown: ShutdownRx,
+    stats: Arc<StreamStats>,
+) {
+    stats.clients.fetch_add(1, Ordering::Relaxed);
+    let _ = sock.set_nodelay(true);
+    let mut ok = write_timed(&mut sock, &topo, WRITE_TIMEOUT_SECS).await;
+    // Send the newest frame at once rather than waiting for the next.
+    frames.mark_changed();
+    let mut buf = Vec::new();
+    let mut last: Option<u64> = None;
+    while ok {
+        tokio::select! {
+            r = frames.changed() => {
+                if r.is_err() {
+                    break;
+                }
+                let Some(f) = frames.borrow_and_update().clone() else { continue };
+                if let Some(l) = last {
+                    let skipped = f.frame.saturating_sub(l + 1);
+                    stats.frames_skipped.fetch_add(skipped, Ordering::Relaxed);
+                }
+                last = Some(f.frame);
+                buf.clear();
+                encode_frame(&f, &mut buf);
+                drop(f);
+                ok = write_timed(&mut sock, &buf, WRITE_TIMEOUT_SECS).await;
+                if ok {
+                    stats.frames_sent.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            _ = shutdown.changed() => {
+                let reason = shutdown.borrow().clone().unwrap_or_default();
+                buf.clear();
+                encode_goodbye(&reason, &mut buf);
+                let _ = write_timed(&mut sock, &buf, GOODBYE_TIMEOUT_SECS).await;
+                let _ = sock.shutdown().await;
+                break;
+            }
+        }
+    }
+    if !ok {
+        stats.write_errors.fetch_add(1, Ordering::Relaxed);
+    }
+    stats.clients.fetch_sub(1, Ordering::Relaxed);
+}
