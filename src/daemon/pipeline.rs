@@ -293,7 +293,8 @@ pub fn run_loop(
     let period = 1.0 / params.rate_hz;
     let mut next = clock.now_s();
     let mut overruns = 0u64;
-    let mut last_status = next;
+    // The first tick covers the period before it, so rates come out exact.
+    let mut last_status = next - period;
     loop {
         if stop.load(Ordering::Relaxed) || params.end_s.is_some_and(|e| next > e) {
             break;

@@ -191,8 +191,12 @@ async fn serve_client(
     let mut last: Option<u64> = None;
     while ok {
         tokio::select! {
+            biased;
+            _ = shutdown.changed() => break,
             r = frames.changed() => {
                 if r.is_err() {
+                    // The dispatcher has gone: the server is shutting down.
+                    let _ = shutdown.wait_for(Option::is_some).await;
                     break;
                 }
                 let Some(f) = frames.borrow_and_update().clone() else { continue };
@@ -209,15 +213,14 @@ async fn serve_client(
                     stats.frames_sent.fetch_add(1, Ordering::Relaxed);
                 }
             }
-            _ = shutdown.changed() => {
-                let reason = shutdown.borrow().clone().unwrap_or_default();
-                buf.clear();
-                encode_goodbye(&reason, &mut buf);
-                let _ = write_timed(&mut sock, &buf, GOODBYE_TIMEOUT_SECS).await;
-                let _ = sock.shutdown().await;
-                break;
-            }
         }
+    }
+    if ok {
+        let reason = shutdown.borrow().clone().unwrap_or_default();
+        buf.clear();
+        encode_goodbye(&reason, &mut buf);
+        let _ = write_timed(&mut sock, &buf, GOODBYE_TIMEOUT_SECS).await;
+        let _ = sock.shutdown().await;
     }
     if !ok {
         stats.write_errors.fetch_add(1, Ordering::Relaxed);

@@ -1,0 +1,111 @@
+//! End to end over loopback: `rigless demo` plays the hand live and the Python reference
+//! client (`protocols/vertex_stream_client.py`) reads the vertex stream until goodbye.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Bounded wait for the demo to print its stream address (binding the hand takes about a
+/// second; a loaded CI machine may take several).
+const STARTUP_TIMEOUT: Duration = Duration::from_secs(60);
+
+#[test]
+fn python_client_reads_topology_frames_and_goodbye() {
+    if Command::new("python3").arg("--version").output().is_err() {
+        panic!("python3 is required (README set-up installs it)");
+    }
+    let mut demo = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args([
+            "demo",
+            "--seconds",
+            "3",
+            "--stream",
+            "127.0.0.1:0",
+            "--gap-percent",
+            "10",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start rigless demo");
+    let stdout = demo.stdout.take().unwrap();
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        let mut lines = Vec::new();
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
+                let _ = addr_tx.send(a.to_owned());
+            }
+            lines.push(line);
+        }
+        lines
+    });
+    let addr = match addr_rx.recv_timeout(STARTUP_TIMEOUT) {
+        Ok(a) => a,
+        Err(_) => {
+            let _ = demo.kill();
+            panic!("the demo printed no stream address within {STARTUP_TIMEOUT:?}");
+        }
+    };
+    let client = Command::new("python3")
+        .args([
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/protocols/vertex_stream_client.py"
+            ),
+            &addr,
+            "--timeout",
+            "20",
+        ])
+        .output()
+        .expect("run the Python client");
+    let started = Instant::now();
+    let status = demo.wait().expect("demo exits");
+    let lines = reader.join().unwrap();
+    assert!(status.success(), "demo failed: {lines:?}");
+    assert!(started.elapsed() < Duration::from_secs(30));
+    assert!(
+        client.status.success(),
+        "client failed: {}",
+        String::from_utf8_lossy(&client.stderr)
+    );
+    let out = String::from_utf8(client.stdout).unwrap();
+    let v: serde_json::Value = serde_json::from_str(out.trim()).expect("client JSON");
+    let s = &v["summary"];
+    println!("{s}");
+    let topo = &s["topology"];
+    assert_eq!(topo["character"], "hand");
+    assert_eq!(topo["vertex_count"], 5001);
+    assert_eq!(topo["length_unit"], "m");
+    assert_eq!(topo["up_axis"], "+Y");
+    assert_eq!(topo["marker_names"].as_array().unwrap().len(), 8);
+    assert_eq!(topo["joint_names"], 21);
+    assert_eq!(s["goodbye"], "demo stopped");
+    assert_eq!(s["frame_numbers_increasing"], true);
+    assert_eq!(s["vertex_count_matches"], true);
+    assert_eq!(s["marker_count_matches"], true);
+    assert_eq!(s["all_finite"], true);
+    // 3 s at 120 Hz is 360 frames; the client joins a little after the stream starts and
+    // may skip a few if the machine stalls it, but must see most of them.
+    let frames = s["frames"].as_u64().unwrap();
+    assert!((200..=361).contains(&frames), "frames {frames}");
+    // The last frame is the session's last tick: 3 s at 120 Hz, counting from 0.
+    let last = s["last_frame"].as_u64().unwrap();
+    assert!((358..=360).contains(&last), "last frame {last}");
+    // The hand is about 0.2 m tall and stays near the origin.
+    for a in 0..3 {
+        let lo = s["bbox_min"][a].as_f64().unwrap();
+        let hi = s["bbox_max"][a].as_f64().unwrap();
+        assert!(
+            lo > -0.3 && hi < 0.3 && hi - lo > 0.05,
+            "axis {a}: {lo}..{hi}"
+        );
+    }
+    // 10 % of samples were occluded: some frames must show filled or held markers.
+    let fills = &s["fill_counts"];
+    let not_measured = fills["predicted"].as_u64().unwrap()
+        + fills["rigid_filled"].as_u64().unwrap()
+        + fills["held"].as_u64().unwrap();
+    assert!(not_measured > 0, "{fills}");
+    assert!(lines.iter().any(|l| l.starts_with("done: ")), "{lines:?}");
+}
