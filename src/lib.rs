@@ -15,6 +15,7 @@
 //! - [`solve`]: per-frame math, no I/O.
 //! - [`markers`]: marker samples and frames, the marker buffer and its gap filling.
 //! - [`protocol`]: pure wire codecs (the vertex stream).
+//! - [`replay`]: recorded sessions from files (Qualisys TSV).
 //! - [`input`]: sources feeding marker samples into the daemon's channel.
 //! - [`output`]: sinks reading published frames (the vertex stream server).
 //! - [`daemon`]: the clock, latest-value slots and the fixed-rate loop.
@@ -27,5 +28,6 @@ pub mod input;
 pub mod markers;
 pub mod output;
 pub mod protocol;
+pub mod replay;
 pub mod rig;
 pub mod solve;

@@ -77,7 +77,9 @@ enum Command {
     /// Run a benchmark suite and print one line per case (a table, or JSON with --json).
     Bench {
         /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared
-        /// data folder) or `characters` (the procedural hand and body playing their motions).
+        /// data folder), `characters` (the procedural hand and body playing their motions),
+        /// or `gapfill` (the marker buffer's fill error by gap length, on synthetic sessions
+        /// and the shared data folder's Qualisys hand recording).
         #[arg(long, value_enum, default_value_t = Suite::Capsules)]
         suite: Suite,
         /// Print one JSON object per line instead of a table.
@@ -105,6 +107,7 @@ enum DemoMotion {
 enum Suite {
     Capsules,
     Characters,
+    Gapfill,
 }
 
 fn main() -> Result<()> {
@@ -171,6 +174,11 @@ fn main() -> Result<()> {
             json,
             ..
         } => bench_characters(json),
+        Command::Bench {
+            suite: Suite::Gapfill,
+            json,
+            data,
+        } => bench_gapfill(&data, json),
     }
 }
 
@@ -396,6 +404,114 @@ fn bench_capsules(data: &std::path::Path, json: bool) -> Result<()> {
                 rec.target_ms,
                 rec.inverted_tets
             );
+        }
+    }
+    Ok(())
+}
+
+fn bench_gapfill(data: &std::path::Path, json: bool) -> Result<()> {
+    use rigless::bench::gapfill::{measure, Trajectories};
+    use rigless::character::body::BodyMotion;
+    use rigless::character::demo::{demo_body, demo_hand, Motion};
+    use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
+    use rigless::markers::buffer::BufferConfig;
+    use std::sync::Arc;
+    const GAPS_S: [f64; 7] = [0.01, 0.025, 0.05, 0.1, 0.2, 0.5, 1.0];
+    let mut sets = Vec::new();
+    for (ch, motion) in [
+        (demo_hand(), Motion::FingerPlay),
+        (demo_body(), Motion::Body(BodyMotion::Walk)),
+    ] {
+        let segment = ch.markers.iter().map(|m| m.joint.unwrap_or(0)).collect();
+        let rest = ch.markers.iter().map(|m| m.rest).collect();
+        let name = format!("synthetic {} {}", ch.name, motion.name());
+        let mut s = SyntheticSession::new(
+            Arc::new(ch),
+            motion,
+            SyntheticParams {
+                duration_secs: 30.0,
+                gap_fraction: 0.0,
+                noise_m: 0.0005,
+                ..SyntheticParams::default()
+            },
+        );
+        let mut frames = Vec::new();
+        let mut batch = Vec::new();
+        for i in 0..s.frames() {
+            batch.clear();
+            s.frame(i, 0.0, &mut batch);
+            frames.push(batch.iter().map(|m| m.position_m).collect());
+        }
+        sets.push(Trajectories {
+            name,
+            rate_hz: s.params().rate_hz,
+            frames,
+            segment,
+            rest,
+        });
+    }
+    let tsv = data.join("hand/dfki_hand_recording.tsv");
+    match std::fs::read_to_string(&tsv) {
+        Ok(text) => {
+            let r = rigless::replay::tsv::parse_tsv(&text)
+                .with_context(|| format!("reading {}", tsv.display()))?;
+            // Rigid groups by name prefix (hand_, back_, pillow_, ...).
+            let mut groups: Vec<String> = Vec::new();
+            let segment = r
+                .marker_names
+                .iter()
+                .map(|n| {
+                    let g = n.split('_').next().unwrap_or(n).to_owned();
+                    groups.iter().position(|x| *x == g).unwrap_or_else(|| {
+                        groups.push(g);
+                        groups.len() - 1
+                    })
+                })
+                .collect();
+            let rest = r
+                .frames
+                .iter()
+                .find(|f| f.iter().all(|p| p.is_finite()))
+                .cloned()
+                .unwrap_or_else(|| vec![glam::DVec3::ZERO; r.marker_names.len()]);
+            sets.push(Trajectories {
+                name: "dfki_hand_recording.tsv".into(),
+                rate_hz: r.rate_hz,
+                frames: r.frames,
+                segment,
+                rest,
+            });
+        }
+        Err(e) => eprintln!("skipping the real hand recording: {}: {e}", tsv.display()),
+    }
+    if !json {
+        println!(
+            "{:<34} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>9} {:>6} {:>6} {:>6}",
+            "recording",
+            "gap_ms",
+            "gaps",
+            "mean_mm",
+            "p95_mm",
+            "predict_mm",
+            "rigid_mm",
+            "held_mm",
+            "pred%",
+            "rigid%",
+            "held%"
+        );
+    }
+    for tr in &sets {
+        for r in measure(tr, &BufferConfig::default(), &GAPS_S, 1.0) {
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!(
+                    "{:<34} {:>7.0} {:>6} {:>9.2} {:>8.2} {:>10.2} {:>9.2} {:>9.2} {:>6.1} {:>6.1} {:>6.1}",
+                    r.recording, r.gap_ms, r.gaps, r.error_mm_mean, r.error_mm_p95, r.predicted_mm_mean,
+                    r.rigid_mm_mean, r.held_mm_mean, 100.0 * r.predicted_share, 100.0 * r.rigid_share,
+                    100.0 * r.held_share
+                );
+            }
         }
     }
     Ok(())

@@ -4,6 +4,7 @@
 
 pub mod capsules;
 pub mod characters;
+pub mod gapfill;
 
 use std::time::Duration;
 
