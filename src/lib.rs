@@ -11,6 +11,7 @@
 //! right-handed, Y up. Adapters convert once at the edge.
 //!
 //! Module map (data flows top to bottom; a module only imports those above it):
+//! - [`config`]: the stage config of `rigless run`.
 //! - [`rig`]: control mesh construction and binding (offline).
 //! - [`solve`]: per-frame math, no I/O.
 //! - [`markers`]: marker samples and frames, the marker buffer and its gap filling.
@@ -23,6 +24,7 @@
 
 pub mod bench;
 pub mod character;
+pub mod config;
 pub mod daemon;
 pub mod input;
 pub mod markers;

@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use rigless::bench::{capsules, characters};
 use std::path::PathBuf;
 
-mod demo;
+mod live;
 
 /// Animate a character mesh live from a handful of motion-capture markers, with no
 /// rigging step.
@@ -18,6 +18,25 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the live daemon from a stage config (TOML: the character, the inputs, the
+    /// solver, the outputs; every key is documented in src/config.rs and stages/): bind
+    /// the character (or load its bake cache), start the inputs and the solver thread,
+    /// serve the vertex stream, print a status line every second, and run until the
+    /// inputs end, --seconds pass, or Ctrl-C (clients are told goodbye).
+    Run {
+        /// The stage config file.
+        #[arg(long)]
+        config: PathBuf,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Check the config, print every problem, and exit without running.
+        #[arg(long)]
+        check: bool,
+        /// Print the status and the summary as JSON lines instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Play a procedural character live through the whole pipeline, in real time: a
     /// synthetic capture session (the hand's finger play by default, or the body's walk or
     /// reach, with marker noise and occlusion gaps) feeds the marker buffer, the solver
@@ -110,7 +129,18 @@ enum Suite {
     Gapfill,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    match real_main() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // The whole chain of causes, without a backtrace: these are user errors.
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn real_main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
@@ -119,6 +149,21 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.command {
+        Command::Run {
+            config,
+            seconds,
+            check,
+            json,
+        } => {
+            check_seconds(seconds)?;
+            let cfg = rigless::config::load_stage(&config)?;
+            if check {
+                println!("{}: ok", config.display());
+                return Ok(());
+            }
+            let base = config.parent().unwrap_or(std::path::Path::new("."));
+            live::run(&cfg, base, &live::RunOptions { seconds, json })
+        }
         Command::Demo {
             character,
             motion,
@@ -129,22 +174,24 @@ fn main() -> Result<()> {
             noise_mm,
             gap_percent,
             json,
-        } => demo::run(demo::DemoArgs {
-            character: match character {
-                DemoCharacter::Hand => demo::Which::Hand,
-                DemoCharacter::Body => demo::Which::Body(match motion {
-                    DemoMotion::Walk => rigless::character::body::BodyMotion::Walk,
-                    DemoMotion::Reach => rigless::character::body::BodyMotion::Reach,
-                }),
-            },
-            session_secs,
-            seconds,
-            looping,
-            stream,
-            noise_mm,
-            gap_percent,
-            json,
-        }),
+        } => {
+            check_seconds(seconds)?;
+            let (procedural, motion) = match (character, motion) {
+                (DemoCharacter::Hand, _) => ("hand", "finger_play"),
+                (DemoCharacter::Body, DemoMotion::Walk) => ("body", "walk"),
+                (DemoCharacter::Body, DemoMotion::Reach) => ("body", "reach"),
+            };
+            // The embedded default stage, with the flags applied; validated like a file.
+            let text = format!(
+                "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"{motion}\"\nsession_secs = {session_secs:?}\nnoise_mm = {noise_mm:?}\ngap_percent = {gap_percent:?}\nloop = {looping}\n\n[outputs.stream]\ntcp = \"{stream}\"\n"
+            );
+            let cfg = rigless::config::parse_stage(&text, "demo flags")?;
+            live::run(
+                &cfg,
+                std::path::Path::new("."),
+                &live::RunOptions { seconds, json },
+            )
+        }
         Command::Bake {
             character,
             force,
@@ -184,55 +231,11 @@ fn main() -> Result<()> {
 
 fn bake(path: &std::path::Path, force: bool, json: bool) -> Result<()> {
     use rigless::character::file::load_character;
-    use rigless::rig::bind::{BindStage, Rig};
-    use rigless::rig::cache;
-    use std::io::Write;
     let t0 = std::time::Instant::now();
     let loaded = load_character(path)?;
     let ch = &loaded.character;
     let read_s = t0.elapsed().as_secs_f64();
-    let cache_file = cache::cache_path(path);
-    let t1 = std::time::Instant::now();
-    let (rig, source) = match (force, cache::load(path, loaded.inputs_hash)) {
-        (false, Ok(rig)) => (
-            rig,
-            format!(
-                "loaded {} in {:.3} s",
-                cache_file.display(),
-                t1.elapsed().as_secs_f64()
-            ),
-        ),
-        (_, cached) => {
-            let why = match cached {
-                Ok(_) => "--force".to_string(),
-                Err(miss) => miss.to_string(),
-            };
-            let mut last = (None, -1i64);
-            let rig = Rig::bind_with_progress(ch, &loaded.bind, &mut |stage, f| {
-                let pct = (f * 100.0) as i64;
-                if json || (Some(stage), pct / 5) == (last.0, last.1 / 5) {
-                    return;
-                }
-                last = (Some(stage), pct);
-                let name = match stage {
-                    BindStage::Lattice => "lattice and binding",
-                    BindStage::GreenCoordinates => "Green coordinates",
-                    BindStage::Factorization => "weights and factorization",
-                };
-                let bar: String = (0..20)
-                    .map(|k| if k < pct / 5 { '#' } else { '.' })
-                    .collect();
-                eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
-                let _ = std::io::stderr().flush();
-            })
-            .with_context(|| format!("binding {}", path.display()))?;
-            if !json {
-                eprintln!("\r  binding [####################] done{:<30}", "");
-            }
-            let written = cache::store(path, &rig, loaded.inputs_hash)?;
-            (rig, format!("bound ({why}); wrote {}", written.display()))
-        }
-    };
+    let (rig, source) = load_or_bind(path, &loaded, force, json)?;
     let s = &rig.stats;
     if json {
         println!(
@@ -515,4 +518,72 @@ fn bench_gapfill(data: &std::path::Path, json: bool) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The bound rig of a loaded character file: from its bake cache when current (and not
+/// `force`), else bound (with a progress bar unless `quiet`) and cached. Returns the rig
+/// and a line saying which.
+pub fn load_or_bind(
+    path: &std::path::Path,
+    loaded: &rigless::character::file::LoadedCharacter,
+    force: bool,
+    quiet: bool,
+) -> Result<(rigless::rig::bind::Rig, String)> {
+    use rigless::rig::bind::{BindStage, Rig};
+    use rigless::rig::cache;
+    use std::io::Write;
+    let json = quiet;
+    let ch = &loaded.character;
+    let cache_file = cache::cache_path(path);
+    let t1 = std::time::Instant::now();
+    let (rig, source) = match (force, cache::load(path, loaded.inputs_hash)) {
+        (false, Ok(rig)) => (
+            rig,
+            format!(
+                "loaded {} in {:.3} s",
+                cache_file.display(),
+                t1.elapsed().as_secs_f64()
+            ),
+        ),
+        (_, cached) => {
+            let why = match cached {
+                Ok(_) => "--force".to_string(),
+                Err(miss) => miss.to_string(),
+            };
+            let mut last = (None, -1i64);
+            let rig = Rig::bind_with_progress(ch, &loaded.bind, &mut |stage, f| {
+                let pct = (f * 100.0) as i64;
+                if json || (Some(stage), pct / 5) == (last.0, last.1 / 5) {
+                    return;
+                }
+                last = (Some(stage), pct);
+                let name = match stage {
+                    BindStage::Lattice => "lattice and binding",
+                    BindStage::GreenCoordinates => "Green coordinates",
+                    BindStage::Factorization => "weights and factorization",
+                };
+                let bar: String = (0..20)
+                    .map(|k| if k < pct / 5 { '#' } else { '.' })
+                    .collect();
+                eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
+                let _ = std::io::stderr().flush();
+            })
+            .with_context(|| format!("binding {}", path.display()))?;
+            if !json {
+                eprintln!("\r  binding [####################] done{:<30}", "");
+            }
+            let written = cache::store(path, &rig, loaded.inputs_hash)?;
+            (rig, format!("bound ({why}); wrote {}", written.display()))
+        }
+    };
+    Ok((rig, source))
+}
+
+fn check_seconds(seconds: Option<f64>) -> Result<()> {
+    match seconds {
+        Some(s) if !(s.is_finite() && s > 0.0) => {
+            bail!("--seconds must be a positive number of seconds, got {s}")
+        }
+        _ => Ok(()),
+    }
 }

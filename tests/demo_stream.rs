@@ -1,5 +1,6 @@
-//! End to end over loopback: `rigless demo` plays the hand live and the Python reference
-//! client (`protocols/vertex_stream_client.py`) reads the vertex stream until goodbye.
+//! End to end over loopback: `rigless demo` and `rigless run --config` play procedural
+//! characters live and the Python reference client (`protocols/vertex_stream_client.py`)
+//! reads the vertex stream.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -80,7 +81,7 @@ fn python_client_reads_topology_frames_and_goodbye() {
     assert_eq!(topo["up_axis"], "+Y");
     assert_eq!(topo["marker_names"].as_array().unwrap().len(), 8);
     assert_eq!(topo["joint_names"], 21);
-    assert_eq!(s["goodbye"], "demo stopped");
+    assert_eq!(s["goodbye"], "time limit reached");
     assert_eq!(s["frame_numbers_increasing"], true);
     assert_eq!(s["vertex_count_matches"], true);
     assert_eq!(s["marker_count_matches"], true);
@@ -107,5 +108,106 @@ fn python_client_reads_topology_frames_and_goodbye() {
         + fills["rigid_filled"].as_u64().unwrap()
         + fills["held"].as_u64().unwrap();
     assert!(not_measured > 0, "{fills}");
-    assert!(lines.iter().any(|l| l.starts_with("done: ")), "{lines:?}");
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("done (time limit reached)")),
+        "{lines:?}"
+    );
+}
+
+#[test]
+fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"body\"\n\n[solver]\nrate_hz = 60\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"reach\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+    )
+    .unwrap();
+    let mut run = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(["run", "--config", stage.to_str().unwrap(), "--seconds", "4"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start rigless run");
+    let stdout = run.stdout.take().unwrap();
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        let mut lines = Vec::new();
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
+                let _ = addr_tx.send(a.to_owned());
+            }
+            lines.push(line);
+        }
+        lines
+    });
+    let Ok(addr) = addr_rx.recv_timeout(STARTUP_TIMEOUT) else {
+        let _ = run.kill();
+        panic!("rigless run printed no stream address within {STARTUP_TIMEOUT:?}");
+    };
+    // Read 30 frames (half a second at 60 Hz), then hang up: the server must carry on.
+    let client = Command::new("python3")
+        .args([
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/protocols/vertex_stream_client.py"
+            ),
+            &addr,
+            "--frames",
+            "30",
+        ])
+        .output()
+        .expect("run the Python client");
+    assert!(
+        client.status.success(),
+        "{}",
+        String::from_utf8_lossy(&client.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8(client.stdout).unwrap().trim()).unwrap();
+    let s = &v["summary"];
+    assert_eq!(s["topology"]["character"], "body");
+    assert_eq!(s["topology"]["rate_hz"], 60.0);
+    assert_eq!(s["topology"]["marker_names"].as_array().unwrap().len(), 36);
+    assert_eq!(s["frames"], 30);
+    assert_eq!(s["all_finite"], true);
+    // The body is about 1.75 m tall, standing on y = 0.
+    let (ylo, yhi) = (
+        s["bbox_min"][1].as_f64().unwrap(),
+        s["bbox_max"][1].as_f64().unwrap(),
+    );
+    assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
+    let status = run.wait().unwrap();
+    let lines = reader.join().unwrap();
+    assert!(status.success(), "{lines:?}");
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("done (time limit reached)")),
+        "{lines:?}"
+    );
+
+    // A broken config: every problem at once, with lines, and a failing exit.
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"dog\"\n[solver]\nrate_hz = 0\nfoo = 1\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(["run", "--config", stage.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    for want in [
+        "4 problems",
+        "line 2: character.procedural",
+        "line 4: solver.rate_hz",
+        "line 5: solver.foo: unknown field",
+        "no inputs",
+    ] {
+        assert!(err.contains(want), "missing {want:?} in {err}");
+    }
 }

@@ -1,0 +1,546 @@
+//! The stage config (`rigless run --config stage.toml`): which character, which inputs,
+//! how the solver runs, where the outputs go. Every key is documented here, unknown keys
+//! are rejected, and every problem in a file is reported at once with its line.
+//!
+//! ```toml
+//! [character]
+//! procedural = "hand"            # or: path = "hand/hand.toml" (a character file)
+//!
+//! [solver]
+//! rate_hz = 120
+//!
+//! [[inputs]]
+//! type = "synthetic"             # the in-process test source
+//! motion = "finger_play"
+//!
+//! [outputs.stream]
+//! tcp = "127.0.0.1:7878"
+//! ```
+
+use crate::markers::buffer::BufferConfig;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// A whole stage config.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageConfig {
+    pub character: CharacterConfig,
+    pub solver: SolverConfig,
+    pub buffer: BufferConfig,
+    pub inputs: Vec<InputConfig>,
+    pub outputs: OutputsConfig,
+}
+
+/// `[character]`: exactly one of `procedural` or `path`.
+#[derive(Clone, Debug, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CharacterConfig {
+    /// A procedural character: `"hand"` or `"body"`.
+    pub procedural: Option<String>,
+    /// A character file (TOML, see README), relative to the stage config's folder. It is
+    /// baked on first use and its bake cache reused afterwards.
+    pub path: Option<PathBuf>,
+}
+
+/// `[solver]`: the fixed-rate loop and the frame solver.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SolverConfig {
+    /// Frames per second of the solver thread, Hz.
+    pub rate_hz: f64,
+    /// ARAP iteration cap per frame.
+    pub max_iterations: usize,
+    /// Relative change of `0.5·rrms + 0.5·bone_length_error` that ends a frame.
+    pub tolerance: f64,
+    /// Share of the frame period a solve may use before it stops at its deadline.
+    pub deadline_fraction: f64,
+    /// Capacity of the input channel, samples (inputs drop and count samples beyond it).
+    pub channel_capacity: usize,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 120.0,
+            max_iterations: 30,
+            tolerance: 1e-3,
+            deadline_fraction: 0.8,
+            channel_capacity: 4096,
+        }
+    }
+}
+
+/// One `[[inputs]]` entry, chosen by `type`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum InputConfig {
+    /// The in-process test source: the procedural character playing a motion, with
+    /// noise and occlusion gaps (needs `character.procedural`).
+    Synthetic(SyntheticInputConfig),
+}
+
+/// `type = "synthetic"`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SyntheticInputConfig {
+    /// `"finger_play"` (the hand), `"walk"` or `"reach"` (the body); default: the
+    /// character's first.
+    pub motion: Option<String>,
+    /// Length of the session, seconds.
+    pub session_secs: f64,
+    /// Capture rate, Hz.
+    pub rate_hz: f64,
+    /// Uniform marker noise amplitude per axis, millimetres.
+    pub noise_mm: f64,
+    /// Share of samples lost in occlusion gaps, percent.
+    pub gap_percent: f64,
+    /// Seed of the noise and the gaps.
+    pub seed: u64,
+    /// Play the session again and again.
+    #[serde(rename = "loop")]
+    pub looping: bool,
+}
+
+impl Default for SyntheticInputConfig {
+    fn default() -> Self {
+        Self {
+            motion: None,
+            session_secs: 20.0,
+            rate_hz: 120.0,
+            noise_mm: 0.5,
+            gap_percent: 5.0,
+            seed: 1,
+            looping: false,
+        }
+    }
+}
+
+/// `[outputs]`.
+#[derive(Clone, Debug, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputsConfig {
+    pub stream: StreamOutputConfig,
+}
+
+/// `[outputs.stream]`: the vertex stream (protocols/vertex-stream.md).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StreamOutputConfig {
+    /// TCP address to listen on (port 0: any free port); binds loopback by default.
+    pub tcp: Option<SocketAddr>,
+}
+
+impl Default for StreamOutputConfig {
+    fn default() -> Self {
+        Self {
+            tcp: Some(SocketAddr::from(([127, 0, 0, 1], 7878))),
+        }
+    }
+}
+
+/// Why a stage config was refused: every problem, each with its line when known.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, .problems.join("\n  - "))]
+    Invalid { path: String, problems: Vec<String> },
+}
+
+/// The motions each procedural character plays.
+pub fn motions_of(procedural: &str) -> &'static [&'static str] {
+    match procedural {
+        "hand" => &["finger_play"],
+        "body" => &["walk", "reach"],
+        _ => &[],
+    }
+}
+
+/// Where keys are in the text: `(table path, key) -> line`, with table paths such as
+/// `solver`, `inputs[1]`, `outputs.stream` (dotted keys are joined onto the table).
+struct Lines {
+    keys: Vec<(String, usize)>,
+}
+
+impl Lines {
+    fn scan(text: &str) -> Self {
+        let mut keys = Vec::new();
+        let mut table = String::new();
+        let mut arrays: Vec<(String, usize)> = Vec::new();
+        for (i, raw) in text.lines().enumerate() {
+            let line = raw.trim();
+            let n = i + 1;
+            if let Some(name) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
+                let name = name.trim().to_owned();
+                let idx = match arrays.iter_mut().find(|(a, _)| *a == name) {
+                    Some((_, c)) => {
+                        *c += 1;
+                        *c
+                    }
+                    None => {
+                        arrays.push((name.clone(), 0));
+                        0
+                    }
+                };
+                table = format!("{name}[{idx}]");
+                keys.push((table.clone(), n));
+            } else if let Some(name) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
+                table = name.trim().to_owned();
+                keys.push((table.clone(), n));
+            } else if let Some((k, _)) = line.split_once('=') {
+                let k = k.trim().trim_matches('"');
+                if !k.is_empty() && !k.starts_with('#') {
+                    let full = if table.is_empty() {
+                        k.to_owned()
+                    } else {
+                        format!("{table}.{k}")
+                    };
+                    keys.push((full, n));
+                }
+            }
+        }
+        Self { keys }
+    }
+
+    /// The line of `path` (a key or table), or of its nearest enclosing table.
+    fn of(&self, path: &str) -> Option<usize> {
+        let mut p = path;
+        loop {
+            if let Some((_, n)) = self.keys.iter().find(|(k, _)| k == p) {
+                return Some(*n);
+            }
+            p = &p[..p.rfind('.')?];
+        }
+    }
+
+    fn at(&self, path: &str, what: impl std::fmt::Display) -> String {
+        match self.of(path) {
+            Some(n) => format!("line {n}: {path}: {what}"),
+            None => format!("{path}: {what}"),
+        }
+    }
+}
+
+/// The field a serde error names (`unknown field `x`` or `missing field `x``), if any.
+fn named_field(message: &str) -> Option<&str> {
+    let rest = message.split("field `").nth(1)?;
+    rest.split('`').next()
+}
+
+/// Deserializes `value` (found at `at`) into `T`. An unknown key is reported and left
+/// out, and the rest tried again, so one stray key does not hide the other problems.
+fn typed<T: serde::de::DeserializeOwned>(
+    value: &toml::Value,
+    at: &str,
+    lines: &Lines,
+    problems: &mut Vec<String>,
+) -> Option<T> {
+    let mut v = value.clone();
+    for _ in 0..64 {
+        match v.clone().try_into::<T>() {
+            Ok(t) => return Some(t),
+            Err(e) => {
+                let msg = e.message().trim().to_owned();
+                match named_field(&msg) {
+                    Some(f) if msg.starts_with("unknown field") => {
+                        problems.push(lines.at(&format!("{at}.{f}"), &msg));
+                        v.as_table_mut().and_then(|t| t.remove(f))?;
+                    }
+                    _ => {
+                        problems.push(lines.at(at, msg));
+                        return None;
+                    }
+                }
+            }
+        }
+    }
+    None
+}
+
+fn section<T: serde::de::DeserializeOwned + Default>(
+    table: &toml::Table,
+    key: &str,
+    lines: &Lines,
+    problems: &mut Vec<String>,
+) -> T {
+    table
+        .get(key)
+        .and_then(|v| typed(v, key, lines, problems))
+        .unwrap_or_default()
+}
+
+/// Parses and validates a stage config's text; `path` names it in errors. Relative
+/// character paths are kept as written (resolve them against the file's folder).
+pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
+    let invalid = |problems: Vec<String>| ConfigError::Invalid {
+        path: path.to_owned(),
+        problems,
+    };
+    let table: toml::Table = toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+        let msg = e.message().trim().to_owned();
+        invalid(vec![match line {
+            Some(n) => format!("line {n}: {msg}"),
+            None => msg,
+        }])
+    })?;
+    let lines = Lines::scan(text);
+    let mut problems = Vec::new();
+    for k in table.keys() {
+        if !["character", "solver", "buffer", "inputs", "outputs"].contains(&k.as_str()) {
+            problems.push(lines.at(
+                k,
+                "unknown section (expected character, solver, buffer, inputs, outputs)",
+            ));
+        }
+    }
+    let character: CharacterConfig = section(&table, "character", &lines, &mut problems);
+    let solver: SolverConfig = section(&table, "solver", &lines, &mut problems);
+    let buffer: BufferConfig = section(&table, "buffer", &lines, &mut problems);
+    let outputs: OutputsConfig = section(&table, "outputs", &lines, &mut problems);
+    let mut inputs = Vec::new();
+    let lines_ref = &lines;
+    match table.get("inputs") {
+        None => {}
+        Some(toml::Value::Array(a)) => {
+            for (i, v) in a.iter().enumerate() {
+                if let Some(c) =
+                    typed::<InputConfig>(v, &format!("inputs[{i}]"), lines_ref, &mut problems)
+                {
+                    inputs.push(c);
+                }
+            }
+        }
+        Some(_) => problems.push(lines.at("inputs", "must be an array of tables ([[inputs]])")),
+    }
+    // Semantics.
+    match (&character.procedural, &character.path) {
+        (Some(_), Some(_)) => {
+            problems.push(lines.at("character", "give either procedural or path, not both"))
+        }
+        (None, None) => problems.push(lines.at(
+            "character",
+            "missing: set procedural = \"hand\" or \"body\", or path = \"CHARACTER.toml\"",
+        )),
+        (Some(p), None) if motions_of(p).is_empty() => problems.push(lines.at(
+            "character.procedural",
+            format!("unknown procedural character {p:?} (expected \"hand\" or \"body\")"),
+        )),
+        _ => {}
+    }
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !(positive(solver.rate_hz) && solver.rate_hz <= 2000.0) {
+        problems.push(lines.at(
+            "solver.rate_hz",
+            format!("must be in (0, 2000] Hz, got {}", solver.rate_hz),
+        ));
+    }
+    if solver.max_iterations == 0 || solver.max_iterations > 10_000 {
+        problems.push(lines.at(
+            "solver.max_iterations",
+            format!("must be 1 to 10000, got {}", solver.max_iterations),
+        ));
+    }
+    if !positive(solver.tolerance) {
+        problems.push(lines.at(
+            "solver.tolerance",
+            format!("must be positive, got {}", solver.tolerance),
+        ));
+    }
+    if !(positive(solver.deadline_fraction) && solver.deadline_fraction <= 1.0) {
+        problems.push(lines.at(
+            "solver.deadline_fraction",
+            format!("must be in (0, 1], got {}", solver.deadline_fraction),
+        ));
+    }
+    if !(16..=1 << 24).contains(&solver.channel_capacity) {
+        problems.push(lines.at(
+            "solver.channel_capacity",
+            format!(
+                "must be 16 to 16777216 samples, got {}",
+                solver.channel_capacity
+            ),
+        ));
+    }
+    for p in buffer.problems() {
+        let key = p.split(' ').next().unwrap_or("buffer").to_owned();
+        problems.push(lines.at(&key, p.trim_start_matches(&key).trim_start()));
+    }
+    for (i, input) in inputs.iter().enumerate() {
+        let at = format!("inputs[{i}]");
+        match input {
+            InputConfig::Synthetic(s) => {
+                match &character.procedural {
+                    None => problems.push(lines.at(
+                        &at,
+                        "a synthetic input needs a procedural character (character.procedural)",
+                    )),
+                    Some(ch) => {
+                        if let Some(m) = &s.motion {
+                            let ok = motions_of(ch);
+                            if !ok.is_empty() && !ok.contains(&m.as_str()) {
+                                problems.push(lines.at(
+                                    &format!("{at}.motion"),
+                                    format!("the {ch} has no motion {m:?} (it has {ok:?})"),
+                                ));
+                            }
+                        }
+                    }
+                }
+                if !positive(s.session_secs) {
+                    problems.push(lines.at(
+                        &format!("{at}.session_secs"),
+                        format!("must be positive, got {}", s.session_secs),
+                    ));
+                }
+                if !(positive(s.rate_hz) && s.rate_hz <= 10_000.0) {
+                    problems.push(lines.at(
+                        &format!("{at}.rate_hz"),
+                        format!("must be in (0, 10000] Hz, got {}", s.rate_hz),
+                    ));
+                }
+                if !(s.noise_mm.is_finite() && s.noise_mm >= 0.0) {
+                    problems.push(lines.at(
+                        &format!("{at}.noise_mm"),
+                        format!("must be zero or more, got {}", s.noise_mm),
+                    ));
+                }
+                if !(s.gap_percent.is_finite() && (0.0..=90.0).contains(&s.gap_percent)) {
+                    problems.push(lines.at(
+                        &format!("{at}.gap_percent"),
+                        format!("must be 0 to 90, got {}", s.gap_percent),
+                    ));
+                }
+            }
+        }
+    }
+    if inputs.is_empty() {
+        problems.push(lines.at("inputs", "no inputs: add at least one [[inputs]] table"));
+    }
+    if !problems.is_empty() {
+        // In file order; problems without a line last.
+        let line_of = |p: &String| {
+            p.strip_prefix("line ")
+                .and_then(|r| r.split(':').next())
+                .and_then(|n| n.parse::<usize>().ok())
+                .unwrap_or(usize::MAX)
+        };
+        problems.sort_by_key(line_of);
+        return Err(invalid(problems));
+    }
+    Ok(StageConfig {
+        character,
+        solver,
+        buffer,
+        inputs,
+        outputs,
+    })
+}
+
+/// Reads and parses a stage config file.
+pub fn load_stage(path: &std::path::Path) -> Result<StageConfig, ConfigError> {
+    let shown = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: shown.clone(),
+        source,
+    })?;
+    parse_stage(&text, &shown)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[character]
+procedural = "body"
+
+[solver]
+rate_hz = 90
+
+[buffer]
+predict_max_gap_secs = 0.2
+
+[[inputs]]
+type = "synthetic"
+motion = "reach"
+loop = true
+
+[outputs.stream]
+tcp = "127.0.0.1:0"
+"#;
+
+    #[test]
+    fn a_good_config_reads_with_defaults_filled_in() {
+        let c = parse_stage(GOOD, "stage.toml").unwrap();
+        assert_eq!(c.character.procedural.as_deref(), Some("body"));
+        assert_eq!(c.solver.rate_hz, 90.0);
+        assert_eq!(c.solver.max_iterations, 30);
+        assert_eq!(c.buffer.predict_max_gap_secs, 0.2);
+        assert_eq!(c.buffer.history_len, BufferConfig::default().history_len);
+        let InputConfig::Synthetic(s) = &c.inputs[0];
+        assert_eq!(s.motion.as_deref(), Some("reach"));
+        assert!(s.looping);
+        assert_eq!(c.outputs.stream.tcp, Some("127.0.0.1:0".parse().unwrap()));
+    }
+
+    #[test]
+    fn every_problem_is_reported_at_once_with_its_line() {
+        let bad = r#"
+[character]
+procedural = "body"
+
+[solver]
+rate_hz = -5
+max_iterations = 0
+colour = "red"
+
+[buffer]
+bogus = 1
+
+[[inputs]]
+type = "synthetic"
+motion = "finger_play"
+gap_percent = 95
+
+[lights]
+on = true
+"#;
+        let err = parse_stage(bad, "stage.toml").unwrap_err();
+        let ConfigError::Invalid { problems, .. } = &err else {
+            panic!("{err}")
+        };
+        let text = problems.join("\n");
+        assert_eq!(problems.len(), 7, "{text}");
+        for want in [
+            "line 6: solver.rate_hz",
+            "line 7: solver.max_iterations",
+            "line 8: solver.colour: unknown field",
+            "line 11: buffer.bogus: unknown field",
+            "line 15: inputs[0].motion",
+            "line 16: inputs[0].gap_percent",
+            "line 18: lights: unknown section",
+        ] {
+            assert!(text.contains(want), "missing {want:?} in:\n{text}");
+        }
+    }
+
+    #[test]
+    fn syntax_errors_name_their_line() {
+        let err = parse_stage("[solver]\nrate_hz = = 3\n", "s.toml").unwrap_err();
+        assert!(err.to_string().contains("line 2"), "{err}");
+    }
+
+    #[test]
+    fn character_must_be_one_of_procedural_or_path() {
+        let err = parse_stage("[[inputs]]\ntype = \"synthetic\"\n", "s.toml").unwrap_err();
+        let s = err.to_string();
+        assert!(s.contains("character: missing"), "{s}");
+        assert!(s.contains("needs a procedural character"), "{s}");
+    }
+}

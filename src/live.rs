@@ -1,0 +1,290 @@
+//! The live daemon's wiring for `rigless run` and `rigless demo`: a stage config in,
+//! the character bound, the inputs started, the solver thread at its rate, the vertex
+//! stream serving, a status line every second, and an orderly shutdown (loop, inputs,
+//! then clients told goodbye). `rigless demo` is `run` with an embedded config.
+
+use anyhow::{Context, Result};
+use rigless::character::body::BodyMotion;
+use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params, Motion};
+use rigless::config::{InputConfig, StageConfig};
+use rigless::daemon::clock::{Clock, SystemClock};
+use rigless::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
+use rigless::daemon::slot::LatestSlot;
+use rigless::input::synthetic::{play, SourceCounters, SyntheticParams, SyntheticSession};
+use rigless::markers::buffer::MarkerBuffer;
+use rigless::output::stream::{StreamServer, StreamStats};
+use rigless::rig::bind::Rig;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::io::{IsTerminal, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How a run was asked to stop and print.
+pub struct RunOptions {
+    /// Stop after this many seconds (default: when every non-looping input has ended).
+    pub seconds: Option<f64>,
+    /// Status and summary as JSON lines.
+    pub json: bool,
+}
+
+/// Seconds between starting the threads and the first tick (lets the sources start).
+const START_S: f64 = 0.05;
+
+/// Runs a stage until its inputs end, `seconds` pass, or Ctrl-C. `base_dir` resolves a
+/// character path.
+pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> Result<()> {
+    let t0 = Instant::now();
+    let (rig, name, procedural) = bind_character(cfg, base_dir, opts.json)?;
+    let rig = Arc::new(rig);
+    if !opts.json {
+        println!(
+            "{name}: {} mesh vertices, {} markers, {} control vertices; ready in {:.2} s",
+            rig.mesh_rest.len(),
+            rig.n_markers,
+            rig.stats.control_vertices,
+            t0.elapsed().as_secs_f64()
+        );
+    }
+    let rate_hz = cfg.solver.rate_hz;
+    let slot = Arc::new(LatestSlot::new());
+    let mut server = None;
+    if let Some(addr) = cfg.outputs.stream.tcp {
+        let s = StreamServer::start(addr, &topology(&rig, &name, rate_hz), Arc::clone(&slot))
+            .with_context(|| format!("starting the vertex stream on {addr}"))?;
+        // Tests and scripts read this line to find the port.
+        println!("vertex stream listening on tcp://{}", s.local_addr());
+        let _ = std::io::stdout().flush();
+        server = Some(s);
+    }
+    let stream_stats = server.as_ref().map_or_else(
+        || Arc::new(StreamStats::default()),
+        |s| Arc::clone(s.stats()),
+    );
+
+    let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
+    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
+    let solver = Solver::new(
+        Arc::clone(&rig),
+        SolverParams {
+            max_iterations: cfg.solver.max_iterations,
+            tolerance: cfg.solver.tolerance,
+            ..SolverParams::default()
+        },
+    );
+    let mut pipeline = Pipeline::new(solver, buffer, rx, vec![slot]);
+
+    let clock = Arc::new(SystemClock::new());
+    let stop = Arc::new(AtomicBool::new(false));
+    let status = Arc::new(LatestSlot::<LoopStatus>::new());
+    let mut sources = Vec::new();
+    let mut source_counters = Vec::new();
+    let mut inputs_end_s: Option<f64> = Some(START_S);
+    for input in &cfg.inputs {
+        match input {
+            InputConfig::Synthetic(sy) => {
+                let ch = procedural
+                    .clone()
+                    .context("a synthetic input needs a procedural character")?;
+                let motion = match (ch.name.as_str(), sy.motion.as_deref()) {
+                    ("body", Some("reach")) => Motion::Body(BodyMotion::Reach),
+                    ("body", _) => Motion::Body(BodyMotion::Walk),
+                    _ => Motion::FingerPlay,
+                };
+                let session = SyntheticSession::new(
+                    ch,
+                    motion,
+                    SyntheticParams {
+                        rate_hz: sy.rate_hz,
+                        duration_secs: sy.session_secs,
+                        noise_m: sy.noise_mm * 1e-3,
+                        gap_fraction: sy.gap_percent / 100.0,
+                        seed: sy.seed,
+                        ..SyntheticParams::default()
+                    },
+                );
+                inputs_end_s = match (inputs_end_s, sy.looping) {
+                    (_, true) | (None, _) => None,
+                    (Some(e), false) => Some(e.max(START_S + sy.session_secs)),
+                };
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (clock, stop, tx) = (Arc::clone(&clock), Arc::clone(&stop), tx.clone());
+                let looping = sy.looping;
+                sources.push(
+                    std::thread::Builder::new()
+                        .name("synthetic-source".into())
+                        .spawn(move || {
+                            play(session, &*clock, START_S, looping, &tx, &stop, &counters)
+                        })?,
+                );
+            }
+        }
+    }
+    drop(tx);
+    let end_s = match opts.seconds {
+        Some(s) => Some(START_S + s),
+        None => inputs_end_s,
+    };
+    let loop_params = LoopParams {
+        rate_hz,
+        deadline_fraction: cfg.solver.deadline_fraction,
+        end_s,
+        status_interval_s: 1.0,
+    };
+    let solver_thread = {
+        let (clock, stop, status) = (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&status));
+        std::thread::Builder::new()
+            .name("solver".into())
+            .spawn(move || {
+                clock.sleep_until(START_S);
+                let deadline_clock = Arc::clone(&clock);
+                run_loop(
+                    &mut pipeline,
+                    &*clock,
+                    loop_params,
+                    &stop,
+                    &status,
+                    &move |t| deadline_clock.instant_at(t),
+                )
+            })?
+    };
+    {
+        let stop = Arc::clone(&stop);
+        // Ctrl-C: stop the loop; everything after it shuts down in order.
+        std::thread::Builder::new()
+            .name("ctrl-c".into())
+            .spawn(move || {
+                let rt = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build();
+                if let Ok(rt) = rt {
+                    if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                }
+            })?;
+    }
+
+    let tty = std::io::stdout().is_terminal() && !opts.json;
+    while !solver_thread.is_finished() {
+        std::thread::sleep(Duration::from_millis(50));
+        if let Some(st) = status.take() {
+            print_status(&st, &stream_stats, opts.json, tty);
+        }
+    }
+    let last = solver_thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("the solver thread panicked"))?;
+    let interrupted = stop.swap(true, Ordering::Relaxed);
+    for s in sources {
+        let _ = s.join();
+    }
+    let reason = if interrupted {
+        "shutting down"
+    } else if opts.seconds.is_some() {
+        "time limit reached"
+    } else {
+        "session ended"
+    };
+    if let Some(s) = server {
+        s.shutdown(reason);
+    }
+    if tty {
+        println!();
+    }
+    let samples: u64 = source_counters
+        .iter()
+        .map(|c| c.samples.load(Ordering::Relaxed))
+        .sum();
+    let dropped: u64 = source_counters
+        .iter()
+        .map(|c| c.dropped.load(Ordering::Relaxed))
+        .sum();
+    print_summary(&last, &stream_stats, samples, dropped, reason, opts.json)?;
+    Ok(())
+}
+
+/// The rig, its name, and the procedural character when there is one.
+fn bind_character(
+    cfg: &StageConfig,
+    base_dir: &std::path::Path,
+    quiet: bool,
+) -> Result<(Rig, String, Option<Arc<rigless::character::Character>>)> {
+    if let Some(p) = &cfg.character.procedural {
+        let (ch, bind) = match p.as_str() {
+            "body" => (demo_body(), body_bind_params()),
+            _ => (demo_hand(), hand_bind_params()),
+        };
+        let rig = Rig::bind(&ch, &bind).with_context(|| format!("binding the procedural {p}"))?;
+        let name = ch.name.clone();
+        return Ok((rig, name, Some(Arc::new(ch))));
+    }
+    let path = base_dir.join(cfg.character.path.as_ref().context("no character given")?);
+    let loaded = rigless::character::file::load_character(&path)?;
+    let (rig, source) = crate::load_or_bind(&path, &loaded, false, quiet)?;
+    if !quiet {
+        println!("{}: {source}", path.display());
+    }
+    Ok((rig, loaded.character.name.clone(), None))
+}
+
+fn print_status(st: &LoopStatus, stream: &StreamStats, json: bool, tty: bool) {
+    let clients = stream.clients.load(Ordering::Relaxed);
+    if json {
+        let v = serde_json::json!({ "status": st, "clients": clients });
+        println!("{v}");
+        return;
+    }
+    let [m, p, r, h] = st.fill_now;
+    let line = format!(
+        "frame {:>6}  {:>5.1} Hz  frame ms p50 {:.2} p99 {:.2}  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
+        st.frames, st.frame_rate_hz, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
+    );
+    if tty {
+        print!("\r{line}   ");
+        let _ = std::io::stdout().flush();
+    } else {
+        println!("{line}");
+    }
+}
+
+fn print_summary(
+    st: &LoopStatus,
+    stream: &StreamStats,
+    source_samples: u64,
+    source_dropped: u64,
+    reason: &str,
+    json: bool,
+) -> Result<()> {
+    let b = &st.buffer;
+    let total: u64 = b.filled.iter().sum::<u64>().max(1);
+    let pct = |i: usize| 100.0 * b.filled[i] as f64 / total as f64;
+    let stream_json = serde_json::json!({
+        "connections": stream.connections.load(Ordering::Relaxed),
+        "frames_sent": stream.frames_sent.load(Ordering::Relaxed),
+        "frames_skipped": stream.frames_skipped.load(Ordering::Relaxed),
+        "write_errors": stream.write_errors.load(Ordering::Relaxed),
+    });
+    if json {
+        let v = serde_json::json!({
+            "summary": st,
+            "stream": stream_json,
+            "source_samples": source_samples,
+            "source_dropped": source_dropped,
+            "stopped": reason,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    println!(
+        "done ({reason}): {} frames, frame ms p50 {:.2} p99 {:.2}, {} deadline stops, {} overruns; inputs sent {source_samples} samples, {source_dropped} dropped at a full channel",
+        st.frames, st.frame_ms_p50, st.frame_ms_p99, st.deadline_stops, st.overruns
+    );
+    println!(
+        "markers: {:.1} % measured, {:.1} % predicted, {:.1} % rigid-filled, {:.1} % held; {} samples, {} occluded, {} gated ({} label swaps), {} re-acquired",
+        pct(0), pct(1), pct(2), pct(3), b.accepted + b.occluded, b.occluded, b.gate_rejected, b.label_swaps, b.reacquired
+    );
+    println!("stream: {stream_json}");
+    Ok(())
+}
