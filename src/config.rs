@@ -128,12 +128,16 @@ pub struct OutputsConfig {
 pub struct StreamOutputConfig {
     /// TCP address to listen on (port 0: any free port); binds loopback by default.
     pub tcp: Option<SocketAddr>,
+    /// WebSocket address to listen on (same messages, one binary WebSocket message
+    /// each); off unless set.
+    pub websocket: Option<SocketAddr>,
 }
 
 impl Default for StreamOutputConfig {
     fn default() -> Self {
         Self {
             tcp: Some(SocketAddr::from(([127, 0, 0, 1], 7878))),
+            websocket: None,
         }
     }
 }
@@ -417,6 +421,14 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
                     ));
                 }
             }
+        }
+    }
+    if let (Some(t), Some(w)) = (outputs.stream.tcp, outputs.stream.websocket) {
+        if t == w && t.port() != 0 {
+            problems.push(lines.at(
+                "outputs.stream.websocket",
+                format!("{w} is also the TCP address; give each its own port"),
+            ));
         }
     }
     if inputs.is_empty() {

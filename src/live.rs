@@ -49,11 +49,17 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let rate_hz = cfg.solver.rate_hz;
     let slot = Arc::new(LatestSlot::new());
     let mut server = None;
-    if let Some(addr) = cfg.outputs.stream.tcp {
-        let s = StreamServer::start(addr, &topology(&rig, &name, rate_hz), Arc::clone(&slot))
-            .with_context(|| format!("starting the vertex stream on {addr}"))?;
-        // Tests and scripts read this line to find the port.
-        println!("vertex stream listening on tcp://{}", s.local_addr());
+    let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
+    if tcp.is_some() || ws.is_some() {
+        let s = StreamServer::start(tcp, ws, &topology(&rig, &name, rate_hz), Arc::clone(&slot))
+            .context("starting the vertex stream")?;
+        // Tests and scripts read these lines to find the ports.
+        if let Some(a) = s.local_addr() {
+            println!("vertex stream listening on tcp://{a}");
+        }
+        if let Some(a) = s.ws_addr() {
+            println!("vertex stream listening on ws://{a}");
+        }
         let _ = std::io::stdout().flush();
         server = Some(s);
     }

@@ -62,6 +62,9 @@ enum Command {
         /// Where the vertex stream listens (TCP; port 0 picks a free port).
         #[arg(long, default_value = "127.0.0.1:7878")]
         stream: std::net::SocketAddr,
+        /// Also serve the vertex stream over WebSocket here (e.g. 127.0.0.1:7879).
+        #[arg(long)]
+        websocket: Option<std::net::SocketAddr>,
         /// Uniform marker noise amplitude, millimetres.
         #[arg(long, default_value_t = 0.5)]
         noise_mm: f64,
@@ -171,11 +174,13 @@ fn real_main() -> Result<()> {
             seconds,
             looping,
             stream,
+            websocket,
             noise_mm,
             gap_percent,
             json,
         } => {
             check_seconds(seconds)?;
+            let ws_line = websocket.map_or(String::new(), |w| format!("websocket = \"{w}\"\n"));
             let (procedural, motion) = match (character, motion) {
                 (DemoCharacter::Hand, _) => ("hand", "finger_play"),
                 (DemoCharacter::Body, DemoMotion::Walk) => ("body", "walk"),
@@ -183,7 +188,7 @@ fn real_main() -> Result<()> {
             };
             // The embedded default stage, with the flags applied; validated like a file.
             let text = format!(
-                "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"{motion}\"\nsession_secs = {session_secs:?}\nnoise_mm = {noise_mm:?}\ngap_percent = {gap_percent:?}\nloop = {looping}\n\n[outputs.stream]\ntcp = \"{stream}\"\n"
+                "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"{motion}\"\nsession_secs = {session_secs:?}\nnoise_mm = {noise_mm:?}\ngap_percent = {gap_percent:?}\nloop = {looping}\n\n[outputs.stream]\ntcp = \"{stream}\"\n{ws_line}"
             );
             let cfg = rigless::config::parse_stage(&text, "demo flags")?;
             live::run(

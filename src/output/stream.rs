@@ -1,5 +1,7 @@
-//! The vertex stream server (TCP): each client gets the topology, then every solved
-//! frame in the format of `protocols/vertex-stream.md`, and a goodbye at shutdown.
+//! The vertex stream server, over TCP and over WebSocket (each on its own port): each
+//! client gets the topology, then every solved frame in the format of
+//! `protocols/vertex-stream.md`, and a goodbye at shutdown. Over WebSocket every message
+//! is one binary WebSocket message holding exactly the same bytes.
 //!
 //! Runs on its own thread with a single-threaded tokio runtime. The solver publishes into
 //! a [`LatestSlot`]; a dispatcher task moves each frame into a `watch` channel that every
@@ -10,6 +12,7 @@ use crate::daemon::slot::LatestSlot;
 use crate::protocol::vertex_stream::{
     encode_frame, encode_goodbye, encode_topology, DeformedFrame, Topology,
 };
+use futures_util::SinkExt;
 use std::io;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -20,6 +23,8 @@ use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinSet;
+use tokio_tungstenite::tungstenite::Message as WsMessage;
+use tokio_tungstenite::WebSocketStream;
 
 /// A client whose socket accepts nothing for this long is disconnected, seconds.
 pub const WRITE_TIMEOUT_SECS: f64 = 5.0;
@@ -37,8 +42,11 @@ pub struct StreamStats {
     pub frames_sent: AtomicU64,
     /// Frames a client skipped because it was slower than the loop, over all clients.
     pub frames_skipped: AtomicU64,
-    /// Clients dropped on a write error or timeout.
+    /// Clients dropped on a write error or timeout (a client that hangs up is noticed
+    /// at the next write, so it counts here too).
     pub write_errors: AtomicU64,
+    /// WebSocket connections whose handshake failed or timed out.
+    pub handshake_errors: AtomicU64,
 }
 
 type FrameRx = watch::Receiver<Option<Arc<DeformedFrame>>>;
@@ -46,22 +54,33 @@ type ShutdownRx = watch::Receiver<Option<String>>;
 
 /// A running vertex stream server.
 pub struct StreamServer {
-    local_addr: SocketAddr,
+    local_addr: Option<SocketAddr>,
+    ws_addr: Option<SocketAddr>,
     shutdown: watch::Sender<Option<String>>,
     thread: Option<JoinHandle<()>>,
     stats: Arc<StreamStats>,
 }
 
 impl StreamServer {
-    /// Binds `addr` (port 0 picks a free port) and serves frames published to `slot`.
+    /// Binds `tcp` and `ws` (either may be `None`; port 0 picks a free port) and serves
+    /// frames published to `slot`.
     pub fn start(
-        addr: SocketAddr,
+        tcp: Option<SocketAddr>,
+        ws: Option<SocketAddr>,
         topology: &Topology,
         slot: Arc<LatestSlot<DeformedFrame>>,
     ) -> io::Result<Self> {
-        let std_listener = std::net::TcpListener::bind(addr)?;
-        std_listener.set_nonblocking(true)?;
-        let local_addr = std_listener.local_addr()?;
+        let bind = |a: Option<SocketAddr>| -> io::Result<Option<std::net::TcpListener>> {
+            a.map(|a| {
+                let l = std::net::TcpListener::bind(a)?;
+                l.set_nonblocking(true)?;
+                Ok(l)
+            })
+            .transpose()
+        };
+        let (tcp_l, ws_l) = (bind(tcp)?, bind(ws)?);
+        let local_addr = tcp_l.as_ref().map(|l| l.local_addr()).transpose()?;
+        let ws_addr = ws_l.as_ref().map(|l| l.local_addr()).transpose()?;
         let mut topo = Vec::new();
         encode_topology(topology, &mut topo);
         let topo = Arc::new(topo);
@@ -74,18 +93,25 @@ impl StreamServer {
         let thread = std::thread::Builder::new()
             .name("vertex-stream".into())
             .spawn(move || {
-                rt.block_on(serve(std_listener, topo, slot, shutdown_rx, thread_stats));
+                rt.block_on(serve(tcp_l, ws_l, topo, slot, shutdown_rx, thread_stats));
             })?;
         Ok(Self {
             local_addr,
+            ws_addr,
             shutdown,
             thread: Some(thread),
             stats,
         })
     }
 
-    pub fn local_addr(&self) -> SocketAddr {
+    /// The TCP listener's address, if serving TCP.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
         self.local_addr
+    }
+
+    /// The WebSocket listener's address, if serving WebSocket.
+    pub fn ws_addr(&self) -> Option<SocketAddr> {
+        self.ws_addr
     }
 
     pub fn stats(&self) -> &Arc<StreamStats> {
@@ -115,20 +141,61 @@ impl Drop for StreamServer {
     }
 }
 
+/// A connected client of either transport.
+enum Conn {
+    Tcp(TcpStream),
+    Ws(Box<WebSocketStream<TcpStream>>),
+}
+
+impl Conn {
+    /// Sends one message; false on error or timeout.
+    async fn send(&mut self, bytes: &[u8], secs: f64) -> bool {
+        let limit = Duration::from_secs_f64(secs);
+        match self {
+            Conn::Tcp(s) => matches!(
+                tokio::time::timeout(limit, s.write_all(bytes)).await,
+                Ok(Ok(()))
+            ),
+            Conn::Ws(w) => {
+                let msg = WsMessage::binary(bytes.to_vec());
+                matches!(tokio::time::timeout(limit, w.send(msg)).await, Ok(Ok(())))
+            }
+        }
+    }
+
+    async fn close(&mut self) {
+        let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
+        let _ = match self {
+            Conn::Tcp(s) => tokio::time::timeout(limit, s.shutdown()).await.map(|_| ()),
+            Conn::Ws(w) => tokio::time::timeout(limit, w.close(None)).await.map(|_| ()),
+        };
+    }
+}
+
+async fn accept_on(l: &Option<TcpListener>) -> io::Result<(TcpStream, SocketAddr)> {
+    match l {
+        Some(l) => l.accept().await,
+        None => std::future::pending().await,
+    }
+}
+
 async fn serve(
-    std_listener: std::net::TcpListener,
+    tcp: Option<std::net::TcpListener>,
+    ws: Option<std::net::TcpListener>,
     topo: Arc<Vec<u8>>,
     slot: Arc<LatestSlot<DeformedFrame>>,
     mut shutdown: ShutdownRx,
     stats: Arc<StreamStats>,
 ) {
-    let listener = match TcpListener::from_std(std_listener) {
-        Ok(l) => l,
-        Err(e) => {
-            tracing::error!(error = %e, "vertex stream: cannot register the listener");
-            return;
+    let register = |l: Option<std::net::TcpListener>| match l.map(TcpListener::from_std) {
+        None => None,
+        Some(Ok(l)) => Some(l),
+        Some(Err(e)) => {
+            tracing::error!(error = %e, "vertex stream: cannot register a listener");
+            None
         }
     };
+    let (tcp, ws) = (register(tcp), register(ws));
     let (frames_tx, frames_rx) = watch::channel(None);
     let mut dispatch_shutdown = shutdown.clone();
     let dispatcher = tokio::spawn(async move {
@@ -141,26 +208,47 @@ async fn serve(
     });
     let mut clients = JoinSet::new();
     loop {
-        tokio::select! {
-            r = listener.accept() => match r {
-                Ok((sock, peer)) => {
-                    stats.connections.fetch_add(1, Ordering::Relaxed);
-                    tracing::info!(%peer, "vertex stream: client connected");
-                    clients.spawn(serve_client(
-                        sock,
-                        Arc::clone(&topo),
-                        frames_rx.clone(),
-                        shutdown.clone(),
-                        Arc::clone(&stats),
-                    ));
-                }
-                Err(e) => tracing::warn!(error = %e, "vertex stream: accept failed"),
-            },
+        let (r, websocket) = tokio::select! {
+            r = accept_on(&tcp) => (r, false),
+            r = accept_on(&ws) => (r, true),
             _ = shutdown.changed() => break,
-            Some(_) = clients.join_next(), if !clients.is_empty() => {}
+            Some(_) = clients.join_next(), if !clients.is_empty() => continue,
+        };
+        match r {
+            Ok((sock, peer)) => {
+                stats.connections.fetch_add(1, Ordering::Relaxed);
+                tracing::info!(%peer, websocket, "vertex stream: client connected");
+                let (topo, frames, shutdown, stats) = (
+                    Arc::clone(&topo),
+                    frames_rx.clone(),
+                    shutdown.clone(),
+                    Arc::clone(&stats),
+                );
+                clients.spawn(async move {
+                    let _ = sock.set_nodelay(true);
+                    let conn = if websocket {
+                        let hs = tokio::time::timeout(
+                            Duration::from_secs_f64(WRITE_TIMEOUT_SECS),
+                            tokio_tungstenite::accept_async(sock),
+                        )
+                        .await;
+                        match hs {
+                            Ok(Ok(w)) => Conn::Ws(Box::new(w)),
+                            _ => {
+                                stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
+                                return;
+                            }
+                        }
+                    } else {
+                        Conn::Tcp(sock)
+                    };
+                    serve_client(conn, topo, frames, shutdown, stats).await;
+                });
+            }
+            Err(e) => tracing::warn!(error = %e, "vertex stream: accept failed"),
         }
     }
-    drop(listener);
+    drop((tcp, ws));
     let _ = dispatcher.await;
     let _ = tokio::time::timeout(Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0), async {
         while clients.join_next().await.is_some() {}
@@ -168,23 +256,15 @@ async fn serve(
     .await;
 }
 
-async fn write_timed(sock: &mut TcpStream, bytes: &[u8], secs: f64) -> bool {
-    matches!(
-        tokio::time::timeout(Duration::from_secs_f64(secs), sock.write_all(bytes)).await,
-        Ok(Ok(()))
-    )
-}
-
 async fn serve_client(
-    mut sock: TcpStream,
+    mut conn: Conn,
     topo: Arc<Vec<u8>>,
     mut frames: FrameRx,
     mut shutdown: ShutdownRx,
     stats: Arc<StreamStats>,
 ) {
     stats.clients.fetch_add(1, Ordering::Relaxed);
-    let _ = sock.set_nodelay(true);
-    let mut ok = write_timed(&mut sock, &topo, WRITE_TIMEOUT_SECS).await;
+    let mut ok = conn.send(&topo, WRITE_TIMEOUT_SECS).await;
     // Send the newest frame at once rather than waiting for the next.
     frames.mark_changed();
     let mut buf = Vec::new();
@@ -208,7 +288,7 @@ async fn serve_client(
                 buf.clear();
                 encode_frame(&f, &mut buf);
                 drop(f);
-                ok = write_timed(&mut sock, &buf, WRITE_TIMEOUT_SECS).await;
+                ok = conn.send(&buf, WRITE_TIMEOUT_SECS).await;
                 if ok {
                     stats.frames_sent.fetch_add(1, Ordering::Relaxed);
                 }
@@ -219,10 +299,9 @@ async fn serve_client(
         let reason = shutdown.borrow().clone().unwrap_or_default();
         buf.clear();
         encode_goodbye(&reason, &mut buf);
-        let _ = write_timed(&mut sock, &buf, GOODBYE_TIMEOUT_SECS).await;
-        let _ = sock.shutdown().await;
-    }
-    if !ok {
+        let _ = conn.send(&buf, GOODBYE_TIMEOUT_SECS).await;
+        conn.close().await;
+    } else {
         stats.write_errors.fetch_add(1, Ordering::Relaxed);
     }
     stats.clients.fetch_sub(1, Ordering::Relaxed);

@@ -1,0 +1,158 @@
+//! Rust clients of the vertex stream over loopback, TCP and WebSocket, against a pipeline
+//! ticked by hand: every frame's bytes equal the in-process solver's output; a client
+//! that never reads and one that hangs up cost the others nothing.
+
+use crossbeam_channel::bounded;
+use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
+use rigless::daemon::pipeline::{topology, Pipeline};
+use rigless::daemon::slot::LatestSlot;
+use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
+use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
+use rigless::output::stream::StreamServer;
+use rigless::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
+use rigless::rig::bind::Rig;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::io::Read;
+use std::net::TcpStream;
+use std::sync::atomic::Ordering;
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+const FRAMES: usize = 120;
+/// Bound on every wait in this test.
+const TIMEOUT: Duration = Duration::from_secs(20);
+
+fn read_message(s: &mut TcpStream) -> Message {
+    let mut h = [0u8; HEADER_LEN];
+    s.read_exact(&mut h).expect("header");
+    let (_, len) = decode_header(&h).expect("valid header");
+    let mut all = h.to_vec();
+    all.resize(HEADER_LEN + len as usize, 0);
+    s.read_exact(&mut all[HEADER_LEN..]).expect("payload");
+    decode(&all).expect("valid message").0
+}
+
+#[test]
+fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
+    let ch = demo_hand();
+    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).unwrap());
+    let mut session = SyntheticSession::new(
+        Arc::new(ch),
+        Motion::FingerPlay,
+        SyntheticParams {
+            gap_fraction: 0.05,
+            ..SyntheticParams::default()
+        },
+    );
+    let (tx, rx) = bounded(4096);
+    let slot = Arc::new(LatestSlot::new());
+    let buffer = MarkerBuffer::new(BufferConfig::default(), &rig.marker_rest, &rig.marker_joint);
+    let solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let mut pipeline = Pipeline::new(solver, buffer, rx, vec![Arc::clone(&slot)]);
+    let loopback = "127.0.0.1:0".parse().unwrap();
+    let server = StreamServer::start(
+        Some(loopback),
+        Some(loopback),
+        &topology(&rig, "hand", 120.0),
+        slot,
+    )
+    .unwrap();
+    let (tcp_addr, ws_addr) = (server.local_addr().unwrap(), server.ws_addr().unwrap());
+
+    // Client 1, TCP: reads everything and reports each frame's number and vertices.
+    let (tcp_tx, tcp_rx) = mpsc::channel();
+    let mut tcp = TcpStream::connect(tcp_addr).unwrap();
+    tcp.set_read_timeout(Some(TIMEOUT)).unwrap();
+    let Message::Topology(topo) = read_message(&mut tcp) else {
+        panic!("topology first")
+    };
+    assert_eq!(topo.vertex_count as usize, rig.mesh_rest.len());
+    assert_eq!(topo.marker_names, rig.marker_names);
+    let tcp_reader = std::thread::spawn(move || loop {
+        match read_message(&mut tcp) {
+            Message::Frame(f) => tcp_tx.send(f).unwrap(),
+            Message::Goodbye(r) => return r,
+            Message::Topology(_) => panic!("second topology"),
+        }
+    });
+
+    // Client 2, WebSocket (tungstenite's blocking client).
+    let (ws_tx, ws_rx) = mpsc::channel();
+    let ws_stream = TcpStream::connect(ws_addr).unwrap();
+    ws_stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    let (mut ws, _) =
+        tokio_tungstenite::tungstenite::client(format!("ws://{ws_addr}/"), ws_stream).unwrap();
+    let ws_reader = std::thread::spawn(move || {
+        let mut topology_seen = false;
+        loop {
+            let msg = ws.read().expect("websocket message");
+            let bytes = match msg {
+                tokio_tungstenite::tungstenite::Message::Binary(b) => b,
+                tokio_tungstenite::tungstenite::Message::Close(_) => return None,
+                _ => continue,
+            };
+            let (m, used) = decode(&bytes).expect("one whole message per WebSocket message");
+            assert_eq!(used, bytes.len());
+            match m {
+                Message::Topology(_) => topology_seen = true,
+                Message::Frame(f) => {
+                    assert!(topology_seen, "frame before topology");
+                    ws_tx.send(f).unwrap();
+                }
+                Message::Goodbye(r) => return Some(r),
+            }
+        }
+    });
+
+    // Client 3 never reads; client 4 reads the topology and hangs up.
+    let _silent = TcpStream::connect(tcp_addr).unwrap();
+    {
+        let mut quitter = TcpStream::connect(tcp_addr).unwrap();
+        quitter.set_read_timeout(Some(TIMEOUT)).unwrap();
+        assert!(matches!(read_message(&mut quitter), Message::Topology(_)));
+    }
+    let start = Instant::now();
+    while server.stats().clients.load(Ordering::Relaxed) < 4 {
+        assert!(start.elapsed() < TIMEOUT, "clients did not all connect");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+
+    let mut batch = Vec::new();
+    for i in 0..FRAMES {
+        let t = i as f64 / 120.0;
+        batch.clear();
+        session.frame(i, t, &mut batch);
+        for s in &batch {
+            tx.send(*s).unwrap();
+        }
+        pipeline.tick(t, Instant::now() + Duration::from_secs(3600), 1e9 + t);
+        let expected: Vec<glam::Vec3> = pipeline.vertices().iter().map(|v| v.as_vec3()).collect();
+        // Pace on the readers so that neither skips: each must get this exact frame.
+        for (name, rx) in [("tcp", &tcp_rx), ("websocket", &ws_rx)] {
+            let f = rx
+                .recv_timeout(TIMEOUT)
+                .unwrap_or_else(|_| panic!("{name}: frame {i}"));
+            assert_eq!(f.frame, i as u64, "{name}");
+            assert_eq!(f.publish_time_s, 1e9 + t, "{name}");
+            assert_eq!(f.marker_states, pipeline.markers().states, "{name}");
+            assert!(
+                f.vertices_m == expected,
+                "{name}: frame {i} vertices differ"
+            );
+        }
+    }
+    // The quitter's socket errors on a write after it hung up: three clients remain.
+    let start = Instant::now();
+    while server.stats().clients.load(Ordering::Relaxed) > 3 {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "the hung-up client was not noticed"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(server.stats().frames_skipped.load(Ordering::Relaxed), 0);
+    server.shutdown("test over");
+    assert_eq!(tcp_reader.join().unwrap(), "test over");
+    assert_eq!(ws_reader.join().unwrap().as_deref(), Some("test over"));
+}
