@@ -14,7 +14,7 @@
 //! Then the full mesh follows the control mesh. Allocation-free per frame.
 
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
-use super::ik::{IkParams, IkState};
+use super::ik::{IkParams, IkReport, IkState};
 use super::polar::extract_rotation;
 use crate::character::skeleton::clamp_to_limits;
 use crate::markers::MarkerFrame;
@@ -89,6 +89,8 @@ pub struct Solver {
     green_scratch: GreenScratch,
     /// Marker targets handed to the posture fit (NaN where held).
     ik_targets: Vec<DVec3>,
+    /// Each marker's last target in its joint's frame (rest offset until first seen).
+    held_local: Vec<DVec3>,
 }
 
 impl Solver {
@@ -99,6 +101,7 @@ impl Solver {
         let ns = rig.samples.len();
         let green_scratch = rig.green.scratch();
         let nm = rig.n_markers;
+        let held_local = Self::rest_local(&rig);
         Self {
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
@@ -110,6 +113,7 @@ impl Solver {
             measured_rot: vec![DQuat::IDENTITY; nj],
             green_scratch,
             ik_targets: vec![DVec3::ZERO; nm],
+            held_local,
         }
     }
 
@@ -131,6 +135,18 @@ impl Solver {
     pub fn reset(&mut self) {
         self.st = self.rig.system.new_state();
         self.ik = self.rig.ik.new_state();
+        self.held_local = Self::rest_local(&self.rig);
+    }
+
+    /// Each marker's rest position in its joint's rest frame (joint frames are
+    /// world-aligned at rest).
+    fn rest_local(rig: &Rig) -> Vec<DVec3> {
+        (0..rig.n_markers)
+            .map(|k| {
+                let j = rig.marker_joint[k];
+                rig.marker_rest[k] - rig.skeleton.joints[j].rest
+            })
+            .collect()
     }
 
     /// Solves one frame, warm-started from the previous one, and writes the full-resolution
@@ -159,9 +175,14 @@ impl Solver {
         self.prev_rot.copy_from_slice(&self.ik.world_rot);
         self.prev_pos.copy_from_slice(&self.ik.world_pos);
         rig.ik.begin_frame(&mut self.ik);
-        let ik_rep = rig
-            .ik
-            .solve(&mut self.ik, &self.ik_targets, &self.params.ik);
+        // With no marker at all there is nothing to fit: the posture holds (the priors
+        // alone would relax it towards rest).
+        let ik_rep = if self.ik_targets.iter().any(|t| t.is_finite()) {
+            rig.ik
+                .solve(&mut self.ik, &self.ik_targets, &self.params.ik)
+        } else {
+            IkReport::default()
+        };
         let t_ik = Instant::now();
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
@@ -181,11 +202,15 @@ impl Solver {
             *p = wp[j] + delta * (*p - self.prev_pos[j]);
             *q = (delta * *q).normalize();
         }
-        // A held marker's bound point goes where its bone took it: its target is the bound
-        // point on the carried mesh, so it neither pulls nor changes the factorization.
+        // A held marker keeps its last target where its bone takes it (so the mesh holds
+        // its pose when nothing is seen, and the factorization never changes); a present
+        // marker's target is remembered in its bone's frame for when it is lost.
         for k in 0..nm {
-            if !frame.is_present(k) {
-                self.st.targets[k] = sys.rows.eval(k, &self.st.positions);
+            let j = rig.marker_joint[k];
+            if frame.is_present(k) {
+                self.held_local[k] = wr[j].conjugate() * (self.st.targets[k] - wp[j]);
+            } else {
+                self.st.targets[k] = wp[j] + wr[j] * self.held_local[k];
             }
         }
         // 3. ARAP alternation.
