@@ -100,8 +100,9 @@ enum Command {
     Bench {
         /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared
         /// data folder), `characters` (the procedural hand and body playing their motions),
-        /// or `gapfill` (the marker buffer's fill error by gap length, on synthetic sessions
-        /// and the shared data folder's Qualisys hand recording).
+        /// `gapfill` (the marker buffer's fill error by gap length, on synthetic sessions
+        /// and the shared data folder's Qualisys hand recording), or `live` (the whole
+        /// pipeline in real time: latency from input to client, missed ticks, 50 clients).
         #[arg(long, value_enum, default_value_t = Suite::Capsules)]
         suite: Suite,
         /// Print one JSON object per line instead of a table.
@@ -110,6 +111,9 @@ enum Command {
         /// The shared data folder (holds `tetmesh/`).
         #[arg(long, default_value = "../shared/data")]
         data: PathBuf,
+        /// Seconds per case of the `live` suite.
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
     },
 }
 
@@ -130,6 +134,7 @@ enum Suite {
     Capsules,
     Characters,
     Gapfill,
+    Live,
 }
 
 fn main() -> std::process::ExitCode {
@@ -220,6 +225,7 @@ fn real_main() -> Result<()> {
             suite: Suite::Capsules,
             json,
             data,
+            ..
         } => bench_capsules(&data, json),
         Command::Bench {
             suite: Suite::Characters,
@@ -230,7 +236,17 @@ fn real_main() -> Result<()> {
             suite: Suite::Gapfill,
             json,
             data,
+            ..
         } => bench_gapfill(&data, json),
+        Command::Bench {
+            suite: Suite::Live,
+            json,
+            seconds,
+            ..
+        } => {
+            check_seconds(Some(seconds))?;
+            bench_live(seconds, json)
+        }
     }
 }
 
@@ -591,4 +607,54 @@ fn check_seconds(seconds: Option<f64>) -> Result<()> {
         }
         _ => Ok(()),
     }
+}
+
+fn bench_live(seconds: f64, json: bool) -> Result<()> {
+    use rigless::bench::live::run_live;
+    use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
+    use rigless::rig::bind::Rig;
+    use std::sync::Arc;
+    let ch = Arc::new(demo_hand());
+    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).context("binding the hand")?);
+    if !json {
+        println!(
+            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}",
+            "char",
+            "rate",
+            "clients",
+            "frames",
+            "overrun",
+            "solve p50",
+            "solve p99",
+            "wait p99",
+            "lat p50",
+            "lat p99",
+            "over p50",
+            "over p99",
+            "rss MiB"
+        );
+    }
+    // (rate, readers besides the measuring client, silent clients)
+    for (rate, readers, silent) in [(120.0, 0, 0), (240.0, 0, 0), (120.0, 48, 1)] {
+        let r = run_live(
+            Arc::clone(&rig),
+            Arc::clone(&ch),
+            Motion::FingerPlay,
+            rate,
+            seconds,
+            readers,
+            silent,
+        )?;
+        if json {
+            println!("{}", serde_json::to_string(&r)?);
+        } else {
+            println!(
+                "{:<6} {:>6.0} {:>8} {:>7} {:>8} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>5.0}->{:<5.0}",
+                r.character, r.rate_hz, r.clients, r.frames, r.overruns, r.solve_ms_p50, r.solve_ms_p99,
+                r.wait_ms_p99, r.latency_ms_p50, r.latency_ms_p99, r.overhead_ms_p50, r.overhead_ms_p99,
+                r.rss_start_mib, r.rss_end_mib
+            );
+        }
+    }
+    Ok(())
 }

@@ -5,6 +5,7 @@
 pub mod capsules;
 pub mod characters;
 pub mod gapfill;
+pub mod live;
 
 use std::time::Duration;
 

@@ -126,8 +126,8 @@ impl Pipeline {
     }
 
     /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
-    /// `deadline`), publish (stamped `publish_unix_s`).
-    pub fn tick(&mut self, t_s: f64, deadline: Instant, publish_unix_s: f64) -> TickReport {
+    /// `deadline`), publish (stamped with `unix_now()`, read just before publishing).
+    pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {
         let start = Instant::now();
         let mut drained = 0;
         while let Ok(s) = self.rx.try_recv() {
@@ -144,7 +144,7 @@ impl Pipeline {
             let f = Arc::get_mut(&mut frame).expect("a recycled frame is unshared");
             f.frame = self.frame_no;
             f.source_time_s = self.markers.source_time_s;
-            f.publish_time_s = publish_unix_s;
+            f.publish_time_s = unix_now();
             let s = &mut f.status;
             s.iterations = solve.iterations.min(u16::MAX as usize) as u16;
             s.stop = match solve.stop {
@@ -309,7 +309,7 @@ pub fn run_loop(
         p.tick(
             next,
             deadline_of(next + period * params.deadline_fraction),
-            clock.unix_s(next),
+            &|| clock.unix_s(clock.now_s()),
         );
         if next - last_status >= params.status_interval_s {
             status.publish(Arc::new(p.status(next - last_status, overruns)));

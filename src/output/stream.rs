@@ -4,8 +4,8 @@
 //! is one binary WebSocket message holding exactly the same bytes.
 //!
 //! Runs on its own thread with a single-threaded tokio runtime. The solver publishes into
-//! a [`LatestSlot`]; a dispatcher task moves each frame into a `watch` channel that every
-//! client task follows, so a slow client skips to the newest frame (the skipped frames
+//! a [`LatestSlot`]; a dispatcher task encodes each frame once and puts the bytes into a
+//! `watch` channel that every client task follows, so a slow client skips to the newest frame (the skipped frames
 //! are counted) and never holds up the loop or the other clients.
 
 use crate::daemon::slot::LatestSlot;
@@ -49,7 +49,13 @@ pub struct StreamStats {
     pub handshake_errors: AtomicU64,
 }
 
-type FrameRx = watch::Receiver<Option<Arc<DeformedFrame>>>;
+/// A frame encoded once for every client: its number and its message bytes.
+struct Encoded {
+    frame: u64,
+    bytes: Vec<u8>,
+}
+
+type FrameRx = watch::Receiver<Option<Arc<Encoded>>>;
 type ShutdownRx = watch::Receiver<Option<String>>;
 
 /// A running vertex stream server.
@@ -201,7 +207,13 @@ async fn serve(
     let dispatcher = tokio::spawn(async move {
         loop {
             tokio::select! {
-                f = slot.next() => { frames_tx.send_replace(Some(f)); }
+                f = slot.next() => {
+                    let mut bytes = Vec::with_capacity(64 + 12 * f.vertices_m.len());
+                    encode_frame(&f, &mut bytes);
+                    let e = Encoded { frame: f.frame, bytes };
+                    drop(f);
+                    frames_tx.send_replace(Some(Arc::new(e)));
+                }
                 _ = dispatch_shutdown.changed() => break,
             }
         }
@@ -217,7 +229,7 @@ async fn serve(
         match r {
             Ok((sock, peer)) => {
                 stats.connections.fetch_add(1, Ordering::Relaxed);
-                tracing::info!(%peer, websocket, "vertex stream: client connected");
+                tracing::debug!(%peer, websocket, "vertex stream: client connected");
                 let (topo, frames, shutdown, stats) = (
                     Arc::clone(&topo),
                     frames_rx.clone(),
@@ -285,10 +297,7 @@ async fn serve_client(
                     stats.frames_skipped.fetch_add(skipped, Ordering::Relaxed);
                 }
                 last = Some(f.frame);
-                buf.clear();
-                encode_frame(&f, &mut buf);
-                drop(f);
-                ok = conn.send(&buf, WRITE_TIMEOUT_SECS).await;
+                ok = conn.send(&f.bytes, WRITE_TIMEOUT_SECS).await;
                 if ok {
                     stats.frames_sent.fetch_add(1, Ordering::Relaxed);
                 }
