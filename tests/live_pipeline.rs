@@ -113,7 +113,7 @@ fn play_session(mut s: Setup) -> (f64, f64, [usize; 4]) {
         for smp in &batch {
             s.tx.try_send(*smp).unwrap();
         }
-        let rep = s.pipeline.tick(t, far_deadline(), t);
+        let rep = s.pipeline.tick(t, far_deadline(), &|| t);
         assert_eq!(rep.samples, batch.len());
         let f = s.slot.take().expect("every tick publishes");
         assert_eq!(f.frame, rep.frame);
@@ -180,7 +180,7 @@ fn the_warm_loop_does_not_allocate() {
         }
         let deadline = far_deadline();
         let before = allocations();
-        s.pipeline.tick(t, deadline, t);
+        s.pipeline.tick(t, deadline, &|| t);
         // A sink takes the frame and lets go of it, as the stream's dispatcher does.
         drop(s.slot.take());
         if i >= 10 {
@@ -269,7 +269,7 @@ fn play_with_loss(lost: std::ops::Range<usize>, frames: usize) -> LossRun {
                 s.tx.try_send(*smp).unwrap();
             }
         }
-        s.pipeline.tick(t, far_deadline(), t);
+        s.pipeline.tick(t, far_deadline(), &|| t);
         let f = s.slot.take().unwrap();
         assert!(
             f.vertices_m.iter().all(|v| v.is_finite()) && f.markers_m.iter().all(|v| v.is_finite()),

@@ -126,7 +126,7 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
         for s in &batch {
             tx.send(*s).unwrap();
         }
-        pipeline.tick(t, Instant::now() + Duration::from_secs(3600), 1e9 + t);
+        pipeline.tick(t, Instant::now() + Duration::from_secs(3600), &|| 1e9 + t);
         let expected: Vec<glam::Vec3> = pipeline.vertices().iter().map(|v| v.as_vec3()).collect();
         // Pace on the readers so that neither skips: each must get this exact frame.
         for (name, rx) in [("tcp", &tcp_rx), ("websocket", &ws_rx)] {

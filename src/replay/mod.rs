@@ -1,4 +1,4 @@
-//! Recorded sessions from files: the Qualisys TSV reader (more formats come with the
-//! replay issue).
+//! Recorded sessions from files: C3D (reader and writer) and Qualisys TSV.
 
+pub mod c3d;
 pub mod tsv;

@@ -1,0 +1,109 @@
+//! Golden tests on the real recordings in `../shared/data` (skipped, with the reason
+//! printed, when the folder is absent): every C3D file's marker count, rate, frame count,
+//! labels and gap share, and the Qualisys hand recording read from TSV and from its C3D
+//! conversion agreeing sample for sample.
+
+use rigless::replay::c3d::read_c3d;
+use rigless::replay::tsv::parse_tsv;
+use std::path::PathBuf;
+
+fn data(rel: &str) -> Option<PathBuf> {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        println!("skipping: {} is absent", p.display());
+        None
+    }
+}
+
+fn missing_share(frames: &[Vec<glam::DVec3>]) -> f64 {
+    let total = frames.iter().map(|f| f.len()).sum::<usize>().max(1);
+    let missing = frames.iter().flatten().filter(|p| !p.is_finite()).count();
+    missing as f64 / total as f64
+}
+
+#[test]
+fn every_real_c3d_file_reads_with_its_known_figures() {
+    // (file, points, rate, frames, first label, gap share range): figures from the data
+    // folder's README and the files' own parameter sections.
+    let cases = [
+        ("c3d/BTS.c3d", 22, 100.0, 675, "c7", (0.50, 0.54)),
+        ("c3d/FP_Type1.c3d", 22, 100.0, 634, "sacrum", (0.0, 0.001)),
+        ("c3d/Qualisys.c3d", 55, 200.0, 340, "L_IAS", (0.0, 0.0)),
+        (
+            "c3d/Vicon.c3d",
+            51,
+            100.0,
+            580,
+            "boite:gauche_ext",
+            (0.005, 0.015),
+        ),
+        (
+            "hand/dfki_hand_recording_converted.c3d",
+            21,
+            100.0,
+            6000,
+            "hand_top",
+            (0.001, 0.02),
+        ),
+    ];
+    for (rel, points, rate, frames, first, (lo, hi)) in cases {
+        let Some(path) = data(rel) else { continue };
+        let c = read_c3d(&std::fs::read(&path).unwrap()).unwrap_or_else(|e| panic!("{rel}: {e}"));
+        assert_eq!(c.labels.len(), points, "{rel}");
+        assert_eq!(c.rate_hz, rate, "{rel}");
+        assert_eq!(c.frames.len(), frames, "{rel}");
+        assert_eq!(c.labels[0], first, "{rel}");
+        let gaps = missing_share(&c.frames);
+        assert!((lo..=hi).contains(&gaps), "{rel}: gap share {gaps}");
+        // Every present sample is a plausible position in a capture volume (metres).
+        for p in c.frames.iter().flatten().filter(|p| p.is_finite()) {
+            assert!(p.abs().max_element() < 20.0, "{rel}: {p}");
+        }
+    }
+}
+
+#[test]
+fn qualisys_first_sample_values() {
+    let Some(path) = data("c3d/Qualisys.c3d") else {
+        return;
+    };
+    let c = read_c3d(&std::fs::read(path).unwrap()).unwrap();
+    assert_eq!(c.first_frame, 705);
+    assert_eq!(c.units, "mm");
+    // L_IAS in frame 705: (-220.1226, 306.4248, 846.3361) mm in the file's Z-up frame
+    // (decoded independently with Python's struct module from block 29).
+    let p = c.frames[0][0];
+    assert!(
+        (p - glam::DVec3::new(-0.2201226, 0.8463361, -0.3064248)).length() < 1e-6,
+        "{p}"
+    );
+}
+
+#[test]
+fn tsv_and_its_c3d_conversion_agree() {
+    let (Some(tsv), Some(c3d)) = (
+        data("hand/dfki_hand_recording.tsv"),
+        data("hand/dfki_hand_recording_converted.c3d"),
+    ) else {
+        return;
+    };
+    let t = parse_tsv(&std::fs::read_to_string(tsv).unwrap()).unwrap();
+    let c = read_c3d(&std::fs::read(c3d).unwrap()).unwrap();
+    assert_eq!(t.marker_names, c.labels);
+    assert_eq!(t.rate_hz, c.rate_hz);
+    assert_eq!(t.frames.len(), c.frames.len());
+    let mut compared = 0;
+    for (a, b) in t.frames.iter().flatten().zip(c.frames.iter().flatten()) {
+        assert_eq!(a.is_finite(), b.is_finite());
+        if a.is_finite() {
+            // The C3D stores f32 millimetres: 1e-4 mm resolution at 1 m.
+            assert!((*a - *b).length() < 1e-6, "{a} vs {b}");
+            compared += 1;
+        }
+    }
+    assert!(compared > 120_000, "{compared}");
+}
