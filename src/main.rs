@@ -508,6 +508,30 @@ fn bench_gapfill(data: &std::path::Path, json: bool) -> Result<()> {
         }
         Err(e) => eprintln!("skipping the real hand recording: {}: {e}", tsv.display()),
     }
+    // BTS: 22 gait markers with half the samples missing; no rigid clusters, so every
+    // marker is its own segment (prediction only).
+    let bts = data.join("c3d/BTS.c3d");
+    match std::fs::read(&bts) {
+        Ok(bytes) => {
+            let c = rigless::replay::c3d::read_c3d(&bytes)
+                .with_context(|| format!("reading {}", bts.display()))?;
+            let n = c.labels.len();
+            let mut rest = vec![glam::DVec3::ZERO; n];
+            for (k, r) in rest.iter_mut().enumerate() {
+                if let Some(p) = c.frames.iter().map(|f| f[k]).find(|p| p.is_finite()) {
+                    *r = p;
+                }
+            }
+            sets.push(Trajectories {
+                name: "BTS.c3d".into(),
+                rate_hz: c.rate_hz,
+                frames: c.frames,
+                segment: (0..n).collect(),
+                rest,
+            });
+        }
+        Err(e) => eprintln!("skipping BTS.c3d: {}: {e}", bts.display()),
+    }
     if !json {
         println!(
             "{:<34} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>9} {:>6} {:>6} {:>6}",
