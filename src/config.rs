@@ -77,6 +77,35 @@ pub enum InputConfig {
     /// The in-process test source: the procedural character playing a motion, with
     /// noise and occlusion gaps (needs `character.procedural`).
     Synthetic(SyntheticInputConfig),
+    /// A recording played as live input with its own timing: a bundled session or a
+    /// C3D / TSV file. Labels map to the character's markers by name.
+    Replay(ReplayInputConfig),
+}
+
+/// `type = "replay"`: exactly one of `session` or `path`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayInputConfig {
+    /// A bundled session: `"hand_finger_play"`, `"body_walk"` or `"body_reach"`.
+    pub session: Option<String>,
+    /// A recording file (`.c3d` or `.tsv`), relative to the stage config's folder.
+    pub path: Option<PathBuf>,
+    /// Playback speed (1 = the recording's own timing).
+    pub speed: f64,
+    /// Play the recording again and again.
+    #[serde(rename = "loop")]
+    pub looping: bool,
+}
+
+impl Default for ReplayInputConfig {
+    fn default() -> Self {
+        Self {
+            session: None,
+            path: None,
+            speed: 1.0,
+            looping: false,
+        }
+    }
 }
 
 /// `type = "synthetic"`.
@@ -378,6 +407,31 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     for (i, input) in inputs.iter().enumerate() {
         let at = format!("inputs[{i}]");
         match input {
+            InputConfig::Replay(r) => {
+                match (&r.session, &r.path) {
+                    (Some(_), Some(_)) => {
+                        problems.push(lines.at(&at, "give either session or path, not both"))
+                    }
+                    (None, None) => problems.push(lines.at(
+                        &at,
+                        "a replay input needs session = \"NAME\" (bundled) or path = \"FILE.c3d\"",
+                    )),
+                    (Some(n), None) if crate::replay::bundled::bundled(n).is_none() => {
+                        let names: Vec<&str> = crate::replay::bundled::names().collect();
+                        problems.push(lines.at(
+                            &format!("{at}.session"),
+                            format!("no bundled session {n:?} (there are {names:?})"),
+                        ));
+                    }
+                    _ => {}
+                }
+                if !(positive(r.speed) && r.speed <= 100.0) {
+                    problems.push(lines.at(
+                        &format!("{at}.speed"),
+                        format!("must be in (0, 100], got {}", r.speed),
+                    ));
+                }
+            }
             InputConfig::Synthetic(s) => {
                 match &character.procedural {
                     None => problems.push(lines.at(
@@ -495,7 +549,9 @@ tcp = "127.0.0.1:0"
         assert_eq!(c.solver.max_iterations, 30);
         assert_eq!(c.buffer.predict_max_gap_secs, 0.2);
         assert_eq!(c.buffer.history_len, BufferConfig::default().history_len);
-        let InputConfig::Synthetic(s) = &c.inputs[0];
+        let InputConfig::Synthetic(s) = &c.inputs[0] else {
+            panic!("{:?}", c.inputs[0])
+        };
         assert_eq!(s.motion.as_deref(), Some("reach"));
         assert!(s.looping);
         assert_eq!(c.outputs.stream.tcp, Some("127.0.0.1:0".parse().unwrap()));
@@ -539,6 +595,28 @@ on = true
             "line 18: lights: unknown section",
         ] {
             assert!(text.contains(want), "missing {want:?} in:\n{text}");
+        }
+    }
+
+    #[test]
+    fn replay_inputs_name_a_bundled_session_or_a_file() {
+        let ok = "[character]\nprocedural = \"hand\"\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\nspeed = 2\n";
+        let c = parse_stage(ok, "s.toml").unwrap();
+        let InputConfig::Replay(r) = &c.inputs[0] else {
+            panic!("{:?}", c.inputs[0])
+        };
+        assert_eq!(
+            (r.session.as_deref(), r.speed, r.looping),
+            (Some("hand_finger_play"), 2.0, false)
+        );
+        let bad = "[character]\npath = \"x.toml\"\n[[inputs]]\ntype = \"replay\"\nsession = \"nope\"\n[[inputs]]\ntype = \"replay\"\nspeed = 0\n";
+        let text = parse_stage(bad, "s.toml").unwrap_err().to_string();
+        for want in [
+            "line 5: inputs[0].session: no bundled session \"nope\"",
+            "line 6: inputs[1]: a replay input needs session",
+            "line 8: inputs[1].speed: must be in (0, 100]",
+        ] {
+            assert!(text.contains(want), "missing {want:?} in {text}");
         }
     }
 

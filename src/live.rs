@@ -10,9 +10,13 @@ use rigless::config::{InputConfig, StageConfig};
 use rigless::daemon::clock::{Clock, SystemClock};
 use rigless::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
 use rigless::daemon::slot::LatestSlot;
-use rigless::input::synthetic::{play, SourceCounters, SyntheticParams, SyntheticSession};
+use rigless::input::synthetic::{play, SyntheticParams, SyntheticSession};
+use rigless::input::SourceCounters;
 use rigless::markers::buffer::MarkerBuffer;
 use rigless::output::stream::{StreamServer, StreamStats};
+use rigless::replay::bundled::bundled;
+use rigless::replay::player::{play_recording, PlayParams};
+use rigless::replay::recording::{map_labels, Recording};
 use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
 use std::io::{IsTerminal, Write};
@@ -88,6 +92,67 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let mut inputs_end_s: Option<f64> = Some(START_S);
     for input in &cfg.inputs {
         match input {
+            InputConfig::Replay(r) => {
+                let rec = match (&r.session, &r.path) {
+                    (Some(name), _) => {
+                        let bytes = bundled(name).context("no such bundled session")?;
+                        Recording::from_c3d(name, bytes)?
+                    }
+                    (None, Some(p)) => Recording::load(&base_dir.join(p))?,
+                    (None, None) => anyhow::bail!("a replay input needs a session or a path"),
+                };
+                let map = map_labels(&rec.labels, &rig.marker_names);
+                if map.marker_of_label.iter().all(Option::is_none) {
+                    anyhow::bail!(
+                        "{}: none of its {} labels is one of the character's markers ({})",
+                        rec.name,
+                        rec.labels.len(),
+                        rig.marker_names.join(", ")
+                    );
+                }
+                if !opts.json {
+                    println!(
+                        "replaying {}: {} frames at {} Hz ({:.1} s), {} of {} markers fed{}",
+                        rec.name,
+                        rec.frames.len(),
+                        rec.rate_hz,
+                        rec.duration_secs(),
+                        rig.n_markers - map.unfed_markers.len(),
+                        rig.n_markers,
+                        if r.looping { ", looping" } else { "" }
+                    );
+                    for w in &rec.warnings {
+                        println!("  warning: {w}");
+                    }
+                    if !map.unmatched_labels.is_empty() {
+                        println!(
+                            "  warning: labels ignored (no such marker): {}",
+                            map.unmatched_labels.join(", ")
+                        );
+                    }
+                    if !map.unfed_markers.is_empty() {
+                        println!(
+                            "  warning: markers with no label (held): {}",
+                            map.unfed_markers.join(", ")
+                        );
+                    }
+                }
+                inputs_end_s = match (inputs_end_s, r.looping) {
+                    (_, true) | (None, _) => None,
+                    (Some(e), false) => Some(e.max(START_S + rec.duration_secs() / r.speed)),
+                };
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (clock, stop, tx) = (Arc::clone(&clock), Arc::clone(&stop), tx.clone());
+                let params = PlayParams {
+                    start_s: START_S,
+                    speed: r.speed,
+                    looping: r.looping,
+                };
+                sources.push(std::thread::Builder::new().name("replay".into()).spawn(
+                    move || play_recording(&rec, &map, &*clock, params, &tx, &stop, &counters),
+                )?);
+            }
             InputConfig::Synthetic(sy) => {
                 let ch = procedural
                     .clone()

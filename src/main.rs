@@ -37,12 +37,13 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Play a procedural character live through the whole pipeline, in real time: a
-    /// synthetic capture session (the hand's finger play by default, or the body's walk or
-    /// reach, with marker noise and occlusion gaps) feeds the marker buffer, the solver
-    /// thread fills the gaps and solves every frame at 120 Hz, and the vertex stream serves
-    /// the deformed mesh to any client (see protocols/vertex-stream.md). Prints a status
-    /// line every second and a summary at the end; Ctrl-C stops it cleanly.
+    /// The embedded default: play a bundled recorded session of a procedural character
+    /// (the hand's finger play by default, or the body's walk or reach; 0.5 mm noise and
+    /// 5 % of samples lost in occlusion gaps, see replay/README.md) live through the whole
+    /// pipeline, in real time: the marker buffer fills the gaps, the solver thread solves
+    /// every frame at 120 Hz, and the vertex stream serves the deformed mesh (see
+    /// protocols/vertex-stream.md). Prints a status line every second and a summary at the
+    /// end; stops at the end of the session, after --seconds, or on Ctrl-C.
     Demo {
         /// Which procedural character: the hand (8 markers) or the body (36 markers).
         #[arg(long, value_enum, default_value_t = DemoCharacter::Hand)]
@@ -50,27 +51,21 @@ enum Command {
         /// The body's motion (the hand always plays its finger play).
         #[arg(long, value_enum, default_value_t = DemoMotion::Walk)]
         motion: DemoMotion,
-        /// Length of the session, seconds.
-        #[arg(long, default_value_t = 20.0)]
-        session_secs: f64,
         /// Stop after this many seconds (default: at the end of the session).
         #[arg(long)]
         seconds: Option<f64>,
         /// Play the session again and again (until --seconds or Ctrl-C).
         #[arg(long = "loop")]
         looping: bool,
+        /// Playback speed (1 = real time).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
         /// Where the vertex stream listens (TCP; port 0 picks a free port).
         #[arg(long, default_value = "127.0.0.1:7878")]
         stream: std::net::SocketAddr,
         /// Also serve the vertex stream over WebSocket here (e.g. 127.0.0.1:7879).
         #[arg(long)]
         websocket: Option<std::net::SocketAddr>,
-        /// Uniform marker noise amplitude, millimetres.
-        #[arg(long, default_value_t = 0.5)]
-        noise_mm: f64,
-        /// Share of marker samples lost to occlusion gaps, percent.
-        #[arg(long, default_value_t = 5.0)]
-        gap_percent: f64,
         /// Print the status and the summary as JSON lines instead of text.
         #[arg(long)]
         json: bool,
@@ -88,6 +83,13 @@ enum Command {
         /// Print the summary as one JSON object.
         #[arg(long)]
         json: bool,
+    },
+    /// Write the bundled sessions (the procedural hand's finger play, the body's walk and
+    /// reach, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
+    /// tree holds exactly what this writes.
+    MakeSessions {
+        /// Folder to write `NAME.c3d` into (created if missing).
+        dir: PathBuf,
     },
     /// Write the procedural hand as a mesh (OBJ) and a character file (TOML) into a
     /// folder: a complete example of the character format to start from, ready for
@@ -175,25 +177,23 @@ fn real_main() -> Result<()> {
         Command::Demo {
             character,
             motion,
-            session_secs,
             seconds,
             looping,
+            speed,
             stream,
             websocket,
-            noise_mm,
-            gap_percent,
             json,
         } => {
             check_seconds(seconds)?;
-            let ws_line = websocket.map_or(String::new(), |w| format!("websocket = \"{w}\"\n"));
-            let (procedural, motion) = match (character, motion) {
-                (DemoCharacter::Hand, _) => ("hand", "finger_play"),
-                (DemoCharacter::Body, DemoMotion::Walk) => ("body", "walk"),
-                (DemoCharacter::Body, DemoMotion::Reach) => ("body", "reach"),
+            let (procedural, session) = match (character, motion) {
+                (DemoCharacter::Hand, _) => ("hand", "hand_finger_play"),
+                (DemoCharacter::Body, DemoMotion::Walk) => ("body", "body_walk"),
+                (DemoCharacter::Body, DemoMotion::Reach) => ("body", "body_reach"),
             };
+            let ws_line = websocket.map_or(String::new(), |w| format!("websocket = \"{w}\"\n"));
             // The embedded default stage, with the flags applied; validated like a file.
             let text = format!(
-                "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"{motion}\"\nsession_secs = {session_secs:?}\nnoise_mm = {noise_mm:?}\ngap_percent = {gap_percent:?}\nloop = {looping}\n\n[outputs.stream]\ntcp = \"{stream}\"\n{ws_line}"
+                "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"{session}\"\nspeed = {speed:?}\nloop = {looping}\n\n[outputs.stream]\ntcp = \"{stream}\"\n{ws_line}"
             );
             let cfg = rigless::config::parse_stage(&text, "demo flags")?;
             live::run(
@@ -201,6 +201,17 @@ fn real_main() -> Result<()> {
                 std::path::Path::new("."),
                 &live::RunOptions { seconds, json },
             )
+        }
+        Command::MakeSessions { dir } => {
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            for spec in &rigless::replay::bundled::SPECS {
+                let bytes = rigless::replay::bundled::generate(spec)?;
+                let path = dir.join(format!("{}.c3d", spec.name));
+                std::fs::write(&path, &bytes)
+                    .with_context(|| format!("writing {}", path.display()))?;
+                println!("wrote {} ({} bytes)", path.display(), bytes.len());
+            }
+            Ok(())
         }
         Command::Bake {
             character,

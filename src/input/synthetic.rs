@@ -2,13 +2,14 @@
 //! as markers with noise and occlusion gaps whose truth is known. The demo plays it live;
 //! tests and the gap-filling benchmark read it frame by frame.
 
+use super::{send_samples, SourceCounters};
 use crate::character::demo::Motion;
 use crate::character::procedural::{skin_pose, Character};
 use crate::daemon::clock::Clock;
 use crate::markers::MarkerSample;
-use crossbeam_channel::{Sender, TrySendError};
+use crossbeam_channel::Sender;
 use glam::DVec3;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// How a synthetic session is made.
@@ -160,19 +161,6 @@ impl SyntheticSession {
     }
 }
 
-/// What a running source has done (shared with the status line).
-#[derive(Debug, Default)]
-pub struct SourceCounters {
-    /// Frames sent.
-    pub frames: AtomicU64,
-    /// Samples sent.
-    pub samples: AtomicU64,
-    /// Samples dropped because the channel was full.
-    pub dropped: AtomicU64,
-    /// Set when the session has ended (not looping).
-    pub finished: AtomicBool,
-}
-
 /// Plays a session in real time on `clock` from `start_s`, sending samples into `tx`
 /// until it ends (or forever with `looping`), `stop` is set, or the receiver is gone.
 /// Runs on the calling thread.
@@ -189,7 +177,7 @@ pub fn play(
     let period = 1.0 / session.params.rate_hz;
     let mut batch = Vec::with_capacity(session.ch.markers.len());
     let mut n = 0usize;
-    'outer: loop {
+    loop {
         let i = n % frames;
         if n > 0 && i == 0 && !looping {
             break;
@@ -201,16 +189,8 @@ pub fn play(
         }
         batch.clear();
         session.frame(i, t, &mut batch);
-        for s in &batch {
-            match tx.try_send(*s) {
-                Ok(()) => {
-                    counters.samples.fetch_add(1, Ordering::Relaxed);
-                }
-                Err(TrySendError::Full(_)) => {
-                    counters.dropped.fetch_add(1, Ordering::Relaxed);
-                }
-                Err(TrySendError::Disconnected(_)) => break 'outer,
-            }
+        if !send_samples(&batch, tx, counters) {
+            break;
         }
         counters.frames.fetch_add(1, Ordering::Relaxed);
         n += 1;

@@ -1,4 +1,9 @@
-//! Recorded sessions from files: C3D (reader and writer) and Qualisys TSV.
+//! Recorded sessions: file readers (C3D, with a writer, and Qualisys TSV), recordings
+//! and their label mapping, the replayer that plays them as live input, and the sessions
+//! bundled with rigless.
 
+pub mod bundled;
 pub mod c3d;
+pub mod player;
+pub mod recording;
 pub mod tsv;

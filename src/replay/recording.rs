@@ -1,0 +1,170 @@
+//! A recording as the replayer plays it: labelled marker trajectories at a fixed rate, from
+//! a C3D or TSV file (or a bundled session), and the mapping of its labels onto a
+//! character's markers.
+
+use super::c3d::{read_c3d, C3dError};
+use super::tsv::{parse_tsv, TsvError};
+use glam::DVec3;
+use std::path::Path;
+
+/// Labelled marker trajectories: `frames[f][k]`, metres, world frame, NaN where missing.
+#[derive(Clone, Debug)]
+pub struct Recording {
+    pub name: String,
+    pub rate_hz: f64,
+    pub labels: Vec<String>,
+    pub frames: Vec<Vec<DVec3>>,
+    /// What the reader tolerated.
+    pub warnings: Vec<String>,
+}
+
+/// Why a recording cannot be played.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    C3d { path: String, source: C3dError },
+    #[error("{path}: {source}")]
+    Tsv { path: String, source: TsvError },
+    #[error("{path}: unknown recording format (expected .c3d or .tsv)")]
+    Format { path: String },
+    #[error("{path}: no frames")]
+    Empty { path: String },
+}
+
+impl Recording {
+    /// Reads a C3D file's bytes.
+    pub fn from_c3d(name: &str, bytes: &[u8]) -> Result<Self, RecordingError> {
+        let c = read_c3d(bytes).map_err(|source| RecordingError::C3d {
+            path: name.to_owned(),
+            source,
+        })?;
+        Ok(Self {
+            name: name.to_owned(),
+            rate_hz: c.rate_hz,
+            labels: c.labels,
+            frames: c.frames,
+            warnings: c.warnings,
+        })
+        .and_then(Self::nonempty)
+    }
+
+    /// Reads a file by its extension (`.c3d`, `.tsv`).
+    pub fn load(path: &Path) -> Result<Self, RecordingError> {
+        let shown = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+            path: shown.clone(),
+            source,
+        })?;
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        match ext.as_str() {
+            "c3d" => Self::from_c3d(&shown, &bytes),
+            "tsv" => {
+                let t = parse_tsv(&String::from_utf8_lossy(&bytes)).map_err(|source| {
+                    RecordingError::Tsv {
+                        path: shown.clone(),
+                        source,
+                    }
+                })?;
+                Self::nonempty(Self {
+                    name: shown,
+                    rate_hz: t.rate_hz,
+                    labels: t.marker_names,
+                    frames: t.frames,
+                    warnings: Vec::new(),
+                })
+            }
+            _ => Err(RecordingError::Format { path: shown }),
+        }
+    }
+
+    fn nonempty(self) -> Result<Self, RecordingError> {
+        if self.frames.is_empty() {
+            Err(RecordingError::Empty { path: self.name })
+        } else {
+            Ok(self)
+        }
+    }
+
+    pub fn duration_secs(&self) -> f64 {
+        self.frames.len() as f64 / self.rate_hz
+    }
+}
+
+/// How a recording's labels map onto a character's markers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LabelMap {
+    /// Marker index of each label (`None`: not one of the character's markers).
+    pub marker_of_label: Vec<Option<u32>>,
+    /// Labels that match no marker (ignored).
+    pub unmatched_labels: Vec<String>,
+    /// Markers that no label feeds (held for the whole replay).
+    pub unfed_markers: Vec<String>,
+}
+
+/// Maps labels to markers by name: exactly, else ignoring case and a `Subject:` prefix
+/// (Vicon writes `Subject:LFHD`).
+pub fn map_labels(labels: &[String], markers: &[String]) -> LabelMap {
+    let bare = |s: &str| {
+        s.rsplit(':')
+            .next()
+            .unwrap_or(s)
+            .trim()
+            .to_ascii_lowercase()
+    };
+    let marker_of_label: Vec<Option<u32>> = labels
+        .iter()
+        .map(|l| {
+            markers
+                .iter()
+                .position(|m| m == l)
+                .or_else(|| markers.iter().position(|m| bare(m) == bare(l)))
+                .map(|k| k as u32)
+        })
+        .collect();
+    let unmatched_labels = labels
+        .iter()
+        .zip(&marker_of_label)
+        .filter(|(_, m)| m.is_none())
+        .map(|(l, _)| l.clone())
+        .collect();
+    let unfed_markers = markers
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !marker_of_label.contains(&Some(*k as u32)))
+        .map(|(_, m)| m.clone())
+        .collect();
+    LabelMap {
+        marker_of_label,
+        unmatched_labels,
+        unfed_markers,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_map_exactly_then_loosely() {
+        let labels: Vec<String> = ["Subject:LFHD", "rfhd", "C7", "extra"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let markers: Vec<String> = ["C7", "LFHD", "RFHD", "T10"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let m = map_labels(&labels, &markers);
+        assert_eq!(m.marker_of_label, vec![Some(1), Some(2), Some(0), None]);
+        assert_eq!(m.unmatched_labels, vec!["extra".to_string()]);
+        assert_eq!(m.unfed_markers, vec!["T10".to_string()]);
+    }
+}
