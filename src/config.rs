@@ -56,6 +56,11 @@ pub struct SolverConfig {
     pub deadline_fraction: f64,
     /// Capacity of the input channel, samples (inputs drop and count samples beyond it).
     pub channel_capacity: usize,
+    /// Posture fit weight towards the rest pose: metres of marker misfit per metre of
+    /// height that one radian away from rest is worth (higher: stiffer, less noise).
+    pub rest_prior: f64,
+    /// The same towards the previous frame's posture (higher: smoother, more lag).
+    pub prev_prior: f64,
 }
 
 impl Default for SolverConfig {
@@ -66,6 +71,8 @@ impl Default for SolverConfig {
             tolerance: 1e-3,
             deadline_fraction: 0.8,
             channel_capacity: 4096,
+            rest_prior: crate::solve::ik::IkParams::default().rest_prior,
+            prev_prior: crate::solve::ik::IkParams::default().prev_prior,
         }
     }
 }
@@ -391,6 +398,17 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
             format!("must be in (0, 1], got {}", solver.deadline_fraction),
         ));
     }
+    for (key, v) in [
+        ("rest_prior", solver.rest_prior),
+        ("prev_prior", solver.prev_prior),
+    ] {
+        if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+            problems.push(lines.at(
+                &format!("solver.{key}"),
+                format!("must be in [0, 1], got {v}"),
+            ));
+        }
+    }
     if !(16..=1 << 24).contains(&solver.channel_capacity) {
         problems.push(lines.at(
             "solver.channel_capacity",
@@ -618,6 +636,15 @@ on = true
         ] {
             assert!(text.contains(want), "missing {want:?} in {text}");
         }
+    }
+
+    #[test]
+    fn the_shipped_stage_files_are_valid_and_show_the_defaults() {
+        let hand = parse_stage(include_str!("../stages/hand.toml"), "stages/hand.toml").unwrap();
+        // stages/hand.toml spells out every default (except its looping input).
+        assert_eq!(hand.solver, SolverConfig::default());
+        assert_eq!(hand.buffer, BufferConfig::default());
+        parse_stage(include_str!("../stages/body-walk.toml"), "stages/body-walk.toml").unwrap();
     }
 
     #[test]

@@ -19,6 +19,7 @@ use rigless::replay::player::{play_recording, PlayParams};
 use rigless::replay::recording::{map_labels, Recording};
 use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
+use rigless::solve::ik::IkParams;
 use std::io::{IsTerminal, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -79,7 +80,11 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
         SolverParams {
             max_iterations: cfg.solver.max_iterations,
             tolerance: cfg.solver.tolerance,
-            ..SolverParams::default()
+            ik: IkParams {
+                rest_prior: cfg.solver.rest_prior,
+                prev_prior: cfg.solver.prev_prior,
+                ..IkParams::default()
+            },
         },
     );
     let mut pipeline = Pipeline::new(solver, buffer, rx, vec![slot]);
