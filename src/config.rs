@@ -644,7 +644,11 @@ on = true
         // stages/hand.toml spells out every default (except its looping input).
         assert_eq!(hand.solver, SolverConfig::default());
         assert_eq!(hand.buffer, BufferConfig::default());
-        parse_stage(include_str!("../stages/body-walk.toml"), "stages/body-walk.toml").unwrap();
+        parse_stage(
+            include_str!("../stages/body-walk.toml"),
+            "stages/body-walk.toml",
+        )
+        .unwrap();
     }
 
     #[test]

@@ -10,36 +10,55 @@ use std::time::{Duration, Instant};
 /// second; a loaded CI machine may take several).
 const STARTUP_TIMEOUT: Duration = Duration::from_secs(60);
 
+/// A running `rigless` with its stdout collected on a thread, and the stream address it
+/// printed.
+struct Daemon {
+    child: std::process::Child,
+    addr: String,
+    lines: std::thread::JoinHandle<Vec<String>>,
+}
+
+impl Daemon {
+    fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_rigless"))
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start rigless");
+        let stdout = child.stdout.take().unwrap();
+        let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+        let lines = std::thread::spawn(move || {
+            let mut lines = Vec::new();
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
+                    let _ = addr_tx.send(a.to_owned());
+                }
+                lines.push(line);
+            }
+            lines
+        });
+        let Ok(addr) = addr_rx.recv_timeout(STARTUP_TIMEOUT) else {
+            let _ = child.kill();
+            panic!("rigless {args:?} printed no stream address within {STARTUP_TIMEOUT:?}");
+        };
+        Self { child, addr, lines }
+    }
+
+    /// Waits for the exit; returns whether it succeeded and everything it printed.
+    fn finish(mut self) -> (bool, Vec<String>) {
+        let ok = self.child.wait().expect("rigless exits").success();
+        (ok, self.lines.join().unwrap())
+    }
+}
+
 #[test]
 fn python_client_reads_topology_frames_and_goodbye() {
     if Command::new("python3").arg("--version").output().is_err() {
         panic!("python3 is required (README set-up installs it)");
     }
-    let mut demo = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args(["demo", "--seconds", "3", "--stream", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start rigless demo");
-    let stdout = demo.stdout.take().unwrap();
-    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        let mut lines = Vec::new();
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
-                let _ = addr_tx.send(a.to_owned());
-            }
-            lines.push(line);
-        }
-        lines
-    });
-    let addr = match addr_rx.recv_timeout(STARTUP_TIMEOUT) {
-        Ok(a) => a,
-        Err(_) => {
-            let _ = demo.kill();
-            panic!("the demo printed no stream address within {STARTUP_TIMEOUT:?}");
-        }
-    };
+    let demo = Daemon::start(&["demo", "--seconds", "3", "--stream", "127.0.0.1:0"]);
+    let addr = demo.addr.clone();
     let client = Command::new("python3")
         .args([
             concat!(
@@ -53,9 +72,8 @@ fn python_client_reads_topology_frames_and_goodbye() {
         .output()
         .expect("run the Python client");
     let started = Instant::now();
-    let status = demo.wait().expect("demo exits");
-    let lines = reader.join().unwrap();
-    assert!(status.success(), "demo failed: {lines:?}");
+    let (ok, lines) = demo.finish();
+    assert!(ok, "demo failed: {lines:?}");
     assert!(started.elapsed() < Duration::from_secs(30));
     assert!(
         client.status.success(),
@@ -117,28 +135,8 @@ fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
         "[character]\nprocedural = \"body\"\n\n[solver]\nrate_hz = 60\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"reach\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
     )
     .unwrap();
-    let mut run = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args(["run", "--config", stage.to_str().unwrap(), "--seconds", "4"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start rigless run");
-    let stdout = run.stdout.take().unwrap();
-    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        let mut lines = Vec::new();
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
-                let _ = addr_tx.send(a.to_owned());
-            }
-            lines.push(line);
-        }
-        lines
-    });
-    let Ok(addr) = addr_rx.recv_timeout(STARTUP_TIMEOUT) else {
-        let _ = run.kill();
-        panic!("rigless run printed no stream address within {STARTUP_TIMEOUT:?}");
-    };
+    let run = Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "4"]);
+    let addr = run.addr.clone();
     // Read 30 frames (half a second at 60 Hz), then hang up: the server must carry on.
     let client = Command::new("python3")
         .args([
@@ -171,9 +169,8 @@ fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
         s["bbox_max"][1].as_f64().unwrap(),
     );
     assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
-    let status = run.wait().unwrap();
-    let lines = reader.join().unwrap();
-    assert!(status.success(), "{lines:?}");
+    let (ok, lines) = run.finish();
+    assert!(ok, "{lines:?}");
     assert!(
         lines
             .iter()

@@ -90,6 +90,40 @@ fn setup_with(gap_fraction: f64, seconds: f64, cfg: BufferConfig) -> Setup {
     }
 }
 
+/// The skinned truth of the hand's finger play, to score frames against.
+struct Truth {
+    ch: Arc<rigless::character::Character>,
+    height_m: f64,
+    vertices: Vec<glam::DVec3>,
+    markers: Vec<glam::DVec3>,
+}
+
+impl Truth {
+    fn new(s: &Setup) -> Self {
+        let ch = Arc::clone(s.session.character());
+        Self {
+            vertices: vec![glam::DVec3::ZERO; ch.vertices.len()],
+            markers: vec![glam::DVec3::ZERO; ch.markers.len()],
+            height_m: s.rig.height_m,
+            ch,
+        }
+    }
+
+    /// Mean vertex distance of a frame from the truth at `t_s`, as a fraction of the
+    /// height.
+    fn error(&mut self, f: &DeformedFrame, t_s: f64) -> f64 {
+        let pose = Motion::FingerPlay.pose(&self.ch.skeleton, t_s);
+        skin_pose(&self.ch, &pose, &mut self.vertices, &mut self.markers);
+        f.vertices_m
+            .iter()
+            .zip(&self.vertices)
+            .map(|(a, b)| (a.as_dvec3() - *b).length())
+            .sum::<f64>()
+            / self.vertices.len() as f64
+            / self.height_m
+    }
+}
+
 /// A deadline no frame reaches: quality checks must not depend on the machine's speed.
 fn far_deadline() -> Instant {
     Instant::now() + Duration::from_secs(3600)
@@ -98,10 +132,7 @@ fn far_deadline() -> Instant {
 /// Plays a session through the pipeline tick by tick; returns the mean and worst
 /// per-frame mean vertex error (fractions of the height) and the fill-state counts.
 fn play_session(mut s: Setup) -> (f64, f64, [usize; 4]) {
-    let ch = Arc::clone(s.session.character());
-    let nv = ch.vertices.len();
-    let mut truth = vec![glam::DVec3::ZERO; nv];
-    let mut truth_markers = vec![glam::DVec3::ZERO; ch.markers.len()];
+    let mut truth = Truth::new(&s);
     let mut batch = Vec::new();
     let (mut err_sum, mut err_max, mut frames) = (0.0f64, 0.0f64, 0usize);
     let mut last_frame = None;
@@ -124,17 +155,9 @@ fn play_session(mut s: Setup) -> (f64, f64, [usize; 4]) {
         for st in &f.marker_states {
             states[*st as usize] += 1;
         }
-        let pose = Motion::FingerPlay.pose(&ch.skeleton, t);
-        skin_pose(&ch, &pose, &mut truth, &mut truth_markers);
-        let mean = f
-            .vertices_m
-            .iter()
-            .zip(&truth)
-            .map(|(a, b)| (a.as_dvec3() - *b).length())
-            .sum::<f64>()
-            / nv as f64;
-        err_sum += mean / s.rig.height_m;
-        err_max = err_max.max(mean / s.rig.height_m);
+        let e = truth.error(&f, t);
+        err_sum += e;
+        err_max = err_max.max(e);
         frames += 1;
     }
     (err_sum / frames as f64, err_max, states)
@@ -251,10 +274,7 @@ struct LossRun {
 /// Plays the hand with every sample of frames `lost` withheld.
 fn play_with_loss(lost: std::ops::Range<usize>, frames: usize) -> LossRun {
     let mut s = setup(0.0, 30.0);
-    let ch = Arc::clone(s.session.character());
-    let nv = ch.vertices.len();
-    let mut truth = vec![glam::DVec3::ZERO; nv];
-    let mut truth_markers = vec![glam::DVec3::ZERO; ch.markers.len()];
+    let mut truth = Truth::new(&s);
     let mut batch = Vec::new();
     let mut first_held: Option<Vec<glam::Vec3>> = None;
     let mut previous: Option<Vec<glam::Vec3>> = None;
@@ -292,17 +312,7 @@ fn play_with_loss(lost: std::ops::Range<usize>, frames: usize) -> LossRun {
             }
             previous = Some(f.vertices_m.clone());
         }
-        let pose = Motion::FingerPlay.pose(&ch.skeleton, t);
-        skin_pose(&ch, &pose, &mut truth, &mut truth_markers);
-        let e = f
-            .vertices_m
-            .iter()
-            .zip(&truth)
-            .map(|(a, b)| (a.as_dvec3() - *b).length())
-            .sum::<f64>()
-            / nv as f64
-            / s.rig.height_m;
-        errors.push(e);
+        errors.push(truth.error(&f, t));
     }
     LossRun {
         settle_m,
