@@ -52,6 +52,19 @@ impl Daemon {
     }
 }
 
+/// Runs the Python reference client against `addr` with extra arguments.
+fn python_client(addr: &str, args: &[&str]) -> std::process::Output {
+    Command::new("python3")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/protocols/vertex_stream_client.py"
+        ))
+        .arg(addr)
+        .args(args)
+        .output()
+        .expect("run the Python client")
+}
+
 #[test]
 fn python_client_reads_topology_frames_and_goodbye() {
     if Command::new("python3").arg("--version").output().is_err() {
@@ -59,18 +72,7 @@ fn python_client_reads_topology_frames_and_goodbye() {
     }
     let demo = Daemon::start(&["demo", "--seconds", "3", "--stream", "127.0.0.1:0"]);
     let addr = demo.addr.clone();
-    let client = Command::new("python3")
-        .args([
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/protocols/vertex_stream_client.py"
-            ),
-            &addr,
-            "--timeout",
-            "20",
-        ])
-        .output()
-        .expect("run the Python client");
+    let client = python_client(&addr, &["--timeout", "20"]);
     let started = Instant::now();
     let (ok, lines) = demo.finish();
     assert!(ok, "demo failed: {lines:?}");
@@ -138,18 +140,7 @@ fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
     let run = Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "4"]);
     let addr = run.addr.clone();
     // Read 30 frames (half a second at 60 Hz), then hang up: the server must carry on.
-    let client = Command::new("python3")
-        .args([
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/protocols/vertex_stream_client.py"
-            ),
-            &addr,
-            "--frames",
-            "30",
-        ])
-        .output()
-        .expect("run the Python client");
+    let client = python_client(&addr, &["--frames", "30"]);
     assert!(
         client.status.success(),
         "{}",

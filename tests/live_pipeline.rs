@@ -124,6 +124,20 @@ impl Truth {
     }
 }
 
+impl Setup {
+    /// Sends the session's frame `i` into the channel, stamped at its own time; returns
+    /// that time and how many samples were sent.
+    fn feed(&mut self, i: usize, batch: &mut Vec<rigless::markers::MarkerSample>) -> (f64, usize) {
+        let t = i as f64 / RATE_HZ;
+        batch.clear();
+        self.session.frame(i, t, batch);
+        for smp in batch.iter() {
+            self.tx.try_send(*smp).unwrap();
+        }
+        (t, batch.len())
+    }
+}
+
 /// A deadline no frame reaches: quality checks must not depend on the machine's speed.
 fn far_deadline() -> Instant {
     Instant::now() + Duration::from_secs(3600)
@@ -138,14 +152,9 @@ fn play_session(mut s: Setup) -> (f64, f64, [usize; 4]) {
     let mut last_frame = None;
     let mut states = [0usize; 4];
     for i in 0..s.session.frames() {
-        let t = i as f64 / RATE_HZ;
-        batch.clear();
-        s.session.frame(i, t, &mut batch);
-        for smp in &batch {
-            s.tx.try_send(*smp).unwrap();
-        }
+        let (t, sent) = s.feed(i, &mut batch);
         let rep = s.pipeline.tick(t, far_deadline(), &|| t);
-        assert_eq!(rep.samples, batch.len());
+        assert_eq!(rep.samples, sent);
         let f = s.slot.take().expect("every tick publishes");
         assert_eq!(f.frame, rep.frame);
         if let Some(l) = last_frame {
@@ -195,12 +204,7 @@ fn the_warm_loop_does_not_allocate() {
     let mut batch = Vec::with_capacity(64);
     let mut allocated_in_ticks = 0;
     for i in 0..s.session.frames() {
-        let t = i as f64 / RATE_HZ;
-        batch.clear();
-        s.session.frame(i, t, &mut batch);
-        for smp in &batch {
-            s.tx.try_send(*smp).unwrap();
-        }
+        let (t, _) = s.feed(i, &mut batch);
         let deadline = far_deadline();
         let before = allocations();
         s.pipeline.tick(t, deadline, &|| t);
