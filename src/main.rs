@@ -84,6 +84,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Show what a recording holds (C3D or Qualisys TSV): markers, rate, frames,
+    /// duration, the file's units, the share of missing samples per marker, the bounding
+    /// box (metres, Y up), and anything the reader had to tolerate.
+    Info {
+        /// The recording.
+        file: PathBuf,
+        /// Print one JSON object instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Write the bundled sessions (the procedural hand's finger play, the body's walk and
     /// reach, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
     /// tree holds exactly what this writes.
@@ -201,6 +211,32 @@ fn real_main() -> Result<()> {
                 std::path::Path::new("."),
                 &live::RunOptions { seconds, json },
             )
+        }
+        Command::Info { file, json } => {
+            let rec = rigless::replay::recording::Recording::load(&file)?;
+            let s = rec.summary();
+            if json {
+                println!("{}", serde_json::to_string(&s)?);
+                return Ok(());
+            }
+            println!("{}", s.name);
+            println!(
+                "  {} markers, {} Hz, {} frames ({:.2} s), stored in {}, {:.1} % of samples missing",
+                s.markers, s.rate_hz, s.frames, s.duration_secs, rec.file_units, s.gap_percent
+            );
+            if let (Some(lo), Some(hi)) = (s.bbox_min_m, s.bbox_max_m) {
+                println!(
+                    "  bounding box (m, Y up): x {:.3}..{:.3}, y {:.3}..{:.3}, z {:.3}..{:.3}",
+                    lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+                );
+            }
+            for m in &s.per_marker {
+                println!("  {:<32} {:>6.1} % missing", m.name, m.gap_percent);
+            }
+            for w in &s.warnings {
+                println!("  warning: {w}");
+            }
+            Ok(())
         }
         Command::MakeSessions { dir } => {
             std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

@@ -90,6 +90,7 @@ mod tests {
                 })
                 .collect(),
             warnings: Vec::new(),
+            file_units: "m".into(),
         };
         let map = map_labels(&rec.labels, &["a".into(), "b".into()]);
         let (tx, rx) = crossbeam_channel::bounded(100);

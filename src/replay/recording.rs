@@ -16,6 +16,8 @@ pub struct Recording {
     pub frames: Vec<Vec<DVec3>>,
     /// What the reader tolerated.
     pub warnings: Vec<String>,
+    /// Length unit the file stores (`mm`, `m`, ...), before conversion to metres.
+    pub file_units: String,
 }
 
 /// Why a recording cannot be played.
@@ -49,6 +51,7 @@ impl Recording {
             labels: c.labels,
             frames: c.frames,
             warnings: c.warnings,
+            file_units: c.units,
         })
         .and_then(Self::nonempty)
     }
@@ -79,6 +82,7 @@ impl Recording {
                     labels: t.marker_names,
                     frames: t.frames,
                     warnings: Vec::new(),
+                    file_units: "mm".into(),
                 })
             }
             _ => Err(RecordingError::Format { path: shown }),
@@ -96,6 +100,68 @@ impl Recording {
     pub fn duration_secs(&self) -> f64 {
         self.frames.len() as f64 / self.rate_hz
     }
+
+    /// What the recording holds, for `rigless info`.
+    pub fn summary(&self) -> RecordingSummary {
+        let n = self.labels.len();
+        let mut missing = vec![0usize; n];
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for f in &self.frames {
+            for (k, p) in f.iter().enumerate().take(n) {
+                if p.is_finite() {
+                    lo = lo.min(*p);
+                    hi = hi.max(*p);
+                } else {
+                    missing[k] += 1;
+                }
+            }
+        }
+        let frames = self.frames.len().max(1) as f64;
+        let total_missing: usize = missing.iter().sum();
+        RecordingSummary {
+            name: self.name.clone(),
+            markers: n,
+            rate_hz: self.rate_hz,
+            frames: self.frames.len(),
+            duration_secs: self.duration_secs(),
+            gap_percent: 100.0 * total_missing as f64 / (frames * n.max(1) as f64),
+            per_marker: self
+                .labels
+                .iter()
+                .zip(&missing)
+                .map(|(l, m)| MarkerSummary {
+                    name: l.clone(),
+                    gap_percent: 100.0 * *m as f64 / frames,
+                })
+                .collect(),
+            bbox_min_m: lo.is_finite().then(|| lo.to_array()),
+            bbox_max_m: hi.is_finite().then(|| hi.to_array()),
+            warnings: self.warnings.clone(),
+        }
+    }
+}
+
+/// What a recording holds (positions in metres, world frame, Y up).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RecordingSummary {
+    pub name: String,
+    pub markers: usize,
+    pub rate_hz: f64,
+    pub frames: usize,
+    pub duration_secs: f64,
+    /// Share of missing samples over all markers, percent.
+    pub gap_percent: f64,
+    pub per_marker: Vec<MarkerSummary>,
+    /// Bounding box of every present sample (absent when none is).
+    pub bbox_min_m: Option<[f64; 3]>,
+    pub bbox_max_m: Option<[f64; 3]>,
+    pub warnings: Vec<String>,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MarkerSummary {
+    pub name: String,
+    pub gap_percent: f64,
 }
 
 /// How a recording's labels map onto a character's markers.
@@ -151,6 +217,30 @@ pub fn map_labels(labels: &[String], markers: &[String]) -> LabelMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn summary_counts_gaps_per_marker_and_bounds_present_samples() {
+        let rec = Recording {
+            name: "r".into(),
+            rate_hz: 50.0,
+            labels: vec!["a".into(), "b".into()],
+            frames: vec![
+                vec![DVec3::new(1.0, 2.0, 3.0), DVec3::NAN],
+                vec![DVec3::new(-1.0, 0.0, 5.0), DVec3::NAN],
+                vec![DVec3::NAN, DVec3::ZERO],
+                vec![DVec3::ZERO, DVec3::ZERO],
+            ],
+            warnings: vec![],
+            file_units: "mm".into(),
+        };
+        let s = rec.summary();
+        assert_eq!((s.markers, s.frames, s.duration_secs), (2, 4, 0.08));
+        assert_eq!(s.per_marker[0].gap_percent, 25.0);
+        assert_eq!(s.per_marker[1].gap_percent, 50.0);
+        assert_eq!(s.gap_percent, 37.5);
+        assert_eq!(s.bbox_min_m, Some([-1.0, 0.0, 0.0]));
+        assert_eq!(s.bbox_max_m, Some([1.0, 2.0, 5.0]));
+    }
 
     #[test]
     fn labels_map_exactly_then_loosely() {
