@@ -29,6 +29,29 @@ pub struct StageConfig {
     pub buffer: BufferConfig,
     pub inputs: Vec<InputConfig>,
     pub outputs: OutputsConfig,
+    pub recorder: RecorderConfig,
+}
+
+/// `[recorder]`: record every incoming sample to a session file (off unless `path` is
+/// set).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecorderConfig {
+    /// Session file to write (`.rlsession`), relative to the stage config's folder;
+    /// `{time}` is replaced by the start time (UTC, `YYYYmmdd-HHMMSS`).
+    pub path: Option<PathBuf>,
+    /// Longest time between writes to the file, seconds: a killed daemon loses at most
+    /// this much.
+    pub flush_interval_secs: f64,
+}
+
+impl Default for RecorderConfig {
+    fn default() -> Self {
+        Self {
+            path: None,
+            flush_interval_secs: 0.5,
+        }
+    }
 }
 
 /// `[character]`: exactly one of `procedural` or `path`.
@@ -331,11 +354,21 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     })?;
     let lines = Lines::scan(text);
     let mut problems = Vec::new();
+    let positive = |v: f64| v.is_finite() && v > 0.0;
     for k in table.keys() {
-        if !["character", "solver", "buffer", "inputs", "outputs"].contains(&k.as_str()) {
+        if ![
+            "character",
+            "solver",
+            "buffer",
+            "inputs",
+            "outputs",
+            "recorder",
+        ]
+        .contains(&k.as_str())
+        {
             problems.push(lines.at(
                 k,
-                "unknown section (expected character, solver, buffer, inputs, outputs)",
+                "unknown section (expected character, solver, buffer, inputs, outputs, recorder)",
             ));
         }
     }
@@ -343,6 +376,16 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     let solver: SolverConfig = section(&table, "solver", &lines, &mut problems);
     let buffer: BufferConfig = section(&table, "buffer", &lines, &mut problems);
     let outputs: OutputsConfig = section(&table, "outputs", &lines, &mut problems);
+    let recorder: RecorderConfig = section(&table, "recorder", &lines, &mut problems);
+    if !(positive(recorder.flush_interval_secs) && recorder.flush_interval_secs <= 60.0) {
+        problems.push(lines.at(
+            "recorder.flush_interval_secs",
+            format!(
+                "must be in (0, 60] seconds, got {}",
+                recorder.flush_interval_secs
+            ),
+        ));
+    }
     let mut inputs = Vec::new();
     let lines_ref = &lines;
     match table.get("inputs") {
@@ -373,7 +416,6 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         )),
         _ => {}
     }
-    let positive = |v: f64| v.is_finite() && v > 0.0;
     if !(positive(solver.rate_hz) && solver.rate_hz <= 2000.0) {
         problems.push(lines.at(
             "solver.rate_hz",
@@ -523,6 +565,7 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         buffer,
         inputs,
         outputs,
+        recorder,
     })
 }
 

@@ -17,6 +17,7 @@ use rigless::output::stream::{StreamServer, StreamStats};
 use rigless::replay::bundled::bundled;
 use rigless::replay::player::{play_recording, PlayParams};
 use rigless::replay::recording::{map_labels, Recording};
+use rigless::replay::session::{run_recorder, SessionHeader, SessionWriter};
 use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
 use rigless::solve::ik::IkParams;
@@ -31,6 +32,30 @@ pub struct RunOptions {
     pub seconds: Option<f64>,
     /// Status and summary as JSON lines.
     pub json: bool,
+    /// Record every incoming sample here (overrides `[recorder] path`).
+    pub record: Option<std::path::PathBuf>,
+}
+
+/// `YYYYmmdd-HHMMSS` (UTC) of a Unix time, for `{time}` in recorder paths.
+fn utc_stamp(unix_s: f64) -> String {
+    let secs = unix_s.max(0.0) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + (m <= 2) as i64;
+    format!(
+        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
 }
 
 /// Seconds between starting the threads and the first tick (lets the sources start).
@@ -88,8 +113,51 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
         },
     );
     let mut pipeline = Pipeline::new(solver, buffer, rx, vec![slot]);
-
     let clock = Arc::new(SystemClock::new());
+    let record_path = opts
+        .record
+        .clone()
+        .or_else(|| cfg.recorder.path.as_ref().map(|p| base_dir.join(p)))
+        .map(|p| {
+            let stamped = p
+                .to_string_lossy()
+                .replace("{time}", &utc_stamp(clock.unix_s(0.0)));
+            std::path::PathBuf::from(stamped)
+        });
+    let mut recorder = None;
+    if let Some(path) = &record_path {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("creating the session file {}", path.display()))?;
+        let header = SessionHeader {
+            marker_names: rig.marker_names.clone(),
+            rate_hz,
+            started_unix_s: clock.unix_s(0.0),
+            inputs: cfg.inputs.iter().map(describe_input).collect(),
+        };
+        let writer = SessionWriter::new(file, &header, cfg.recorder.flush_interval_secs, 0.0)
+            .with_context(|| format!("writing {}", path.display()))?;
+        let (rec_tx, rec_rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity * 4);
+        pipeline = pipeline.with_recorder(rec_tx);
+        let rec_clock = Arc::clone(&clock);
+        let shown = path.display().to_string();
+        recorder = Some((
+            shown,
+            std::thread::Builder::new()
+                .name("recorder".into())
+                .spawn(move || run_recorder(writer, &rec_rx, &|| rec_clock.now_s()))?,
+        ));
+        if !opts.json {
+            println!(
+                "recording every sample to {} (flushed every {} s)",
+                path.display(),
+                cfg.recorder.flush_interval_secs
+            );
+        }
+    }
+
     let stop = Arc::new(AtomicBool::new(false));
     let status = Arc::new(LatestSlot::<LoopStatus>::new());
     let mut sources = Vec::new();
@@ -215,14 +283,16 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             .spawn(move || {
                 clock.sleep_until(START_S);
                 let deadline_clock = Arc::clone(&clock);
-                run_loop(
+                let last = run_loop(
                     &mut pipeline,
                     &*clock,
                     loop_params,
                     &stop,
                     &status,
                     &move |t| deadline_clock.instant_at(t),
-                )
+                );
+                pipeline.flush_to_recorder();
+                last
             })?
     };
     {
@@ -256,6 +326,16 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     for s in sources {
         let _ = s.join();
     }
+    // The pipeline (and its recorder channel) went with the solver thread.
+    if let Some((path, handle)) = recorder {
+        let written = handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the recorder thread panicked"))?
+            .with_context(|| format!("writing {path}"))?;
+        if !opts.json {
+            println!("recorded {written} samples to {path}");
+        }
+    }
     let reason = if interrupted {
         "shutting down"
     } else if opts.seconds.is_some() {
@@ -279,6 +359,20 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
         .sum();
     print_summary(&last, &stream_stats, samples, dropped, reason, opts.json)?;
     Ok(())
+}
+
+/// How a session file names an input.
+fn describe_input(i: &InputConfig) -> String {
+    match i {
+        InputConfig::Synthetic(s) => {
+            format!("synthetic:{}", s.motion.as_deref().unwrap_or("default"))
+        }
+        InputConfig::Replay(r) => match (&r.session, &r.path) {
+            (Some(n), _) => format!("replay:{n}"),
+            (None, Some(p)) => format!("replay:{}", p.display()),
+            (None, None) => "replay".into(),
+        },
+    }
 }
 
 /// The rig, its name, and the procedural character when there is one.

@@ -33,6 +33,10 @@ enum Command {
         /// Check the config, print every problem, and exit without running.
         #[arg(long)]
         check: bool,
+        /// Record every incoming sample to this session file (overrides `[recorder]`;
+        /// `{time}` becomes the start time).
+        #[arg(long)]
+        record: Option<PathBuf>,
         /// Print the status and the summary as JSON lines instead of text.
         #[arg(long)]
         json: bool,
@@ -173,6 +177,7 @@ fn real_main() -> Result<()> {
             config,
             seconds,
             check,
+            record,
             json,
         } => {
             check_seconds(seconds)?;
@@ -182,7 +187,15 @@ fn real_main() -> Result<()> {
                 return Ok(());
             }
             let base = config.parent().unwrap_or(std::path::Path::new("."));
-            live::run(&cfg, base, &live::RunOptions { seconds, json })
+            live::run(
+                &cfg,
+                base,
+                &live::RunOptions {
+                    seconds,
+                    json,
+                    record,
+                },
+            )
         }
         Command::Demo {
             character,
@@ -209,7 +222,11 @@ fn real_main() -> Result<()> {
             live::run(
                 &cfg,
                 std::path::Path::new("."),
-                &live::RunOptions { seconds, json },
+                &live::RunOptions {
+                    seconds,
+                    json,
+                    record: None,
+                },
             )
         }
         Command::Info { file, json } => {

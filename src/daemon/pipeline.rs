@@ -14,7 +14,7 @@ use crate::protocol::vertex_stream::{DeformedFrame, StopCode, Topology};
 use crate::rig::bind::Rig;
 use crate::solve::arap::StopReason;
 use crate::solve::frame::{SolveReport, Solver};
-use crossbeam_channel::Receiver;
+use crossbeam_channel::{Receiver, Sender};
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -49,6 +49,8 @@ pub struct LoopStatus {
     pub samples: u64,
     /// The buffer's counters.
     pub buffer: crate::markers::buffer::BufferCounters,
+    /// Samples the session recorder had no room for, in all.
+    pub record_dropped: u64,
 }
 
 /// One frame's outcome.
@@ -68,6 +70,10 @@ pub struct Pipeline {
     buffer: MarkerBuffer,
     rx: Receiver<MarkerSample>,
     slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    /// Every drained sample also goes here (the session recorder), without blocking.
+    recorder: Option<Sender<MarkerSample>>,
+    /// Samples the recorder's channel had no room for.
+    record_dropped: u64,
     markers: MarkerFrame,
     vertices: Vec<DVec3>,
     pool: Vec<Arc<DeformedFrame>>,
@@ -94,6 +100,8 @@ impl Pipeline {
             buffer,
             rx,
             slots,
+            recorder: None,
+            record_dropped: 0,
             markers: MarkerFrame::empty(nm),
             vertices: vec![DVec3::ZERO; nv],
             pool: Vec::with_capacity(POOL_LEN),
@@ -109,6 +117,13 @@ impl Pipeline {
 
     pub fn rig(&self) -> &Arc<Rig> {
         self.solver.rig()
+    }
+
+    /// Sends every sample the loop drains to `tx` as well (a session recorder); a full
+    /// channel drops the copy and counts it, never blocking the loop.
+    pub fn with_recorder(mut self, tx: Sender<MarkerSample>) -> Self {
+        self.recorder = Some(tx);
+        self
     }
 
     pub fn buffer(&self) -> &MarkerBuffer {
@@ -132,6 +147,11 @@ impl Pipeline {
         let mut drained = 0;
         while let Ok(s) = self.rx.try_recv() {
             self.buffer.push(&s);
+            if let Some(tx) = &self.recorder {
+                if tx.try_send(s).is_err() {
+                    self.record_dropped += 1;
+                }
+            }
             drained += 1;
         }
         self.samples += drained as u64;
@@ -191,6 +211,18 @@ impl Pipeline {
         report
     }
 
+    /// Passes the samples still queued to the recorder (at shutdown, so that a session
+    /// file holds every sample that arrived).
+    pub fn flush_to_recorder(&mut self) {
+        while let Ok(s) = self.rx.try_recv() {
+            if let Some(tx) = &self.recorder {
+                if tx.try_send(s).is_err() {
+                    self.record_dropped += 1;
+                }
+            }
+        }
+    }
+
     /// A pooled frame no sink holds any more, or a new one while the pool fills.
     fn recycled_frame(&mut self) -> Arc<DeformedFrame> {
         if let Some(i) = self.pool.iter_mut().position(|f| Arc::get_mut(f).is_some()) {
@@ -238,6 +270,7 @@ impl Pipeline {
             fill_now,
             samples: self.samples,
             buffer: *self.buffer.counters(),
+            record_dropped: self.record_dropped,
         };
         self.interval_frames = 0;
         self.interval_iterations = 0;

@@ -6,4 +6,5 @@ pub mod bundled;
 pub mod c3d;
 pub mod player;
 pub mod recording;
+pub mod session;
 pub mod tsv;

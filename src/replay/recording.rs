@@ -3,6 +3,7 @@
 //! character's markers.
 
 use super::c3d::{read_c3d, C3dError};
+use super::session::{read_session, Session, SessionError};
 use super::tsv::{parse_tsv, TsvError};
 use glam::DVec3;
 use std::path::Path;
@@ -32,7 +33,9 @@ pub enum RecordingError {
     C3d { path: String, source: C3dError },
     #[error("{path}: {source}")]
     Tsv { path: String, source: TsvError },
-    #[error("{path}: unknown recording format (expected .c3d or .tsv)")]
+    #[error("{path}: {source}")]
+    Session { path: String, source: SessionError },
+    #[error("{path}: unknown recording format (expected .c3d, .tsv or .rlsession)")]
     Format { path: String },
     #[error("{path}: no frames")]
     Empty { path: String },
@@ -85,7 +88,51 @@ impl Recording {
                     file_units: "mm".into(),
                 })
             }
+            "rlsession" => {
+                let sess = read_session(&bytes).map_err(|source| RecordingError::Session {
+                    path: shown.clone(),
+                    source,
+                })?;
+                Self::nonempty(Self::from_session(&shown, sess))
+            }
             _ => Err(RecordingError::Format { path: shown }),
+        }
+    }
+
+    /// Frames from a session's samples: grouped by receive time at the session's rate
+    /// (frame `round((t - t0) · rate)`); the newest sample of a marker in a frame wins;
+    /// markers with no sample in a frame are missing.
+    pub fn from_session(name: &str, s: Session) -> Self {
+        let n = s.header.marker_names.len();
+        let rate = s.header.rate_hz;
+        let t0 = s
+            .samples
+            .iter()
+            .map(|x| x.time_s)
+            .fold(f64::INFINITY, f64::min);
+        let mut frames: Vec<Vec<DVec3>> = Vec::new();
+        for x in &s.samples {
+            let k = x.marker as usize;
+            if k >= n || !x.time_s.is_finite() {
+                continue;
+            }
+            let f = ((x.time_s - t0) * rate).round().max(0.0) as usize;
+            // A sample years away would ask for a huge frame table: skip it.
+            if f > 100_000_000 {
+                continue;
+            }
+            if frames.len() <= f {
+                frames.resize(f + 1, vec![DVec3::NAN; n]);
+            }
+            frames[f][k] = if x.occluded { DVec3::NAN } else { x.position_m };
+        }
+        Self {
+            name: name.to_owned(),
+            rate_hz: rate,
+            labels: s.header.marker_names,
+            frames,
+            warnings: s.warnings,
+            file_units: "m".into(),
         }
     }
 
