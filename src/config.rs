@@ -110,6 +110,35 @@ pub enum InputConfig {
     /// A recording played as live input with its own timing: a bundled session or a
     /// C3D / TSV file. Labels map to the character's markers by name.
     Replay(ReplayInputConfig),
+    /// OSC over UDP (`protocols/osc.md`): `url = "osc://127.0.0.1:9000"` for the native
+    /// schema and address patterns, `"vmc://127.0.0.1:39539"` for VMC. Marker names map
+    /// to the character's markers by name.
+    Osc(OscInputConfig),
+}
+
+/// `type = "osc"`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OscInputConfig {
+    /// `osc://HOST:PORT` or `vmc://HOST:PORT`: the address to bind.
+    pub url: String,
+    /// Address patterns with a `{name}` part and three float arguments.
+    pub patterns: Vec<String>,
+    /// Metres per sender unit (0.001 for millimetres).
+    pub scale: f64,
+    /// The sender's up axis: `"Y"` or `"Z"`.
+    pub up: String,
+}
+
+impl Default for OscInputConfig {
+    fn default() -> Self {
+        Self {
+            url: "osc://127.0.0.1:9000".into(),
+            patterns: crate::protocol::osc::OscMapping::default().patterns,
+            scale: 1.0,
+            up: "Y".into(),
+        }
+    }
 }
 
 /// `type = "replay"`: exactly one of `session` or `path`.
@@ -467,6 +496,31 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     for (i, input) in inputs.iter().enumerate() {
         let at = format!("inputs[{i}]");
         match input {
+            InputConfig::Osc(o) => {
+                if let Err(e) = crate::input::osc::parse_url(&o.url) {
+                    problems.push(lines.at(&format!("{at}.url"), e));
+                }
+                if !(positive(o.scale) && o.scale <= 1e3) {
+                    problems.push(lines.at(
+                        &format!("{at}.scale"),
+                        format!("must be in (0, 1000] metres per unit, got {}", o.scale),
+                    ));
+                }
+                if !["Y", "Z", "y", "z"].contains(&o.up.as_str()) {
+                    problems.push(lines.at(
+                        &format!("{at}.up"),
+                        format!("must be \"Y\" or \"Z\", got {:?}", o.up),
+                    ));
+                }
+                for p in &o.patterns {
+                    if p.matches("{name}").count() != 1 || !p.starts_with('/') {
+                        problems.push(lines.at(
+                            &format!("{at}.patterns"),
+                            format!("{p:?} needs to start with / and hold {{name}} once"),
+                        ));
+                    }
+                }
+            }
             InputConfig::Replay(r) => {
                 match (&r.session, &r.path) {
                     (Some(_), Some(_)) => {

@@ -10,10 +10,14 @@ use rigless::config::{InputConfig, StageConfig};
 use rigless::daemon::clock::{Clock, SystemClock};
 use rigless::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
 use rigless::daemon::slot::LatestSlot;
+use rigless::input::osc::{bind as osc_bind, parse_url, run as run_osc, InputUrl, OscStats};
+use rigless::input::send_samples;
 use rigless::input::synthetic::{play, SyntheticParams, SyntheticSession};
 use rigless::input::SourceCounters;
 use rigless::markers::buffer::MarkerBuffer;
+use rigless::markers::MarkerSample;
 use rigless::output::stream::{StreamServer, StreamStats};
+use rigless::protocol::osc::OscMapping;
 use rigless::replay::bundled::bundled;
 use rigless::replay::player::{play_recording, PlayParams};
 use rigless::replay::recording::{map_labels, Recording};
@@ -165,6 +169,62 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let mut inputs_end_s: Option<f64> = Some(START_S);
     for input in &cfg.inputs {
         match input {
+            InputConfig::Osc(o) => {
+                let (addr, mapping) = match parse_url(&o.url).map_err(anyhow::Error::msg)? {
+                    InputUrl::Osc(a) => (
+                        a,
+                        OscMapping {
+                            patterns: o.patterns.clone(),
+                            scale: o.scale,
+                            z_up: o.up.eq_ignore_ascii_case("z"),
+                            vmc: true,
+                        },
+                    ),
+                    InputUrl::Vmc(a) => (
+                        a,
+                        OscMapping {
+                            patterns: Vec::new(),
+                            ..OscMapping::default()
+                        },
+                    ),
+                };
+                let sock = osc_bind(addr).with_context(|| format!("binding {}", o.url))?;
+                // Tests and scripts read this line to find the port.
+                println!("osc input listening on udp://{}", sock.local_addr()?);
+                inputs_end_s = None;
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (clock, stop, tx) = (Arc::clone(&clock), Arc::clone(&stop), tx.clone());
+                let index = MarkerIndex::new(&rig.marker_names);
+                sources.push(
+                    std::thread::Builder::new()
+                        .name("osc".into())
+                        .spawn(move || {
+                            let stats = OscStats::default();
+                            let mut batch = Vec::new();
+                            run_osc(&sock, &mapping, &stop, &stats, &mut |_, f| {
+                                let t = clock.now_s();
+                                let src = f.source_time_s().unwrap_or(t);
+                                batch.clear();
+                                for m in &f.markers {
+                                    if let Some(k) = index.get(&m.name) {
+                                        batch.push(MarkerSample {
+                                            marker: k,
+                                            time_s: t,
+                                            source_time_s: src,
+                                            position_m: m.position_m,
+                                            occluded: m.occluded,
+                                        });
+                                    }
+                                }
+                                if !send_samples(&batch, &tx, &counters) {
+                                    stop.store(true, Ordering::Relaxed);
+                                }
+                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                            });
+                        })?,
+                );
+            }
             InputConfig::Replay(r) => {
                 let rec = match (&r.session, &r.path) {
                     (Some(name), _) => {
@@ -361,9 +421,48 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     Ok(())
 }
 
+/// Marker indices by name: exact names, and names without case or a `Subject:` prefix.
+struct MarkerIndex {
+    exact: std::collections::HashMap<String, u32>,
+    loose: std::collections::HashMap<String, u32>,
+}
+
+impl MarkerIndex {
+    fn bare(s: &str) -> String {
+        s.rsplit(':')
+            .next()
+            .unwrap_or(s)
+            .trim()
+            .to_ascii_lowercase()
+    }
+
+    fn new(names: &[String]) -> Self {
+        let mut loose = std::collections::HashMap::new();
+        for (k, n) in names.iter().enumerate() {
+            loose.entry(Self::bare(n)).or_insert(k as u32);
+        }
+        Self {
+            exact: names
+                .iter()
+                .enumerate()
+                .map(|(k, n)| (n.clone(), k as u32))
+                .collect(),
+            loose,
+        }
+    }
+
+    fn get(&self, name: &str) -> Option<u32> {
+        self.exact
+            .get(name)
+            .or_else(|| self.loose.get(&Self::bare(name)))
+            .copied()
+    }
+}
+
 /// How a session file names an input.
 fn describe_input(i: &InputConfig) -> String {
     match i {
+        InputConfig::Osc(o) => o.url.clone(),
         InputConfig::Synthetic(s) => {
             format!("synthetic:{}", s.motion.as_deref().unwrap_or("default"))
         }

@@ -88,6 +88,30 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Print what an input decodes, one line per packet (one JSON object with --json):
+    /// receive time, source time, and each marker's name, position in metres in the world
+    /// frame (Y up) and flags. The first tool to run when a stage is set up. URLs:
+    /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
+    /// patterns, and VMC), vmc://HOST:PORT (VMC only).
+    Listen {
+        /// The input URL, e.g. osc://127.0.0.1:9000.
+        url: String,
+        /// One JSON object per packet.
+        #[arg(long)]
+        json: bool,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Stop after this many packets.
+        #[arg(long)]
+        packets: Option<u64>,
+        /// Metres per sender unit (0.001 for a millimetre sender).
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+        /// The sender's up axis is Z (converted to the world's Y up).
+        #[arg(long)]
+        z_up: bool,
+    },
     /// Show what a recording holds (C3D or Qualisys TSV): markers, rate, frames,
     /// duration, the file's units, the share of missing samples per marker, the bounding
     /// box (metres, Y up), and anything the reader had to tolerate.
@@ -228,6 +252,17 @@ fn real_main() -> Result<()> {
                     record: None,
                 },
             )
+        }
+        Command::Listen {
+            url,
+            json,
+            seconds,
+            packets,
+            scale,
+            z_up,
+        } => {
+            check_seconds(seconds)?;
+            listen(&url, json, seconds, packets, scale, z_up)
         }
         Command::Info { file, json } => {
             let rec = rigless::replay::recording::Recording::load(&file)?;
@@ -744,5 +779,126 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+fn listen(
+    url: &str,
+    json: bool,
+    seconds: Option<f64>,
+    packets: Option<u64>,
+    scale: f64,
+    z_up: bool,
+) -> Result<()> {
+    use rigless::input::osc::{bind, parse_url, run, InputUrl, OscStats};
+    use rigless::protocol::osc::OscMapping;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    if !(scale.is_finite() && scale > 0.0) {
+        bail!("--scale must be a positive number of metres per unit, got {scale}");
+    }
+    let (addr, mapping) = match parse_url(url).map_err(anyhow::Error::msg)? {
+        InputUrl::Osc(a) => (
+            a,
+            OscMapping {
+                scale,
+                z_up,
+                ..OscMapping::default()
+            },
+        ),
+        InputUrl::Vmc(a) => (
+            a,
+            OscMapping {
+                patterns: Vec::new(),
+                vmc: true,
+                ..OscMapping::default()
+            },
+        ),
+    };
+    let sock = bind(addr).with_context(|| format!("binding {addr}"))?;
+    let local = sock.local_addr()?;
+    eprintln!("listening on {url} (bound {local}); Ctrl-C stops");
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            if let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            {
+                if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            }
+        });
+    }
+    if let Some(s) = seconds {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_secs_f64(s));
+            stop.store(true, Ordering::Relaxed);
+        });
+    }
+    let stats = OscStats::default();
+    let mut seen = 0u64;
+    let mut out = std::io::stdout().lock();
+    let mut write_err = None;
+    run(&sock, &mapping, &stop, &stats, &mut |recv, f| {
+        use std::io::Write;
+        let src = f.source_time_s();
+        let line = if json {
+            serde_json::json!({
+                "receive_unix_s": recv,
+                "source_time_s": src,
+                "frame": f.frame,
+                "markers": f.markers.iter().map(|m| serde_json::json!({
+                    "name": m.name,
+                    "position_m": if m.occluded { serde_json::Value::Null } else { serde_json::json!(m.position_m.to_array()) },
+                    "occluded": m.occluded,
+                })).collect::<Vec<_>>(),
+                "ignored_messages": f.ignored_messages,
+            })
+            .to_string()
+        } else {
+            let ms: Vec<String> = f
+                .markers
+                .iter()
+                .map(|m| {
+                    if m.occluded {
+                        format!("{} occluded", m.name)
+                    } else {
+                        let p = m.position_m;
+                        format!("{} ({:.4}, {:.4}, {:.4})", m.name, p.x, p.y, p.z)
+                    }
+                })
+                .collect();
+            format!(
+                "recv {recv:.6}  source {}  frame {}  {} markers: {}",
+                src.map_or("-".into(), |t| format!("{t:.6}")),
+                f.frame.map_or("-".into(), |n| n.to_string()),
+                f.markers.len(),
+                ms.join(", ")
+            )
+        };
+        if let Err(e) = writeln!(out, "{line}").and_then(|_| out.flush()) {
+            write_err = Some(e);
+            stop.store(true, Ordering::Relaxed);
+        }
+        seen += 1;
+        if packets.is_some_and(|n| seen >= n) {
+            stop.store(true, Ordering::Relaxed);
+        }
+    });
+    if let Some(e) = write_err {
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            return Err(e.into());
+        }
+    }
+    eprintln!(
+        "{} packets, {} bytes, {} not decodable",
+        stats.packets.load(Ordering::Relaxed),
+        stats.bytes.load(Ordering::Relaxed),
+        stats.decode_errors.load(Ordering::Relaxed)
+    );
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! Input sources that feed marker samples into the daemon's bounded channel.
 
+pub mod osc;
 pub mod synthetic;
 
 use crate::markers::MarkerSample;
