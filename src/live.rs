@@ -206,7 +206,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                                 let t = clock.now_s();
                                 let src = f.source_time_s().unwrap_or(t);
                                 batch.clear();
-                                for m in &f.markers {
+                                for m in f.markers() {
                                     if let Some(k) = index.get(&m.name) {
                                         batch.push(MarkerSample {
                                             marker: k,

@@ -142,7 +142,8 @@ enum Command {
         /// data folder), `characters` (the procedural hand and body playing their motions),
         /// `gapfill` (the marker buffer's fill error by gap length, on synthetic sessions
         /// and the shared data folder's Qualisys hand recording), or `live` (the whole
-        /// pipeline in real time: latency from input to client, missed ticks, 50 clients).
+        /// pipeline in real time: latency from input to client, missed ticks, 50 clients),
+        /// or `codecs` (decode cost per packet of each input format, 50 markers).
         #[arg(long, value_enum, default_value_t = Suite::Capsules)]
         suite: Suite,
         /// Print one JSON object per line instead of a table.
@@ -175,6 +176,7 @@ enum Suite {
     Characters,
     Gapfill,
     Live,
+    Codecs,
 }
 
 fn main() -> std::process::ExitCode {
@@ -337,6 +339,23 @@ fn real_main() -> Result<()> {
             data,
             ..
         } => bench_gapfill(&data, json),
+        Command::Bench {
+            suite: Suite::Codecs,
+            json,
+            ..
+        } => {
+            for r in rigless::bench::codecs::run() {
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!(
+                        "{:<12} {:>3} markers {:>5} bytes  decode µs median {:.2} (p10 {:.2}, p90 {:.2})",
+                        r.codec, r.markers, r.packet_bytes, r.decode_us_median, r.decode_us_p10, r.decode_us_p90
+                    );
+                }
+            }
+            Ok(())
+        }
         Command::Bench {
             suite: Suite::Live,
             json,
@@ -851,7 +870,7 @@ fn listen(
                 "receive_unix_s": recv,
                 "source_time_s": src,
                 "frame": f.frame,
-                "markers": f.markers.iter().map(|m| serde_json::json!({
+                "markers": f.markers().iter().map(|m| serde_json::json!({
                     "name": m.name,
                     "position_m": if m.occluded { serde_json::Value::Null } else { serde_json::json!(m.position_m.to_array()) },
                     "occluded": m.occluded,
@@ -861,7 +880,7 @@ fn listen(
             .to_string()
         } else {
             let ms: Vec<String> = f
-                .markers
+                .markers()
                 .iter()
                 .map(|m| {
                     if m.occluded {
@@ -876,7 +895,7 @@ fn listen(
                 "recv {recv:.6}  source {}  frame {}  {} markers: {}",
                 src.map_or("-".into(), |t| format!("{t:.6}")),
                 f.frame.map_or("-".into(), |n| n.to_string()),
-                f.markers.len(),
+                f.markers().len(),
                 ms.join(", ")
             )
         };

@@ -28,15 +28,15 @@ fn real_captures_decode() {
     if let Some(b) = capture("liblo_oscsend_marker.bin") {
         // oscsend localhost PORT /marker/LFHD fff 1.5 -2.25 3
         let f = m.decode(&b).unwrap();
-        assert_eq!(f.markers.len(), 1);
-        assert_eq!(f.markers[0].name, "LFHD");
-        assert_eq!(f.markers[0].position_m.to_array(), [1.5, -2.25, 3.0]);
+        assert_eq!(f.markers().len(), 1);
+        assert_eq!(f.markers()[0].name, "LFHD");
+        assert_eq!(f.markers()[0].position_m.to_array(), [1.5, -2.25, 3.0]);
         assert_eq!(f.source_time_s(), None);
     }
     if let Some(b) = capture("pythonosc_bundle_markers.bin") {
         let f = m.decode(&b).unwrap();
         let got: Vec<(&str, [f64; 3])> = f
-            .markers
+            .markers()
             .iter()
             .map(|k| (k.name.as_str(), k.position_m.to_array()))
             .collect();
@@ -46,12 +46,12 @@ fn real_captures_decode() {
     }
     if let Some(b) = capture("vmc_bundle_vmcp.bin") {
         let f = m.decode(&b).unwrap();
-        assert_eq!(f.markers.len(), 2);
-        assert_eq!(f.markers[0].name, "root");
-        assert_eq!(f.markers[0].position_m.to_array(), [0.0, 1.0, 0.0]);
+        assert_eq!(f.markers().len(), 2);
+        assert_eq!(f.markers()[0].name, "root");
+        assert_eq!(f.markers()[0].position_m.to_array(), [0.0, 1.0, 0.0]);
         // LeftUpperLeg at Unity (0.1, -0.05, 0): right-handed z = -0.
-        assert_eq!(f.markers[1].name, "LeftUpperLeg");
-        let p = f.markers[1].position_m;
+        assert_eq!(f.markers()[1].name, "LeftUpperLeg");
+        let p = f.markers()[1].position_m;
         assert!(
             (p - glam::DVec3::new(0.1, -0.05, 0.0)).length() < 1e-7,
             "{p}"

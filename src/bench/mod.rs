@@ -4,6 +4,7 @@
 
 pub mod capsules;
 pub mod characters;
+pub mod codecs;
 pub mod gapfill;
 pub mod live;
 

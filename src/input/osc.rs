@@ -56,9 +56,10 @@ pub fn run(
     mapping: &OscMapping,
     stop: &AtomicBool,
     stats: &OscStats,
-    on_frame: &mut dyn FnMut(f64, OscFrame),
+    on_frame: &mut dyn FnMut(f64, &OscFrame),
 ) {
     let mut buf = vec![0u8; 65_536];
+    let mut frame = OscFrame::default();
     while !stop.load(Ordering::Relaxed) {
         let n = match socket.recv_from(&mut buf) {
             Ok((n, _)) => n,
@@ -88,8 +89,8 @@ pub fn run(
         stats
             .last_seen_unix_bits
             .store(now.to_bits(), Ordering::Relaxed);
-        match mapping.decode(&buf[..n]) {
-            Ok(f) => on_frame(now, f),
+        match mapping.decode_into(&buf[..n], &mut frame) {
+            Ok(()) => on_frame(now, &frame),
             Err(_) => {
                 stats.decode_errors.fetch_add(1, Ordering::Relaxed);
             }
@@ -163,11 +164,11 @@ mod tests {
         let stats = OscStats::default();
         let mut got = Vec::new();
         run(&sock, &OscMapping::default(), &stop, &stats, &mut |_, f| {
-            got.push(f);
+            got.push(f.clone());
             stop.store(true, Ordering::Relaxed);
         });
         assert_eq!(got.len(), 1);
-        assert_eq!(got[0].markers[0].name, "A");
+        assert_eq!(got[0].markers()[0].name, "A");
         assert_eq!(stats.packets.load(Ordering::Relaxed), 2);
         assert_eq!(stats.decode_errors.load(Ordering::Relaxed), 1);
         assert!(stats.last_seen_unix_s() > 1.6e9);

@@ -1,0 +1,138 @@
+//! The `codecs` suite: cost of decoding one packet of each input format for a 50-marker
+//! frame (target below 5 µs), median and spread over batches.
+
+use super::Spread;
+use crate::protocol::natnet::{self, Version};
+use crate::protocol::osc::{encode_native, OscMapping};
+use glam::DVec3;
+use std::time::{Duration, Instant};
+
+/// One codec's figures.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CodecRecord {
+    pub suite: &'static str,
+    pub codec: &'static str,
+    pub markers: usize,
+    pub packet_bytes: usize,
+    /// Per-packet decode time over batches of `BATCH` packets, µs.
+    pub decode_us_median: f64,
+    pub decode_us_p10: f64,
+    pub decode_us_p90: f64,
+}
+
+const BATCH: u32 = 1000;
+const BATCHES: usize = 200;
+
+/// A NatNet 3.0 frame of data with one marker set and `n` labelled markers.
+pub fn natnet_frame(n: usize) -> Vec<u8> {
+    let mut p = Vec::new();
+    let i32b = |p: &mut Vec<u8>, v: i32| p.extend_from_slice(&v.to_le_bytes());
+    let f32b = |p: &mut Vec<u8>, v: f32| p.extend_from_slice(&v.to_le_bytes());
+    i32b(&mut p, 1234);
+    i32b(&mut p, 1);
+    p.extend_from_slice(b"Body\0");
+    i32b(&mut p, n as i32);
+    for k in 0..n {
+        for c in 0..3 {
+            f32b(&mut p, (k * 3 + c) as f32 * 0.01);
+        }
+    }
+    i32b(&mut p, 0); // legacy unlabelled markers
+    i32b(&mut p, 0); // rigid bodies
+    i32b(&mut p, 0); // skeletons
+    i32b(&mut p, n as i32);
+    for k in 0..n {
+        i32b(&mut p, (1 << 16) | (k as i32 + 1));
+        for c in 0..3 {
+            f32b(&mut p, (k * 3 + c) as f32 * 0.01);
+        }
+        f32b(&mut p, 0.014);
+        p.extend_from_slice(&2i16.to_le_bytes());
+        f32b(&mut p, 0.0002);
+    }
+    i32b(&mut p, 0); // force plates
+    i32b(&mut p, 0); // devices
+    p.extend_from_slice(&[0; 8]); // timecode
+    p.extend_from_slice(&12.5f64.to_le_bytes());
+    p.extend_from_slice(&[0; 24]); // camera stamps
+    p.extend_from_slice(&0i16.to_le_bytes());
+    i32b(&mut p, 0); // end tag
+    let mut b = natnet::NAT_FRAMEOFDATA.to_le_bytes().to_vec();
+    b.extend_from_slice(&(p.len() as u16).to_le_bytes());
+    b.extend_from_slice(&p);
+    b
+}
+
+fn time(mut f: impl FnMut()) -> Spread {
+    for _ in 0..BATCH {
+        f();
+    }
+    let batches: Vec<Duration> = (0..BATCHES)
+        .map(|_| {
+            let t = Instant::now();
+            for _ in 0..BATCH {
+                f();
+            }
+            t.elapsed() / BATCH
+        })
+        .collect();
+    Spread::of(&batches)
+}
+
+/// Runs the suite.
+pub fn run() -> Vec<CodecRecord> {
+    let n = 50;
+    let names: Vec<String> = (0..n).map(|k| format!("M{k:02}")).collect();
+    let markers: Vec<(&str, DVec3)> = names
+        .iter()
+        .enumerate()
+        .map(|(k, s)| (s.as_str(), DVec3::splat(k as f64 * 0.01)))
+        .collect();
+    let osc = encode_native(1, (0, 1), &markers);
+    let mapping = OscMapping::default();
+    let nat = natnet_frame(n);
+    let mut out = Vec::new();
+    let mut rec = |codec, bytes: usize, s: Spread| {
+        out.push(CodecRecord {
+            suite: "codecs",
+            codec,
+            markers: n,
+            packet_bytes: bytes,
+            decode_us_median: s.median_ms * 1e3,
+            decode_us_p10: s.p10_ms * 1e3,
+            decode_us_p90: s.p90_ms * 1e3,
+        })
+    };
+    let mut frame = crate::protocol::osc::OscFrame::default();
+    let s = time(|| {
+        mapping
+            .decode_into(std::hint::black_box(&osc), &mut frame)
+            .expect("valid");
+        assert_eq!(frame.markers().len(), n);
+    });
+    rec("osc_native", osc.len(), s);
+    let s = time(|| {
+        let m = natnet::decode(std::hint::black_box(&nat), Version(3, 0)).expect("valid");
+        std::hint::black_box(m);
+    });
+    rec("natnet_3_0", nat.len(), s);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_benchmark_natnet_frame_decodes_to_what_was_written() {
+        let b = natnet_frame(50);
+        let natnet::Message::Frame(f) = natnet::decode(&b, Version(3, 0)).unwrap() else {
+            panic!("a frame")
+        };
+        assert_eq!(f.frame, 1234);
+        assert_eq!(f.labeled.len(), 50);
+        assert_eq!(f.marker_sets[0].1.len(), 50);
+        assert_eq!(f.labeled[49].member_id, 50);
+        assert_eq!(f.timestamp_s, 12.5);
+    }
+}

@@ -1,0 +1,388 @@
+//! NatNet (OptiTrack Motive) packets, as pure functions over bytes: frames of mocap data
+//! (NatNet 3.x and 4.x; 4.1 puts a byte count before each section) and model definitions
+//! (marker set names, rigid bodies). Every count is checked against the bytes left before
+//! anything is allocated, so a packet costs at most its own size.
+//!
+//! Layout (little-endian): `u16 message id`, `u16 payload length`, payload. Frame of data
+//! (id 7): frame number; marker sets (name, positions); legacy unlabelled markers; rigid
+//! bodies (id, position, quaternion x y z w, mean error, params); skeletons; labelled
+//! markers (id = asset << 16 | member, position, size, params: bit 0 occluded, bit 1
+//! point-cloud solved, bit 2 model solved; residual); force plates; devices; timecode;
+//! timestamp (f64 seconds); three camera clock stamps; params; end tag. Positions are
+//! Motive's: metres, Y up, right-handed, as the world frame.
+
+use glam::Vec3;
+
+/// Message ids.
+pub const NAT_SERVERINFO: u16 = 1;
+pub const NAT_MODELDEF: u16 = 5;
+pub const NAT_FRAMEOFDATA: u16 = 7;
+
+/// A NatNet protocol version (the server info says which).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Version(pub u8, pub u8);
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigidBody {
+    pub id: i32,
+    pub position_m: Vec3,
+    /// Quaternion x, y, z, w.
+    pub rotation: [f32; 4],
+    pub mean_error_m: f32,
+    pub tracking_valid: bool,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct LabeledMarker {
+    /// Asset (model) id: the high 16 bits of the wire id.
+    pub asset_id: u16,
+    /// Member id within the asset (1-based): the low 16 bits.
+    pub member_id: u16,
+    pub position_m: Vec3,
+    pub size_m: f32,
+    pub occluded: bool,
+    pub point_cloud_solved: bool,
+    pub model_solved: bool,
+    pub residual_m: f32,
+}
+
+/// A frame of mocap data.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MocapFrame {
+    pub frame: i32,
+    /// Marker sets by name, positions in the set's own marker order.
+    pub marker_sets: Vec<(String, Vec<Vec3>)>,
+    pub unlabeled: Vec<Vec3>,
+    pub rigid_bodies: Vec<RigidBody>,
+    pub labeled: Vec<LabeledMarker>,
+    pub timecode: u32,
+    pub timecode_sub: u32,
+    /// Motive's timestamp, seconds.
+    pub timestamp_s: f64,
+    pub params: i16,
+}
+
+/// A model definition the decoder understands.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Description {
+    MarkerSet { name: String, markers: Vec<String> },
+    RigidBody { name: String, id: i32, parent: i32 },
+    Skeleton { name: String, id: i32 },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Message {
+    Frame(MocapFrame),
+    /// Descriptions up to the first of a kind this decoder skips (force plates, devices,
+    /// cameras), which ends the list.
+    ModelDef(Vec<Description>),
+    ServerInfo {
+        app: String,
+        natnet: Version,
+    },
+    /// Any other message id (pings, responses, ...).
+    Other {
+        id: u16,
+    },
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum NatNetError {
+    #[error("packet shorter than its 4-byte header")]
+    Short,
+    #[error("message {id}: payload length {declared} but {have} bytes follow")]
+    Length {
+        id: u16,
+        declared: usize,
+        have: usize,
+    },
+    #[error("message {id} malformed at byte {offset}: {what}")]
+    Malformed {
+        id: u16,
+        offset: usize,
+        what: &'static str,
+    },
+}
+
+struct Rd<'a> {
+    b: &'a [u8],
+    at: usize,
+    id: u16,
+}
+
+impl<'a> Rd<'a> {
+    fn err(&self, what: &'static str) -> NatNetError {
+        NatNetError::Malformed {
+            id: self.id,
+            offset: self.at + 4,
+            what,
+        }
+    }
+    fn take(&mut self, n: usize) -> Result<&'a [u8], NatNetError> {
+        if self.b.len() - self.at < n {
+            return Err(self.err("truncated"));
+        }
+        let s = &self.b[self.at..self.at + n];
+        self.at += n;
+        Ok(s)
+    }
+    fn i32(&mut self) -> Result<i32, NatNetError> {
+        Ok(i32::from_le_bytes(self.take(4)?.try_into().expect("4")))
+    }
+    fn i16(&mut self) -> Result<i16, NatNetError> {
+        Ok(i16::from_le_bytes(self.take(2)?.try_into().expect("2")))
+    }
+    fn u32(&mut self) -> Result<u32, NatNetError> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4")))
+    }
+    fn f32(&mut self) -> Result<f32, NatNetError> {
+        Ok(f32::from_le_bytes(self.take(4)?.try_into().expect("4")))
+    }
+    fn f64(&mut self) -> Result<f64, NatNetError> {
+        Ok(f64::from_le_bytes(self.take(8)?.try_into().expect("8")))
+    }
+    fn vec3(&mut self) -> Result<Vec3, NatNetError> {
+        Ok(Vec3::new(self.f32()?, self.f32()?, self.f32()?))
+    }
+    /// A count of items of at least `item` bytes each, checked against what is left.
+    fn count(&mut self, item: usize) -> Result<usize, NatNetError> {
+        let n = self.i32()?;
+        if n < 0 || (n as usize).saturating_mul(item) > self.b.len() - self.at {
+            return Err(self.err("count larger than the packet"));
+        }
+        Ok(n as usize)
+    }
+    /// A NUL-terminated string.
+    fn cstr(&mut self) -> Result<String, NatNetError> {
+        let rest = &self.b[self.at..];
+        let n = rest
+            .iter()
+            .position(|c| *c == 0)
+            .ok_or_else(|| self.err("unterminated string"))?;
+        let s = String::from_utf8_lossy(&rest[..n]).into_owned();
+        self.at += n + 1;
+        Ok(s)
+    }
+    /// NatNet 4.1+: the section's byte count (checked; the section must fit).
+    fn section(&mut self, v: Version) -> Result<(), NatNetError> {
+        if v >= Version(4, 1) {
+            let n = self.i32()?;
+            if n < 0 || n as usize > self.b.len() - self.at {
+                return Err(self.err("section byte count larger than the packet"));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn rigid_body(r: &mut Rd, v: Version) -> Result<RigidBody, NatNetError> {
+    let id = r.i32()?;
+    let position_m = r.vec3()?;
+    let rotation = [r.f32()?, r.f32()?, r.f32()?, r.f32()?];
+    let mean_error_m = r.f32()?;
+    let params = r.i16()?;
+    let _ = v;
+    Ok(RigidBody {
+        id,
+        position_m,
+        rotation,
+        mean_error_m,
+        tracking_valid: params & 1 != 0,
+    })
+}
+
+/// Bytes of one rigid body in a frame (3.0+).
+const RIGID_BODY_LEN: usize = 4 + 12 + 16 + 4 + 2;
+/// Bytes of one labelled marker in a frame (3.0+).
+const LABELED_LEN: usize = 4 + 12 + 4 + 2 + 4;
+
+fn frame(r: &mut Rd, v: Version) -> Result<MocapFrame, NatNetError> {
+    let mut f = MocapFrame {
+        frame: r.i32()?,
+        ..MocapFrame::default()
+    };
+    r.section(v)?;
+    let sets = r.count(5)?;
+    for _ in 0..sets {
+        let name = r.cstr()?;
+        let n = r.count(12)?;
+        let mut ps = Vec::with_capacity(n);
+        for _ in 0..n {
+            ps.push(r.vec3()?);
+        }
+        f.marker_sets.push((name, ps));
+    }
+    r.section(v)?;
+    let n = r.count(12)?;
+    for _ in 0..n {
+        f.unlabeled.push(r.vec3()?);
+    }
+    r.section(v)?;
+    let n = r.count(RIGID_BODY_LEN)?;
+    for _ in 0..n {
+        f.rigid_bodies.push(rigid_body(r, v)?);
+    }
+    r.section(v)?;
+    let skeletons = r.count(8)?;
+    for _ in 0..skeletons {
+        let _id = r.i32()?;
+        let n = r.count(RIGID_BODY_LEN)?;
+        for _ in 0..n {
+            f.rigid_bodies.push(rigid_body(r, v)?);
+        }
+    }
+    r.section(v)?;
+    let n = r.count(LABELED_LEN)?;
+    for _ in 0..n {
+        let id = r.i32()?;
+        let position_m = r.vec3()?;
+        let size_m = r.f32()?;
+        let params = r.i16()?;
+        let residual_m = r.f32()?;
+        f.labeled.push(LabeledMarker {
+            asset_id: (id as u32 >> 16) as u16,
+            member_id: (id as u32 & 0xffff) as u16,
+            position_m,
+            size_m,
+            occluded: params & 1 != 0,
+            point_cloud_solved: params & 2 != 0,
+            model_solved: params & 4 != 0,
+            residual_m,
+        });
+    }
+    // Force plates, then devices: id, channels, each channel a frame count and floats.
+    for _ in 0..2 {
+        r.section(v)?;
+        let n = r.count(8)?;
+        for _ in 0..n {
+            let _id = r.i32()?;
+            let channels = r.count(4)?;
+            for _ in 0..channels {
+                let frames = r.count(4)?;
+                r.take(frames * 4)?;
+            }
+        }
+    }
+    f.timecode = r.u32()?;
+    f.timecode_sub = r.u32()?;
+    f.timestamp_s = r.f64()?;
+    // Camera mid-exposure, data received and transmit stamps (3.0+).
+    r.take(24)?;
+    f.params = r.i16()?;
+    // End-of-data tag.
+    r.i32()?;
+    Ok(f)
+}
+
+fn descriptions(r: &mut Rd, v: Version) -> Result<Vec<Description>, NatNetError> {
+    let n = r.count(4)?;
+    let mut out = Vec::new();
+    for _ in 0..n {
+        let kind = r.i32()?;
+        if v >= Version(4, 1) {
+            let _bytes = r.i32()?;
+        }
+        match kind {
+            0 => {
+                let name = r.cstr()?;
+                let k = r.count(1)?;
+                let mut markers = Vec::with_capacity(k);
+                for _ in 0..k {
+                    markers.push(r.cstr()?);
+                }
+                out.push(Description::MarkerSet { name, markers });
+            }
+            1 => out.push(rigid_body_description(r, v)?),
+            2 => {
+                let name = r.cstr()?;
+                let id = r.i32()?;
+                let n = r.count(4)?;
+                for _ in 0..n {
+                    rigid_body_description(r, v)?;
+                }
+                out.push(Description::Skeleton { name, id });
+            }
+            // Force plates, devices, cameras: not needed for markers; stop here.
+            _ => break,
+        }
+    }
+    Ok(out)
+}
+
+fn rigid_body_description(r: &mut Rd, v: Version) -> Result<Description, NatNetError> {
+    let name = r.cstr()?;
+    let id = r.i32()?;
+    let parent = r.i32()?;
+    let _offset = r.vec3()?;
+    let n = r.count(16)?;
+    r.take(n * 12)?;
+    r.take(n * 4)?;
+    if v >= Version(4, 0) {
+        for _ in 0..n {
+            r.cstr()?;
+        }
+    }
+    Ok(Description::RigidBody { name, id, parent })
+}
+
+/// Decodes one UDP datagram from a server speaking NatNet `v`.
+pub fn decode(b: &[u8], v: Version) -> Result<Message, NatNetError> {
+    if b.len() < 4 {
+        return Err(NatNetError::Short);
+    }
+    let id = u16::from_le_bytes([b[0], b[1]]);
+    let declared = u16::from_le_bytes([b[2], b[3]]) as usize;
+    if declared > b.len() - 4 {
+        return Err(NatNetError::Length {
+            id,
+            declared,
+            have: b.len() - 4,
+        });
+    }
+    let mut r = Rd {
+        b: &b[4..4 + declared],
+        at: 0,
+        id,
+    };
+    Ok(match id {
+        NAT_FRAMEOFDATA => Message::Frame(frame(&mut r, v)?),
+        NAT_MODELDEF => Message::ModelDef(descriptions(&mut r, v)?),
+        NAT_SERVERINFO => {
+            let app_bytes = r.take(256)?;
+            let end = app_bytes.iter().position(|c| *c == 0).unwrap_or(256);
+            let app = String::from_utf8_lossy(&app_bytes[..end]).into_owned();
+            let _app_version = r.take(4)?;
+            let nv = r.take(4)?;
+            Message::ServerInfo {
+                app,
+                natnet: Version(nv[0], nv[1]),
+            }
+        }
+        other => Message::Other { id: other },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn arbitrary_bytes_never_panic(b in proptest::collection::vec(any::<u8>(), 0..600)) {
+            for v in [Version(3, 0), Version(4, 0), Version(4, 1)] {
+                let _ = decode(&b, v);
+            }
+        }
+
+        #[test]
+        fn arbitrary_frames_never_panic(body in proptest::collection::vec(any::<u8>(), 0..600)) {
+            let mut b = vec![7u8, 0];
+            b.extend_from_slice(&(body.len() as u16).to_le_bytes());
+            b.extend_from_slice(&body);
+            for v in [Version(3, 0), Version(4, 1)] {
+                let _ = decode(&b, v);
+            }
+        }
+    }
+}
