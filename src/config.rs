@@ -114,6 +114,18 @@ pub enum InputConfig {
     /// schema and address patterns, `"vmc://127.0.0.1:39539"` for VMC. Marker names map
     /// to the character's markers by name.
     Osc(OscInputConfig),
+    /// NatNet (OptiTrack Motive) frames of data (`protocols/natnet.md`):
+    /// `url = "natnet://239.255.42.99:1511"` (a multicast group is joined) or a unicast
+    /// data port; `?version=4.1` for newer servers. Markers are named `SET_1`, `SET_2`...
+    NatNet(NatNetInputConfig),
+}
+
+/// `type = "natnet"`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NatNetInputConfig {
+    /// `natnet://HOST:PORT[?version=M.m]`: the data port to bind.
+    pub url: String,
 }
 
 /// `type = "osc"`.
@@ -496,8 +508,21 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     for (i, input) in inputs.iter().enumerate() {
         let at = format!("inputs[{i}]");
         match input {
+            InputConfig::NatNet(n) => match crate::input::parse_url(&n.url) {
+                Ok(crate::input::InputUrl::NatNet(..)) => {}
+                Ok(_) => problems.push(lines.at(
+                    &format!("{at}.url"),
+                    format!("{:?} is not a natnet:// URL", n.url),
+                )),
+                Err(e) => problems.push(lines.at(&format!("{at}.url"), e)),
+            },
             InputConfig::Osc(o) => {
-                if let Err(e) = crate::input::osc::parse_url(&o.url) {
+                if let Err(e) = crate::input::parse_url(&o.url).and_then(|u| match u {
+                    crate::input::InputUrl::NatNet(..) => {
+                        Err(format!("{:?}: a natnet URL needs type = \"natnet\"", o.url))
+                    }
+                    _ => Ok(()),
+                }) {
                     problems.push(lines.at(&format!("{at}.url"), e));
                 }
                 if !(positive(o.scale) && o.scale <= 1e3) {

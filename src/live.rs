@@ -10,10 +10,14 @@ use rigless::config::{InputConfig, StageConfig};
 use rigless::daemon::clock::{Clock, SystemClock};
 use rigless::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
 use rigless::daemon::slot::LatestSlot;
-use rigless::input::osc::{bind as osc_bind, parse_url, run as run_osc, InputUrl, OscStats};
+use rigless::input::natnet::{
+    bind as natnet_bind, markers_of as natnet_markers, run as run_natnet, NatNetStats,
+};
+use rigless::input::osc::{bind as osc_bind, run as run_osc, OscStats};
 use rigless::input::send_samples;
 use rigless::input::synthetic::{play, SyntheticParams, SyntheticSession};
 use rigless::input::SourceCounters;
+use rigless::input::{parse_url, InputUrl};
 use rigless::markers::buffer::MarkerBuffer;
 use rigless::markers::MarkerSample;
 use rigless::output::stream::{StreamServer, StreamStats};
@@ -169,8 +173,50 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let mut inputs_end_s: Option<f64> = Some(START_S);
     for input in &cfg.inputs {
         match input {
+            InputConfig::NatNet(n) => {
+                let InputUrl::NatNet(addr, version) =
+                    parse_url(&n.url).map_err(anyhow::Error::msg)?
+                else {
+                    anyhow::bail!("{}: not a natnet:// URL", n.url);
+                };
+                let sock = natnet_bind(addr).with_context(|| format!("binding {}", n.url))?;
+                println!("natnet input listening on udp://{}", sock.local_addr()?);
+                inputs_end_s = None;
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (clock, stop, tx) = (Arc::clone(&clock), Arc::clone(&stop), tx.clone());
+                let index = MarkerIndex::new(&rig.marker_names);
+                sources.push(std::thread::Builder::new().name("natnet".into()).spawn(
+                    move || {
+                        let stats = NatNetStats::default();
+                        let (mut named, mut batch) = (Vec::new(), Vec::new());
+                        run_natnet(&sock, version, &stop, &stats, &mut |_, f| {
+                            let t = clock.now_s();
+                            named.clear();
+                            natnet_markers(f, &mut named);
+                            batch.clear();
+                            for m in &named {
+                                if let Some(k) = index.get(&m.name) {
+                                    batch.push(MarkerSample {
+                                        marker: k,
+                                        time_s: t,
+                                        source_time_s: f.timestamp_s,
+                                        position_m: m.position_m,
+                                        occluded: m.occluded,
+                                    });
+                                }
+                            }
+                            if !send_samples(&batch, &tx, &counters) {
+                                stop.store(true, Ordering::Relaxed);
+                            }
+                            counters.frames.fetch_add(1, Ordering::Relaxed);
+                        });
+                    },
+                )?);
+            }
             InputConfig::Osc(o) => {
                 let (addr, mapping) = match parse_url(&o.url).map_err(anyhow::Error::msg)? {
+                    InputUrl::NatNet(..) => anyhow::bail!("{}: use type = \"natnet\"", o.url),
                     InputUrl::Osc(a) => (
                         a,
                         OscMapping {
@@ -463,6 +509,7 @@ impl MarkerIndex {
 fn describe_input(i: &InputConfig) -> String {
     match i {
         InputConfig::Osc(o) => o.url.clone(),
+        InputConfig::NatNet(n) => n.url.clone(),
         InputConfig::Synthetic(s) => {
             format!("synthetic:{}", s.motion.as_deref().unwrap_or("default"))
         }

@@ -92,7 +92,8 @@ enum Command {
     /// receive time, source time, and each marker's name, position in metres in the world
     /// frame (Y up) and flags. The first tool to run when a stage is set up. URLs:
     /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
-    /// patterns, and VMC), vmc://HOST:PORT (VMC only).
+    /// patterns, and VMC), vmc://HOST:PORT (VMC only), natnet://HOST:PORT[?version=M.m]
+    /// (binds the data port; a multicast address joins the group).
     Listen {
         /// The input URL, e.g. osc://127.0.0.1:9000.
         url: String,
@@ -809,34 +810,14 @@ fn listen(
     scale: f64,
     z_up: bool,
 ) -> Result<()> {
-    use rigless::input::osc::{bind, parse_url, run, InputUrl, OscStats};
+    use rigless::input::{parse_url, InputUrl};
     use rigless::protocol::osc::OscMapping;
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::Arc;
     if !(scale.is_finite() && scale > 0.0) {
         bail!("--scale must be a positive number of metres per unit, got {scale}");
     }
-    let (addr, mapping) = match parse_url(url).map_err(anyhow::Error::msg)? {
-        InputUrl::Osc(a) => (
-            a,
-            OscMapping {
-                scale,
-                z_up,
-                ..OscMapping::default()
-            },
-        ),
-        InputUrl::Vmc(a) => (
-            a,
-            OscMapping {
-                patterns: Vec::new(),
-                vmc: true,
-                ..OscMapping::default()
-            },
-        ),
-    };
-    let sock = bind(addr).with_context(|| format!("binding {addr}"))?;
-    let local = sock.local_addr()?;
-    eprintln!("listening on {url} (bound {local}); Ctrl-C stops");
+    let parsed = parse_url(url).map_err(anyhow::Error::msg)?;
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = Arc::clone(&stop);
@@ -858,45 +839,44 @@ fn listen(
             stop.store(true, Ordering::Relaxed);
         });
     }
-    let stats = OscStats::default();
+    // One printed line per decoded packet.
     let mut seen = 0u64;
     let mut out = std::io::stdout().lock();
     let mut write_err = None;
-    run(&sock, &mapping, &stop, &stats, &mut |recv, f| {
+    let mut print = |recv: f64,
+                     src: Option<f64>,
+                     frame: Option<i64>,
+                     ms: &[(&str, glam::DVec3, bool)]| {
         use std::io::Write;
-        let src = f.source_time_s();
         let line = if json {
             serde_json::json!({
                 "receive_unix_s": recv,
                 "source_time_s": src,
-                "frame": f.frame,
-                "markers": f.markers().iter().map(|m| serde_json::json!({
-                    "name": m.name,
-                    "position_m": if m.occluded { serde_json::Value::Null } else { serde_json::json!(m.position_m.to_array()) },
-                    "occluded": m.occluded,
+                "frame": frame,
+                "markers": ms.iter().map(|(name, p, occluded)| serde_json::json!({
+                    "name": name,
+                    "position_m": if *occluded { serde_json::Value::Null } else { serde_json::json!(p.to_array()) },
+                    "occluded": occluded,
                 })).collect::<Vec<_>>(),
-                "ignored_messages": f.ignored_messages,
             })
             .to_string()
         } else {
-            let ms: Vec<String> = f
-                .markers()
+            let text: Vec<String> = ms
                 .iter()
-                .map(|m| {
-                    if m.occluded {
-                        format!("{} occluded", m.name)
+                .map(|(name, p, occluded)| {
+                    if *occluded {
+                        format!("{name} occluded")
                     } else {
-                        let p = m.position_m;
-                        format!("{} ({:.4}, {:.4}, {:.4})", m.name, p.x, p.y, p.z)
+                        format!("{name} ({:.4}, {:.4}, {:.4})", p.x, p.y, p.z)
                     }
                 })
                 .collect();
             format!(
                 "recv {recv:.6}  source {}  frame {}  {} markers: {}",
                 src.map_or("-".into(), |t| format!("{t:.6}")),
-                f.frame.map_or("-".into(), |n| n.to_string()),
-                f.markers().len(),
-                ms.join(", ")
+                frame.map_or("-".into(), |n| n.to_string()),
+                ms.len(),
+                text.join(", ")
             )
         };
         if let Err(e) = writeln!(out, "{line}").and_then(|_| out.flush()) {
@@ -907,17 +887,78 @@ fn listen(
         if packets.is_some_and(|n| seen >= n) {
             stop.store(true, Ordering::Relaxed);
         }
-    });
+    };
+    let summary = match parsed {
+        InputUrl::Osc(addr) | InputUrl::Vmc(addr) => {
+            use rigless::input::osc::{bind, run, OscStats};
+            let mapping = if matches!(parsed, InputUrl::Vmc(_)) {
+                OscMapping {
+                    patterns: Vec::new(),
+                    ..OscMapping::default()
+                }
+            } else {
+                OscMapping {
+                    scale,
+                    z_up,
+                    ..OscMapping::default()
+                }
+            };
+            let sock = bind(addr).with_context(|| format!("binding {addr}"))?;
+            eprintln!(
+                "listening on {url} (bound {}); Ctrl-C stops",
+                sock.local_addr()?
+            );
+            let stats = OscStats::default();
+            run(&sock, &mapping, &stop, &stats, &mut |recv, f| {
+                let ms: Vec<(&str, glam::DVec3, bool)> = f
+                    .markers()
+                    .iter()
+                    .map(|m| (m.name.as_str(), m.position_m, m.occluded))
+                    .collect();
+                print(recv, f.source_time_s(), f.frame, &ms)
+            });
+            format!(
+                "{} packets, {} bytes, {} not decodable",
+                stats.packets.load(Ordering::Relaxed),
+                stats.bytes.load(Ordering::Relaxed),
+                stats.decode_errors.load(Ordering::Relaxed)
+            )
+        }
+        InputUrl::NatNet(addr, version) => {
+            use rigless::input::natnet::{bind, markers_of, run, NatNetStats};
+            let sock = bind(addr).with_context(|| format!("binding {addr}"))?;
+            eprintln!(
+                "listening on {url} (bound {}, NatNet {}.{}); Ctrl-C stops",
+                sock.local_addr()?,
+                version.0,
+                version.1
+            );
+            let stats = NatNetStats::default();
+            let mut named = Vec::new();
+            run(&sock, version, &stop, &stats, &mut |recv, f| {
+                named.clear();
+                markers_of(f, &mut named);
+                let ms: Vec<(&str, glam::DVec3, bool)> = named
+                    .iter()
+                    .map(|m| (m.name.as_str(), m.position_m, m.occluded))
+                    .collect();
+                print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms)
+            });
+            format!(
+                "{} packets, {} bytes, {} frames, {} other messages, {} not decodable",
+                stats.packets.load(Ordering::Relaxed),
+                stats.bytes.load(Ordering::Relaxed),
+                stats.frames.load(Ordering::Relaxed),
+                stats.other.load(Ordering::Relaxed),
+                stats.decode_errors.load(Ordering::Relaxed)
+            )
+        }
+    };
     if let Some(e) = write_err {
         if e.kind() != std::io::ErrorKind::BrokenPipe {
             return Err(e.into());
         }
     }
-    eprintln!(
-        "{} packets, {} bytes, {} not decodable",
-        stats.packets.load(Ordering::Relaxed),
-        stats.bytes.load(Ordering::Relaxed),
-        stats.decode_errors.load(Ordering::Relaxed)
-    );
+    eprintln!("{summary}");
     Ok(())
 }

@@ -126,3 +126,55 @@ fn every_truncation_of_a_real_frame_is_an_error_not_a_panic() {
         }
     }
 }
+
+#[test]
+fn the_input_names_markers_and_receives_real_packets_on_loopback() {
+    use rigless::input::natnet::{bind, markers_of, run, NatNetStats};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (Some(frame), Some(occluded), Some(modeldef)) = (
+        packet("mocapframe_packet_v3.bin"),
+        packet("mocapframe_packet_occluded_v3.bin"),
+        packet("modeldef_packet_v3.bin"),
+    ) else {
+        return;
+    };
+    let sock = bind("127.0.0.1:0".parse().unwrap()).unwrap();
+    let addr = sock.local_addr().unwrap();
+    let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    for b in [&modeldef, &occluded, &b"junk"[..], &frame] {
+        tx.send_to(b, addr).unwrap();
+    }
+    let stop = AtomicBool::new(false);
+    let stats = NatNetStats::default();
+    let mut frames = Vec::new();
+    run(&sock, V3, &stop, &stats, &mut |_, f| {
+        let mut named = Vec::new();
+        markers_of(f, &mut named);
+        frames.push(named);
+        if frames.len() == 2 {
+            stop.store(true, Ordering::Relaxed);
+        }
+    });
+    assert_eq!(stats.packets.load(Ordering::Relaxed), 4);
+    assert_eq!(stats.other.load(Ordering::Relaxed), 1);
+    assert_eq!(stats.decode_errors.load(Ordering::Relaxed), 1);
+    // The occluded frame: FakeTree's five members, the second occluded; "all" skipped.
+    let names: Vec<&str> = frames[0].iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "FakeTree_1",
+            "FakeTree_2",
+            "FakeTree_3",
+            "FakeTree_4",
+            "FakeTree_5"
+        ]
+    );
+    assert!(frames[0][1].occluded && !frames[0][1].position_m.is_finite());
+    assert!(frames[0].iter().filter(|m| m.occluded).count() == 1);
+    // The other frame has no marker sets: its six labelled markers, by asset and member
+    // (ids 0x20001..0x20005 and 0xc357, a point-cloud marker of no asset, read off the
+    // packet independently).
+    let names: Vec<&str> = frames[1].iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(names, ["2_1", "2_2", "2_3", "2_4", "2_5", "0_50007"]);
+}

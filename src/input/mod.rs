@@ -1,5 +1,6 @@
 //! Input sources that feed marker samples into the daemon's bounded channel.
 
+pub mod natnet;
 pub mod osc;
 pub mod synthetic;
 
@@ -35,4 +36,92 @@ pub fn send_samples(batch: &[MarkerSample], tx: &Sender<MarkerSample>, c: &Sourc
         }
     }
     true
+}
+
+/// An input URL, as stage configs and `rigless listen` name inputs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InputUrl {
+    /// `osc://HOST:PORT`: bind, native schema, address patterns and VMC.
+    Osc(std::net::SocketAddr),
+    /// `vmc://HOST:PORT`: bind, VMC only.
+    Vmc(std::net::SocketAddr),
+    /// `natnet://HOST:PORT[?version=M.m]`: bind the data port (join the group when
+    /// multicast); NatNet 3.0 unless the version says otherwise.
+    NatNet(std::net::SocketAddr, crate::protocol::natnet::Version),
+}
+
+/// Parses an input URL, saying what is wrong.
+pub fn parse_url(url: &str) -> Result<InputUrl, String> {
+    let (scheme, rest) = url.split_once("://").ok_or_else(|| {
+        format!("{url:?} is not a URL (expected osc://, vmc:// or natnet://HOST:PORT)")
+    })?;
+    let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
+    let addr = rest.trim_end_matches('/').parse().map_err(|_| {
+        format!("{url:?}: {rest:?} is not HOST:PORT with a numeric host (e.g. 127.0.0.1:9000)")
+    });
+    match scheme {
+        "osc" => Ok(InputUrl::Osc(addr?)),
+        "vmc" => Ok(InputUrl::Vmc(addr?)),
+        "natnet" => {
+            let mut version = crate::protocol::natnet::Version(3, 0);
+            for kv in query.split('&').filter(|s| !s.is_empty()) {
+                match kv.split_once('=') {
+                    Some(("version", v)) => {
+                        let (a, b) = v.split_once('.').unwrap_or((v, "0"));
+                        match (a.parse::<u8>(), b.parse::<u8>()) {
+                            (Ok(a), Ok(b)) if (3..=4).contains(&a) => {
+                                version = crate::protocol::natnet::Version(a, b)
+                            }
+                            _ => return Err(format!("{url:?}: version {v:?} is not 3.x or 4.x")),
+                        }
+                    }
+                    _ => {
+                        return Err(format!(
+                            "{url:?}: unknown option {kv:?} (expected version=M.m)"
+                        ))
+                    }
+                }
+            }
+            Ok(InputUrl::NatNet(addr?, version))
+        }
+        "vrpn" | "glove" => Err(format!("{url:?}: {scheme} inputs are not supported yet")),
+        other => Err(format!(
+            "{url:?}: unknown scheme {other:?} (expected osc, vmc or natnet)"
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::natnet::Version;
+
+    #[test]
+    fn urls_parse_or_say_why_not() {
+        assert_eq!(
+            parse_url("osc://127.0.0.1:9000"),
+            Ok(InputUrl::Osc("127.0.0.1:9000".parse().unwrap()))
+        );
+        assert_eq!(
+            parse_url("vmc://127.0.0.1:39539/"),
+            Ok(InputUrl::Vmc("127.0.0.1:39539".parse().unwrap()))
+        );
+        assert_eq!(
+            parse_url("natnet://239.255.42.99:1511?version=4.1"),
+            Ok(InputUrl::NatNet(
+                "239.255.42.99:1511".parse().unwrap(),
+                Version(4, 1)
+            ))
+        );
+        assert!(parse_url("natnet://127.0.0.1:1511?version=2.9")
+            .unwrap_err()
+            .contains("3.x or 4.x"));
+        assert!(parse_url("vrpn://Tracker0@localhost")
+            .unwrap_err()
+            .contains("not supported yet"));
+        assert!(parse_url("osc://localhost")
+            .unwrap_err()
+            .contains("HOST:PORT"));
+        assert!(parse_url("ftp://x").unwrap_err().contains("unknown scheme"));
+    }
 }

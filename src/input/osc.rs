@@ -98,59 +98,9 @@ pub fn run(
     }
 }
 
-/// An input URL: `osc://HOST:PORT` (native schema and patterns) or `vmc://HOST:PORT`
-/// (VMC only). The other schemes of the input issue are recognised and refused as not yet
-/// supported.
-#[derive(Clone, Debug, PartialEq)]
-pub enum InputUrl {
-    Osc(SocketAddr),
-    Vmc(SocketAddr),
-}
-
-/// Parses an input URL, saying what is wrong.
-pub fn parse_url(url: &str) -> Result<InputUrl, String> {
-    let (scheme, rest) = url.split_once("://").ok_or_else(|| {
-        format!("{url:?} is not a URL (expected osc://HOST:PORT or vmc://HOST:PORT)")
-    })?;
-    let addr = |rest: &str| -> Result<SocketAddr, String> {
-        rest.trim_end_matches('/').parse().map_err(|_| {
-            format!("{url:?}: {rest:?} is not HOST:PORT with a numeric host (e.g. 127.0.0.1:9000)")
-        })
-    };
-    match scheme {
-        "osc" => Ok(InputUrl::Osc(addr(rest)?)),
-        "vmc" => Ok(InputUrl::Vmc(addr(rest)?)),
-        "vrpn" | "natnet" | "glove" => {
-            Err(format!("{url:?}: {scheme} inputs are not supported yet"))
-        }
-        other => Err(format!(
-            "{url:?}: unknown scheme {other:?} (expected osc or vmc)"
-        )),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn urls_parse_or_say_why_not() {
-        assert_eq!(
-            parse_url("osc://127.0.0.1:9000"),
-            Ok(InputUrl::Osc("127.0.0.1:9000".parse().unwrap()))
-        );
-        assert_eq!(
-            parse_url("vmc://127.0.0.1:39539/"),
-            Ok(InputUrl::Vmc("127.0.0.1:39539".parse().unwrap()))
-        );
-        assert!(parse_url("natnet://239.255.42.99:1511")
-            .unwrap_err()
-            .contains("not supported yet"));
-        assert!(parse_url("osc://localhost")
-            .unwrap_err()
-            .contains("HOST:PORT"));
-        assert!(parse_url("ftp://x").unwrap_err().contains("unknown scheme"));
-    }
 
     #[test]
     fn packets_on_loopback_reach_the_callback_and_garbage_is_counted() {
