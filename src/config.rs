@@ -159,8 +159,11 @@ impl Default for OscInputConfig {
 pub struct ReplayInputConfig {
     /// A bundled session: `"hand_finger_play"`, `"body_walk"` or `"body_reach"`.
     pub session: Option<String>,
-    /// A recording file (`.c3d` or `.tsv`), relative to the stage config's folder.
+    /// A recording file (`.c3d`, `.tsv`, `.bvh` or `.rlsession`), relative to the stage
+    /// config's folder. A BVH's joints are its labels.
     pub path: Option<PathBuf>,
+    /// Metres per BVH unit (BVH files have no units).
+    pub bvh_scale: f64,
     /// Playback speed (1 = the recording's own timing).
     pub speed: f64,
     /// Play the recording again and again.
@@ -173,6 +176,7 @@ impl Default for ReplayInputConfig {
         Self {
             session: None,
             path: None,
+            bvh_scale: crate::replay::recording::DEFAULT_BVH_METRES_PER_UNIT,
             speed: 1.0,
             looping: false,
         }
@@ -563,6 +567,12 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
                         ));
                     }
                     _ => {}
+                }
+                if !(positive(r.bvh_scale) && r.bvh_scale <= 10.0) {
+                    problems.push(lines.at(
+                        &format!("{at}.bvh_scale"),
+                        format!("must be in (0, 10] metres per unit, got {}", r.bvh_scale),
+                    ));
                 }
                 if !(positive(r.speed) && r.speed <= 100.0) {
                     problems.push(lines.at(

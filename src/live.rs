@@ -277,7 +277,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                         let bytes = bundled(name).context("no such bundled session")?;
                         Recording::from_c3d(name, bytes)?
                     }
-                    (None, Some(p)) => Recording::load(&base_dir.join(p))?,
+                    (None, Some(p)) => Recording::load_with(&base_dir.join(p), r.bvh_scale)?,
                     (None, None) => anyhow::bail!("a replay input needs a session or a path"),
                 };
                 let map = map_labels(&rec.labels, &rig.marker_names);

@@ -113,7 +113,7 @@ enum Command {
         #[arg(long)]
         z_up: bool,
     },
-    /// Show what a recording holds (C3D or Qualisys TSV): markers, rate, frames,
+    /// Show what a recording holds (C3D, Qualisys TSV, BVH or a session file): markers, rate, frames,
     /// duration, the file's units, the share of missing samples per marker, the bounding
     /// box (metres, Y up), and anything the reader had to tolerate.
     Info {
@@ -122,6 +122,10 @@ enum Command {
         /// Print one JSON object instead of text.
         #[arg(long)]
         json: bool,
+        /// Metres per BVH unit (BVH files have no units; CMU's conversions use about
+        /// 0.0564).
+        #[arg(long, default_value_t = rigless::replay::recording::DEFAULT_BVH_METRES_PER_UNIT)]
+        bvh_scale: f64,
     },
     /// Write the bundled sessions (the procedural hand's finger play, the body's walk and
     /// reach, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
@@ -267,8 +271,15 @@ fn real_main() -> Result<()> {
             check_seconds(seconds)?;
             listen(&url, json, seconds, packets, scale, z_up)
         }
-        Command::Info { file, json } => {
-            let rec = rigless::replay::recording::Recording::load(&file)?;
+        Command::Info {
+            file,
+            json,
+            bvh_scale,
+        } => {
+            if !(bvh_scale.is_finite() && bvh_scale > 0.0) {
+                bail!("--bvh-scale must be a positive number of metres per unit, got {bvh_scale}");
+            }
+            let rec = rigless::replay::recording::Recording::load_with(&file, bvh_scale)?;
             let s = rec.summary();
             if json {
                 println!("{}", serde_json::to_string(&s)?);

@@ -107,3 +107,33 @@ fn tsv_and_its_c3d_conversion_agree() {
     }
     assert!(compared > 120_000, "{compared}");
 }
+
+#[test]
+fn cmu_bvh_joints_by_forward_kinematics() {
+    let Some(path) = data("bvh/131_01.bvh") else {
+        return;
+    };
+    // CMU's BVH conversions: about 0.056444 m per unit.
+    let r = rigless::replay::recording::Recording::load_with(&path, 0.056444).unwrap();
+    // 31 joints and 7 end sites; "Frame Time: .0083333" is 120 Hz; 994 frames.
+    assert_eq!(r.labels.len(), 38);
+    assert_eq!(r.labels[0], "Hips");
+    assert_eq!(r.rate_hz, 120.0);
+    assert_eq!(r.frames.len(), 994);
+    // The root's position channels of frame 0 are 5.2300 16.9002 -33.8986 (the first
+    // motion line), in metres here.
+    let hips = r.frames[0][0];
+    let want = glam::DVec3::new(5.23, 16.9002, -33.8986) * 0.056444;
+    assert!((hips - want).length() < 1e-9, "{hips} vs {want}");
+    // Every bone keeps its length in every frame (rigid forward kinematics): check the
+    // left thigh (LeftHip to LeftKnee).
+    let (hip, knee) = (
+        r.labels.iter().position(|l| l == "LeftHip").unwrap(),
+        r.labels.iter().position(|l| l == "LeftKnee").unwrap(),
+    );
+    let len0 = (r.frames[0][knee] - r.frames[0][hip]).length();
+    assert!((len0 - 0.056444 * (2.49329f64.powi(2) + 6.85026f64.powi(2)).sqrt()).abs() < 1e-9);
+    for f in &r.frames {
+        assert!(((f[knee] - f[hip]).length() - len0).abs() < 1e-9);
+    }
+}

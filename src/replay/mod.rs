@@ -3,6 +3,7 @@
 //! bundled with rigless.
 
 pub mod bundled;
+pub mod bvh;
 pub mod c3d;
 pub mod player;
 pub mod recording;

@@ -2,11 +2,15 @@
 //! a C3D or TSV file (or a bundled session), and the mapping of its labels onto a
 //! character's markers.
 
+use super::bvh::{parse_bvh, BvhError};
 use super::c3d::{read_c3d, C3dError};
 use super::session::{read_session, Session, SessionError};
 use super::tsv::{parse_tsv, TsvError};
 use glam::DVec3;
 use std::path::Path;
+
+/// Metres per BVH unit unless told otherwise (centimetres, the commonest convention).
+pub const DEFAULT_BVH_METRES_PER_UNIT: f64 = 0.01;
 
 /// Labelled marker trajectories: `frames[f][k]`, metres, world frame, NaN where missing.
 #[derive(Clone, Debug)]
@@ -35,7 +39,9 @@ pub enum RecordingError {
     Tsv { path: String, source: TsvError },
     #[error("{path}: {source}")]
     Session { path: String, source: SessionError },
-    #[error("{path}: unknown recording format (expected .c3d, .tsv or .rlsession)")]
+    #[error("{path}: {source}")]
+    Bvh { path: String, source: BvhError },
+    #[error("{path}: unknown recording format (expected .c3d, .tsv, .bvh or .rlsession)")]
     Format { path: String },
     #[error("{path}: no frames")]
     Empty { path: String },
@@ -59,8 +65,15 @@ impl Recording {
         .and_then(Self::nonempty)
     }
 
-    /// Reads a file by its extension (`.c3d`, `.tsv`).
+    /// Reads a file by its extension (`.c3d`, `.tsv`, `.rlsession`, `.bvh` with
+    /// [`DEFAULT_BVH_METRES_PER_UNIT`]).
     pub fn load(path: &Path) -> Result<Self, RecordingError> {
+        Self::load_with(path, DEFAULT_BVH_METRES_PER_UNIT)
+    }
+
+    /// Reads a file by its extension; a BVH's positions are scaled by
+    /// `bvh_metres_per_unit` (BVH has no units) and its joints become the labels.
+    pub fn load_with(path: &Path, bvh_metres_per_unit: f64) -> Result<Self, RecordingError> {
         let shown = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
             path: shown.clone(),
@@ -86,6 +99,29 @@ impl Recording {
                     frames: t.frames,
                     warnings: Vec::new(),
                     file_units: "mm".into(),
+                })
+            }
+            "bvh" => {
+                let b = parse_bvh(&String::from_utf8_lossy(&bytes), bvh_metres_per_unit).map_err(
+                    |source| RecordingError::Bvh {
+                        path: shown.clone(),
+                        source,
+                    },
+                )?;
+                let raw = 1.0 / b.frame_time_s;
+                // "Frame Time: .0083333" means 120 Hz.
+                let rate_hz = if (raw - raw.round()).abs() < 0.01 {
+                    raw.round()
+                } else {
+                    raw
+                };
+                Self::nonempty(Self {
+                    name: shown,
+                    rate_hz,
+                    labels: b.joint_names,
+                    frames: b.positions,
+                    warnings: Vec::new(),
+                    file_units: format!("BVH units ({bvh_metres_per_unit} m each)"),
                 })
             }
             "rlsession" => {
