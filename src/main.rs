@@ -113,6 +113,47 @@ enum Command {
         #[arg(long)]
         z_up: bool,
     },
+    /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
+    /// timing: to an OSC receiver in the native schema (osc://HOST:PORT) or to a VMC
+    /// receiver (vmc://HOST:PORT, markers as trackers). Prints the send-time jitter
+    /// against the file's clock at the end.
+    Replay {
+        /// The recording.
+        file: PathBuf,
+        /// Where to send, e.g. osc://127.0.0.1:9000.
+        #[arg(long)]
+        to: String,
+        /// Playback speed (1 = the file's timing).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Start again at the end (until Ctrl-C).
+        #[arg(long = "loop")]
+        looping: bool,
+        /// Start this many seconds into the file.
+        #[arg(long, default_value_t = 0.0)]
+        start: f64,
+        /// Stop this many seconds into the file.
+        #[arg(long)]
+        end: Option<f64>,
+        /// Only these markers (comma-separated labels).
+        #[arg(long)]
+        markers: Option<String>,
+        /// Drop this share of samples at random (sent as occluded), percent.
+        #[arg(long, default_value_t = 0.0)]
+        dropout_percent: f64,
+        /// Add uniform noise of this amplitude per axis, millimetres.
+        #[arg(long, default_value_t = 0.0)]
+        noise_mm: f64,
+        /// Seed of the dropouts and the noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Metres per BVH unit.
+        #[arg(long, default_value_t = rigless::replay::recording::DEFAULT_BVH_METRES_PER_UNIT)]
+        bvh_scale: f64,
+        /// Print the summary as one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// Show what a recording holds (C3D, Qualisys TSV, BVH or a session file): markers, rate, frames,
     /// duration, the file's units, the share of missing samples per marker, the bounding
     /// box (metres, Y up), and anything the reader had to tolerate.
@@ -148,7 +189,8 @@ enum Command {
         /// `gapfill` (the marker buffer's fill error by gap length, on synthetic sessions
         /// and the shared data folder's Qualisys hand recording), or `live` (the whole
         /// pipeline in real time: latency from input to client, missed ticks, 50 clients),
-        /// or `codecs` (decode cost per packet of each input format, 50 markers).
+        /// `codecs` (decode cost per packet of each input format, 50 markers), or `replay`
+        /// (send-time jitter of `rigless replay` at 120 Hz against the file's clock).
         #[arg(long, value_enum, default_value_t = Suite::Capsules)]
         suite: Suite,
         /// Print one JSON object per line instead of a table.
@@ -182,6 +224,7 @@ enum Suite {
     Gapfill,
     Live,
     Codecs,
+    Replay,
 }
 
 fn main() -> std::process::ExitCode {
@@ -270,6 +313,117 @@ fn real_main() -> Result<()> {
         } => {
             check_seconds(seconds)?;
             listen(&url, json, seconds, packets, scale, z_up)
+        }
+        Command::Replay {
+            file,
+            to,
+            speed,
+            looping,
+            start,
+            end,
+            markers,
+            dropout_percent,
+            noise_mm,
+            seed,
+            bvh_scale,
+            json,
+        } => {
+            use rigless::replay::sender::{replay, ReplayOptions, Target};
+            let mut problems = Vec::new();
+            if !(speed.is_finite() && speed > 0.0 && speed <= 100.0) {
+                problems.push(format!("--speed must be in (0, 100], got {speed}"));
+            }
+            if !(start.is_finite() && start >= 0.0) {
+                problems.push(format!("--start must be zero or more seconds, got {start}"));
+            }
+            if end.is_some_and(|e| !(e.is_finite() && e > start)) {
+                problems.push(format!("--end must be after --start ({start} s)"));
+            }
+            if !(0.0..=100.0).contains(&dropout_percent) {
+                problems.push(format!(
+                    "--dropout-percent must be 0 to 100, got {dropout_percent}"
+                ));
+            }
+            if !(noise_mm.is_finite() && noise_mm >= 0.0) {
+                problems.push(format!("--noise-mm must be zero or more, got {noise_mm}"));
+            }
+            if !(bvh_scale.is_finite() && bvh_scale > 0.0) {
+                problems.push(format!("--bvh-scale must be positive, got {bvh_scale}"));
+            }
+            let target = rigless::input::parse_url(&to)
+                .and_then(|u| Target::from_url(&u))
+                .map_err(|e| problems.push(e))
+                .ok();
+            if !problems.is_empty() {
+                bail!("{}", problems.join("\n"));
+            }
+            let target = target.expect("checked above");
+            let rec = rigless::replay::recording::Recording::load_with(&file, bvh_scale)?;
+            let subset: Option<Vec<String>> =
+                markers.map(|m| m.split(',').map(|s| s.trim().to_owned()).collect());
+            if let Some(sub) = &subset {
+                let unknown: Vec<&String> =
+                    sub.iter().filter(|m| !rec.labels.contains(m)).collect();
+                if !unknown.is_empty() {
+                    bail!(
+                        "{}: no such labels: {:?} (it has {})",
+                        file.display(),
+                        unknown,
+                        rec.labels.join(", ")
+                    );
+                }
+            }
+            let opts = ReplayOptions {
+                speed,
+                looping,
+                start_s: start,
+                end_s: end,
+                markers: subset,
+                dropout: dropout_percent / 100.0,
+                noise_m: noise_mm * 1e-3,
+                seed,
+            };
+            if !json {
+                eprintln!(
+                    "replaying {} ({} markers, {} frames at {} Hz) to {to}{}",
+                    file.display(),
+                    rec.labels.len(),
+                    rec.frames.len(),
+                    rec.rate_hz,
+                    if looping {
+                        ", looping; Ctrl-C stops"
+                    } else {
+                        ""
+                    }
+                );
+            }
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            {
+                let stop = std::sync::Arc::clone(&stop);
+                std::thread::spawn(move || {
+                    if let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                        .enable_all()
+                        .build()
+                    {
+                        if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
+                            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                        }
+                    }
+                });
+            }
+            let clock = rigless::daemon::clock::SystemClock::new();
+            let stats = replay(&rec, target, &opts, &clock, 0.01, &stop)
+                .with_context(|| format!("sending to {to}"))?;
+            if json {
+                println!("{}", serde_json::to_string(&stats)?);
+            } else {
+                println!(
+                    "sent {} packets ({} bytes, {} errors, {} samples dropped on purpose); send-time jitter ms p50 {:.3} p99 {:.3} max {:.3}",
+                    stats.packets, stats.bytes, stats.send_errors, stats.samples_dropped,
+                    stats.jitter_ms_p50, stats.jitter_ms_p99, stats.jitter_ms_max
+                );
+            }
+            Ok(())
         }
         Command::Info {
             file,
@@ -365,6 +519,54 @@ fn real_main() -> Result<()> {
                         r.codec, r.markers, r.packet_bytes, r.decode_us_median, r.decode_us_p10, r.decode_us_p90
                     );
                 }
+            }
+            Ok(())
+        }
+        Command::Bench {
+            suite: Suite::Replay,
+            json,
+            seconds,
+            ..
+        } => {
+            use rigless::replay::sender::{replay, ReplayOptions, Target};
+            check_seconds(Some(seconds))?;
+            let rec = rigless::replay::recording::Recording::from_c3d(
+                "hand_finger_play",
+                rigless::replay::bundled::bundled("hand_finger_play").expect("bundled"),
+            )?;
+            // A receiving socket that reads nothing: the kernel drops what overflows.
+            let sink = std::net::UdpSocket::bind("127.0.0.1:0")?;
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            {
+                let stop = std::sync::Arc::clone(&stop);
+                std::thread::spawn(move || {
+                    std::thread::sleep(std::time::Duration::from_secs_f64(seconds));
+                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                });
+            }
+            let opts = ReplayOptions {
+                looping: true,
+                ..ReplayOptions::default()
+            };
+            let clock = rigless::daemon::clock::SystemClock::new();
+            let st = replay(
+                &rec,
+                Target::Osc(sink.local_addr()?),
+                &opts,
+                &clock,
+                0.01,
+                &stop,
+            )?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"suite": "replay", "rate_hz": rec.rate_hz, "seconds": seconds, "stats": st})
+                );
+            } else {
+                println!(
+                    "replay at {} Hz for {seconds} s: {} packets; send-time jitter ms p50 {:.3} p99 {:.3} max {:.3}",
+                    rec.rate_hz, st.packets, st.jitter_ms_p50, st.jitter_ms_p99, st.jitter_ms_max
+                );
             }
             Ok(())
         }

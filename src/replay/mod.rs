@@ -7,5 +7,6 @@ pub mod bvh;
 pub mod c3d;
 pub mod player;
 pub mod recording;
+pub mod sender;
 pub mod session;
 pub mod tsv;

@@ -1,0 +1,211 @@
+//! `rigless replay FILE --to URL`: sends a recording as live traffic with its own timing,
+//! to an OSC receiver (native schema, `osc://`) or a VMC receiver (`vmc://`, markers as
+//! trackers), over UDP. Options: speed, loop, a time window, a marker subset, injected
+//! dropouts and noise. Send times are measured against the file's clock (jitter).
+
+use super::recording::Recording;
+use crate::daemon::clock::Clock;
+use crate::input::synthetic::Rng;
+use crate::input::InputUrl;
+use crate::protocol::osc::encode_native;
+use glam::DVec3;
+use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Where to send.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Target {
+    Osc(SocketAddr),
+    Vmc(SocketAddr),
+}
+
+impl Target {
+    /// The target of a URL (`osc://` or `vmc://`).
+    pub fn from_url(u: &InputUrl) -> Result<Self, String> {
+        match *u {
+            InputUrl::Osc(a) => Ok(Target::Osc(a)),
+            InputUrl::Vmc(a) => Ok(Target::Vmc(a)),
+            InputUrl::NatNet(..) => Err("replay to natnet:// is not supported yet".into()),
+        }
+    }
+}
+
+/// How to replay.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayOptions {
+    /// Playback speed (1 = the file's own timing).
+    pub speed: f64,
+    pub looping: bool,
+    /// Window of the file to play, seconds from its first frame.
+    pub start_s: f64,
+    pub end_s: Option<f64>,
+    /// Only these labels (all when `None`).
+    pub markers: Option<Vec<String>>,
+    /// Share of samples dropped at random (sent as occluded), 0..1.
+    pub dropout: f64,
+    /// Uniform noise amplitude per axis, metres.
+    pub noise_m: f64,
+    pub seed: u64,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        Self {
+            speed: 1.0,
+            looping: false,
+            start_s: 0.0,
+            end_s: None,
+            markers: None,
+            dropout: 0.0,
+            noise_m: 0.0,
+            seed: 1,
+        }
+    }
+}
+
+/// What a replay did, with its send-time jitter against the file's clock.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct ReplayStats {
+    pub packets: u64,
+    pub bytes: u64,
+    pub send_errors: u64,
+    pub samples_dropped: u64,
+    /// |actual − scheduled| send time per packet: median, 99th percentile, max, ms.
+    pub jitter_ms_p50: f64,
+    pub jitter_ms_p99: f64,
+    pub jitter_ms_max: f64,
+}
+
+/// Seconds between the NTP epoch (1900) and the Unix epoch (1970), as an integer.
+const NTP_UNIX_OFFSET: u64 = 2_208_988_800;
+
+fn ntp(unix_s: f64) -> (u32, u32) {
+    let secs = unix_s.floor();
+    (
+        (secs as u64 + NTP_UNIX_OFFSET) as u32,
+        ((unix_s - secs) * 4_294_967_296.0) as u32,
+    )
+}
+
+fn encode_vmc(t_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
+    let mut content: Vec<OscPacket> = markers
+        .iter()
+        .map(|(name, p)| {
+            // Unity's left-handed frame: negate Z; identity rotation.
+            OscPacket::Message(OscMessage {
+                addr: "/VMC/Ext/Tra/Pos".into(),
+                args: vec![
+                    OscType::String((*name).to_owned()),
+                    OscType::Float(p.x as f32),
+                    OscType::Float(p.y as f32),
+                    OscType::Float(-p.z as f32),
+                    OscType::Float(0.0),
+                    OscType::Float(0.0),
+                    OscType::Float(0.0),
+                    OscType::Float(1.0),
+                ],
+            })
+        })
+        .collect();
+    content.push(OscPacket::Message(OscMessage {
+        addr: "/VMC/Ext/T".into(),
+        args: vec![OscType::Float(t_s as f32)],
+    }));
+    rosc::encoder::encode(&OscPacket::Bundle(OscBundle {
+        timetag: OscTime {
+            seconds: 0,
+            fractional: 1,
+        },
+        content,
+    }))
+    .expect("a bundle of messages always encodes")
+}
+
+/// Sends `rec` to `target` on `clock` from `start_at_s`, until it ends (or forever when
+/// looping) or `stop` is set.
+pub fn replay(
+    rec: &Recording,
+    target: Target,
+    opts: &ReplayOptions,
+    clock: &dyn Clock,
+    start_at_s: f64,
+    stop: &AtomicBool,
+) -> std::io::Result<ReplayStats> {
+    let sock = UdpSocket::bind(match target {
+        Target::Osc(a) | Target::Vmc(a) if a.is_ipv6() => "[::]:0",
+        _ => "0.0.0.0:0",
+    })?;
+    let dest = match target {
+        Target::Osc(a) | Target::Vmc(a) => a,
+    };
+    let period = 1.0 / rec.rate_hz;
+    let first = ((opts.start_s * rec.rate_hz).ceil().max(0.0) as usize).min(rec.frames.len());
+    let last = opts.end_s.map_or(rec.frames.len(), |e| {
+        ((e * rec.rate_hz).floor() as usize + 1).min(rec.frames.len())
+    });
+    let chosen: Vec<usize> = (0..rec.labels.len())
+        .filter(|k| {
+            opts.markers
+                .as_ref()
+                .is_none_or(|m| m.iter().any(|n| n == &rec.labels[*k]))
+        })
+        .collect();
+    let mut stats = ReplayStats::default();
+    if first >= last {
+        return Ok(stats);
+    }
+    let mut rng = Rng::new(opts.seed);
+    let mut jitter = Vec::new();
+    let mut markers: Vec<(&str, DVec3)> = Vec::with_capacity(chosen.len());
+    let mut n = 0usize;
+    loop {
+        let i = first + n % (last - first);
+        if n > 0 && n % (last - first) == 0 && !opts.looping {
+            break;
+        }
+        let file_t = (n as f64) * period;
+        let scheduled = start_at_s + file_t / opts.speed;
+        clock.sleep_until(scheduled);
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        markers.clear();
+        for &k in &chosen {
+            let mut p = rec.frames[i][k];
+            if opts.dropout > 0.0 && rng.next_f64() < opts.dropout {
+                p = DVec3::NAN;
+                stats.samples_dropped += 1;
+            } else if opts.noise_m > 0.0 && p.is_finite() {
+                p += (DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0)
+                    * opts.noise_m;
+            }
+            markers.push((rec.labels[k].as_str(), p));
+        }
+        let bytes = match target {
+            Target::Osc(_) => encode_native(n as i64, ntp(clock.unix_s(scheduled)), &markers),
+            Target::Vmc(_) => encode_vmc(i as f64 * period, &markers),
+        };
+        let sent_at = clock.now_s();
+        match sock.send_to(&bytes, dest) {
+            Ok(len) => {
+                stats.packets += 1;
+                stats.bytes += len as u64;
+            }
+            Err(_) => stats.send_errors += 1,
+        }
+        jitter.push((sent_at - scheduled).abs() * 1e3);
+        n += 1;
+    }
+    jitter.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        jitter
+            .get(((jitter.len().max(1) - 1) as f64 * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    stats.jitter_ms_p50 = q(0.5);
+    stats.jitter_ms_p99 = q(0.99);
+    stats.jitter_ms_max = q(1.0);
+    Ok(stats)
+}

@@ -1,0 +1,87 @@
+//! Replay to OSC, then receive with the OSC input over loopback: sample by sample, what
+//! arrives is the recording (to f32), occlusions included.
+
+use rigless::daemon::clock::SystemClock;
+use rigless::input::osc::{bind, run, OscStats};
+use rigless::protocol::osc::OscMapping;
+use rigless::replay::bundled::bundled;
+use rigless::replay::recording::Recording;
+use rigless::replay::sender::{replay, ReplayOptions, Target};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+#[test]
+fn replay_to_osc_arrives_sample_by_sample() {
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let sock = bind("127.0.0.1:0".parse().unwrap()).unwrap();
+    let addr = sock.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    // 2 s of the file (241 frames) at 4× speed.
+    let frames = 241usize;
+    let receiver = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let stats = OscStats::default();
+            let mut got: Vec<(i64, Vec<(String, glam::DVec3, bool)>)> = Vec::new();
+            run(&sock, &OscMapping::default(), &stop, &stats, &mut |_, f| {
+                got.push((
+                    f.frame.unwrap(),
+                    f.markers()
+                        .iter()
+                        .map(|m| (m.name.clone(), m.position_m, m.occluded))
+                        .collect(),
+                ));
+                if got.len() == frames {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+            got
+        })
+    };
+    let opts = ReplayOptions {
+        speed: 4.0,
+        end_s: Some(2.0),
+        ..ReplayOptions::default()
+    };
+    let never = AtomicBool::new(false);
+    let stats = replay(
+        &rec,
+        Target::Osc(addr),
+        &opts,
+        &SystemClock::new(),
+        0.05,
+        &never,
+    )
+    .unwrap();
+    assert_eq!(stats.packets as usize, frames);
+    // Bounded wait for the receiver: it stops itself at the last frame.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !receiver.is_finished() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    stop.store(true, Ordering::Relaxed);
+    let got = receiver.join().unwrap();
+    assert_eq!(got.len(), frames, "every packet arrived on loopback");
+    let mut occluded = 0;
+    for (n, (frame, markers)) in got.iter().enumerate() {
+        assert_eq!(*frame, n as i64);
+        assert_eq!(markers.len(), rec.labels.len());
+        for (k, (name, p, occ)) in markers.iter().enumerate() {
+            assert_eq!(name, &rec.labels[k]);
+            let want = rec.frames[n][k];
+            assert_eq!(*occ, !want.is_finite(), "frame {n}, {name}");
+            if want.is_finite() {
+                // f32 on the wire.
+                assert!(
+                    (*p - want).length() < 1e-6,
+                    "frame {n}, {name}: {p} vs {want}"
+                );
+            } else {
+                occluded += 1;
+            }
+        }
+    }
+    // The bundled session's gaps came through as occlusions.
+    assert!(occluded > 0);
+}
