@@ -10,6 +10,9 @@ use rigless::replay::sender::{replay, ReplayOptions, Target};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+/// One received packet: its frame number and its markers (name, position, occluded).
+type Received = (i64, Vec<(String, glam::DVec3, bool)>);
+
 #[test]
 fn replay_to_osc_arrives_sample_by_sample() {
     let rec =
@@ -23,7 +26,7 @@ fn replay_to_osc_arrives_sample_by_sample() {
         let stop = Arc::clone(&stop);
         std::thread::spawn(move || {
             let stats = OscStats::default();
-            let mut got: Vec<(i64, Vec<(String, glam::DVec3, bool)>)> = Vec::new();
+            let mut got: Vec<Received> = Vec::new();
             run(&sock, &OscMapping::default(), &stop, &stats, &mut |_, f| {
                 got.push((
                     f.frame.unwrap(),

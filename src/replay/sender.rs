@@ -161,7 +161,7 @@ pub fn replay(
     let mut n = 0usize;
     loop {
         let i = first + n % (last - first);
-        if n > 0 && n % (last - first) == 0 && !opts.looping {
+        if n > 0 && n.is_multiple_of(last - first) && !opts.looping {
             break;
         }
         let file_t = (n as f64) * period;
