@@ -5,21 +5,13 @@
 
 use rigless::protocol::osc::OscMapping;
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+mod common;
+
 fn capture(name: &str) -> Option<Vec<u8>> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/osc")
-        .join(name);
-    match std::fs::read(&p) {
-        Ok(b) => Some(b),
-        Err(_) => {
-            println!("skipping: {} is absent", p.display());
-            None
-        }
-    }
+    common::shared_file(&format!("osc/{name}"))
 }
 
 #[test]

@@ -3,19 +3,11 @@
 //! were read off the packets independently (a Python struct walk that consumed every byte).
 
 use rigless::protocol::natnet::{decode, Description, Message, Version};
-use std::path::PathBuf;
+
+mod common;
 
 fn packet(name: &str) -> Option<Vec<u8>> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/natnet")
-        .join(name);
-    match std::fs::read(&p) {
-        Ok(b) => Some(b),
-        Err(_) => {
-            println!("skipping: {} is absent", p.display());
-            None
-        }
-    }
+    common::shared_file(&format!("natnet/{name}"))
 }
 
 const V3: Version = Version(3, 0);

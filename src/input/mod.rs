@@ -21,6 +21,43 @@ pub struct SourceCounters {
     pub finished: AtomicBool,
 }
 
+/// How often a blocked UDP receive wakes to check its stop flag.
+pub const UDP_POLL: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// Receives datagrams on `socket` (which must have a read timeout) until `stop` is set,
+/// calling `on_packet(receive_unix_s, bytes)` for each. Timeouts and interruptions are
+/// waits; other receive errors (ICMP from an earlier send and the like) go to
+/// `on_error` and the loop carries on. One input, one thread.
+pub fn udp_loop(
+    socket: &std::net::UdpSocket,
+    stop: &AtomicBool,
+    on_packet: &mut dyn FnMut(f64, &[u8]),
+    on_error: &mut dyn FnMut(&std::io::Error),
+) {
+    let mut buf = vec![0u8; 65_536];
+    while !stop.load(Ordering::Relaxed) {
+        match socket.recv_from(&mut buf) {
+            Ok((n, _)) => {
+                let now = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0.0, |d| d.as_secs_f64());
+                on_packet(now, &buf[..n]);
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::Interrupted
+                ) => {}
+            Err(e) => {
+                on_error(&e);
+                std::thread::sleep(UDP_POLL);
+            }
+        }
+    }
+}
+
 /// Sends one frame's samples without blocking: a full channel drops (and counts) the
 /// sample. Returns false once the receiver is gone.
 pub fn send_samples(batch: &[MarkerSample], tx: &Sender<MarkerSample>, c: &SourceCounters) -> bool {

@@ -12,7 +12,6 @@ use crate::protocol::natnet::{decode, Message, MocapFrame, Version};
 use glam::DVec3;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 /// What a NatNet input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -33,8 +32,6 @@ pub struct NamedMarker {
     pub occluded: bool,
 }
 
-const POLL: Duration = Duration::from_millis(100);
-
 /// Binds the data port `addr`; a multicast address binds the port on all interfaces and
 /// joins the group there.
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
@@ -53,7 +50,7 @@ pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
         _ => s.bind(&addr.into())?,
     }
     let s: UdpSocket = s.into();
-    s.set_read_timeout(Some(POLL))?;
+    s.set_read_timeout(Some(super::UDP_POLL))?;
     Ok(s)
 }
 
@@ -101,45 +98,30 @@ pub fn run(
     stats: &NatNetStats,
     on_frame: &mut dyn FnMut(f64, &MocapFrame),
 ) {
-    let mut buf = vec![0u8; 65_536];
-    while !stop.load(Ordering::Relaxed) {
-        let n = match socket.recv_from(&mut buf) {
-            Ok((n, _)) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
-                continue
+    super::udp_loop(
+        socket,
+        stop,
+        &mut |now, bytes| {
+            stats.packets.fetch_add(1, Ordering::Relaxed);
+            stats.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+            match decode(bytes, version) {
+                Ok(Message::Frame(f)) => {
+                    stats.frames.fetch_add(1, Ordering::Relaxed);
+                    on_frame(now, &f);
+                }
+                Ok(_) => {
+                    stats.other.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(_) => {
+                    stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+                }
             }
-            Err(e) => {
-                tracing::debug!(error = %e, "natnet: receive failed");
-                stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-                std::thread::sleep(POLL);
-                continue;
-            }
-        };
-        let now = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0.0, |d| d.as_secs_f64());
-        stats.packets.fetch_add(1, Ordering::Relaxed);
-        stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
-        match decode(&buf[..n], version) {
-            Ok(Message::Frame(f)) => {
-                stats.frames.fetch_add(1, Ordering::Relaxed);
-                on_frame(now, &f);
-            }
-            Ok(_) => {
-                stats.other.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(_) => {
-                stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-    }
+        },
+        &mut |e| {
+            tracing::debug!(error = %e, "natnet: receive failed");
+            stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+        },
+    );
 }
 
 #[cfg(test)]

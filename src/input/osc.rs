@@ -6,7 +6,6 @@
 use crate::protocol::osc::{OscFrame, OscMapping};
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 /// What an OSC input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -23,9 +22,6 @@ impl OscStats {
         f64::from_bits(self.last_seen_unix_bits.load(Ordering::Relaxed))
     }
 }
-
-/// How often a blocked receive wakes to check `stop`.
-const POLL: Duration = Duration::from_millis(100);
 
 /// Receive buffer asked of the OS, bytes: a second of a 240 Hz, 50-marker sender (each
 /// datagram costs the kernel a few KiB of buffer on loopback), so a stalled moment of the
@@ -44,7 +40,7 @@ pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
     let _ = s.set_recv_buffer_size(RECV_BUFFER_BYTES);
     s.bind(&addr.into())?;
     let s: UdpSocket = s.into();
-    s.set_read_timeout(Some(POLL))?;
+    s.set_read_timeout(Some(super::UDP_POLL))?;
     Ok(s)
 }
 
@@ -58,44 +54,28 @@ pub fn run(
     stats: &OscStats,
     on_frame: &mut dyn FnMut(f64, &OscFrame),
 ) {
-    let mut buf = vec![0u8; 65_536];
     let mut frame = OscFrame::default();
-    while !stop.load(Ordering::Relaxed) {
-        let n = match socket.recv_from(&mut buf) {
-            Ok((n, _)) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
-                continue
+    super::udp_loop(
+        socket,
+        stop,
+        &mut |now, bytes| {
+            stats.packets.fetch_add(1, Ordering::Relaxed);
+            stats.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+            stats
+                .last_seen_unix_bits
+                .store(now.to_bits(), Ordering::Relaxed);
+            match mapping.decode_into(bytes, &mut frame) {
+                Ok(()) => on_frame(now, &frame),
+                Err(_) => {
+                    stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+                }
             }
-            Err(e) => {
-                // ICMP errors from an earlier send and the like: count and carry on.
-                tracing::debug!(error = %e, "osc: receive failed");
-                stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-                std::thread::sleep(POLL);
-                continue;
-            }
-        };
-        let now = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0.0, |d| d.as_secs_f64());
-        stats.packets.fetch_add(1, Ordering::Relaxed);
-        stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
-        stats
-            .last_seen_unix_bits
-            .store(now.to_bits(), Ordering::Relaxed);
-        match mapping.decode_into(&buf[..n], &mut frame) {
-            Ok(()) => on_frame(now, &frame),
-            Err(_) => {
-                stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-    }
+        },
+        &mut |e| {
+            tracing::debug!(error = %e, "osc: receive failed");
+            stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+        },
+    );
 }
 
 #[cfg(test)]
