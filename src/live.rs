@@ -554,8 +554,8 @@ fn print_status(st: &LoopStatus, stream: &StreamStats, json: bool, tty: bool) {
     }
     let [m, p, r, h] = st.fill_now;
     let line = format!(
-        "frame {:>6}  {:>5.1} Hz  frame ms p50 {:.2} p99 {:.2}  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
-        st.frames, st.frame_rate_hz, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
+        "frame {:>6}  {:>5.1} Hz  solve ms p50 {:.2} p99 {:.2} (frame {:.2} / {:.2})  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
+        st.frames, st.frame_rate_hz, st.solve_ms_p50, st.solve_ms_p99, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
     );
     if tty {
         print!("\r{line}   ");

@@ -36,6 +36,9 @@ pub struct LoopStatus {
     /// frames: median and 99th percentile, ms.
     pub frame_ms_p50: f64,
     pub frame_ms_p99: f64,
+    /// The solve alone (control mesh), same window, ms.
+    pub solve_ms_p50: f64,
+    pub solve_ms_p99: f64,
     /// Mean ARAP iterations over the last interval.
     pub iterations_mean: f64,
     /// Frames stopped by their deadline, in all.
@@ -79,7 +82,9 @@ pub struct Pipeline {
     pool: Vec<Arc<DeformedFrame>>,
     frame_no: u64,
     samples: u64,
+    /// Recent whole-frame and solve times, ms (rings of `WINDOW_LEN`).
     window_ms: Vec<f64>,
+    window_solve_ms: Vec<f64>,
     window_at: usize,
     deadline_stops: u64,
     interval_frames: u64,
@@ -108,6 +113,7 @@ impl Pipeline {
             frame_no: 0,
             samples: 0,
             window_ms: Vec::with_capacity(WINDOW_LEN),
+            window_solve_ms: Vec::with_capacity(WINDOW_LEN),
             window_at: 0,
             deadline_stops: 0,
             interval_frames: 0,
@@ -194,8 +200,10 @@ impl Pipeline {
         let frame_ms = start.elapsed().as_secs_f64() * 1e3;
         if self.window_ms.len() < WINDOW_LEN {
             self.window_ms.push(frame_ms);
+            self.window_solve_ms.push(solve.solve_ms);
         } else {
             self.window_ms[self.window_at] = frame_ms;
+            self.window_solve_ms[self.window_at] = solve.solve_ms;
         }
         self.window_at = (self.window_at + 1) % WINDOW_LEN;
         self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
@@ -244,11 +252,12 @@ impl Pipeline {
     }
 
     /// Status since the last call (interval figures) and in all; `overruns` and
-    /// `interval_s` come from the loop.
+    /// `interval_s` come from the loop. Sorts copies of the time windows: it allocates,
+    /// once per status interval (a second), never per frame.
     pub fn status(&mut self, interval_s: f64, overruns: u64) -> LoopStatus {
-        let mut sorted = self.window_ms.clone();
-        sorted.sort_by(f64::total_cmp);
-        let pct = |q: f64| {
+        let pct = |v: &[f64], q: f64| {
+            let mut sorted = v.to_vec();
+            sorted.sort_by(f64::total_cmp);
             if sorted.is_empty() {
                 0.0
             } else {
@@ -262,8 +271,10 @@ impl Pipeline {
         let st = LoopStatus {
             frames: self.frame_no,
             frame_rate_hz: self.interval_frames as f64 / interval_s.max(1e-9),
-            frame_ms_p50: pct(0.5),
-            frame_ms_p99: pct(0.99),
+            frame_ms_p50: pct(&self.window_ms, 0.5),
+            frame_ms_p99: pct(&self.window_ms, 0.99),
+            solve_ms_p50: pct(&self.window_solve_ms, 0.5),
+            solve_ms_p99: pct(&self.window_solve_ms, 0.99),
             iterations_mean: self.interval_iterations as f64 / self.interval_frames.max(1) as f64,
             deadline_stops: self.deadline_stops,
             overruns,
