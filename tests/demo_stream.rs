@@ -102,9 +102,7 @@ fn python_client_reads_topology_frames_and_goodbye() {
     // may skip a few if the machine stalls it, but must see most of them.
     let frames = s["frames"].as_u64().unwrap();
     assert!((200..=361).contains(&frames), "frames {frames}");
-    // The last frame is the session's last tick: 3 s at 120 Hz, counting from 0.
     let last = s["last_frame"].as_u64().unwrap();
-    assert!((358..=360).contains(&last), "last frame {last}");
     // The hand is about 0.2 m tall and stays near the origin.
     for a in 0..3 {
         let lo = s["bbox_min"][a].as_f64().unwrap();
@@ -120,12 +118,14 @@ fn python_client_reads_topology_frames_and_goodbye() {
         + fills["rigid_filled"].as_u64().unwrap()
         + fills["held"].as_u64().unwrap();
     assert!(not_measured > 0, "{fills}");
-    assert!(
-        lines
-            .iter()
-            .any(|l| l.starts_with("done (time limit reached)")),
-        "{lines:?}"
-    );
+    // The client saw the daemon's last frame (the loop may skip ticks on a loaded
+    // machine, so the count comes from the daemon's own summary).
+    let done = lines
+        .iter()
+        .find_map(|l| l.strip_prefix("done (time limit reached): "))
+        .unwrap_or_else(|| panic!("no summary in {lines:?}"));
+    let solved: u64 = done.split(' ').next().unwrap().parse().unwrap();
+    assert_eq!(last + 1, solved, "{done}");
 }
 
 #[test]
