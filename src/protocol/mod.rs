@@ -4,3 +4,4 @@
 pub mod natnet;
 pub mod osc;
 pub mod vertex_stream;
+pub mod vrpn;

@@ -1,0 +1,121 @@
+//! Golden tests with the real VRPN 07.38 TCP session in `../shared/data/vrpn` (a
+//! `vrpn_server` with a spinning tracker and `vrpn_print_devices` as client; skipped when
+//! absent): every message of both directions decodes, descriptions name senders and
+//! types, and every position report is a unit quaternion and a finite position.
+//! Expected counts were read off the capture independently (a Python struct walk that
+//! consumed every byte).
+
+use rigless::protocol::vrpn::{decode_message, parse_cookie, parse_pos_quat, Names, POS_QUAT};
+use std::collections::HashMap;
+
+mod common;
+
+/// What a walk over a capture found.
+struct Walk {
+    version: (u32, u32),
+    names: Names,
+    /// Messages per (sender, type) name.
+    counts: HashMap<(String, String), usize>,
+    /// Position reports with their sender's name.
+    reports: Vec<(String, rigless::protocol::vrpn::PosQuat)>,
+}
+
+/// Walks a capture from its cookie to its last byte.
+fn walk(b: &[u8]) -> Walk {
+    let version = parse_cookie(b[..24].try_into().unwrap()).unwrap();
+    let mut names = Names::default();
+    let mut counts = HashMap::new();
+    let mut reports = Vec::new();
+    let mut at = 24;
+    while at < b.len() {
+        let (m, n) = decode_message(&b[at..])
+            .unwrap()
+            .expect("the capture holds whole messages");
+        at += n;
+        if names.observe(&m).unwrap() {
+            continue;
+        }
+        let key = (
+            names.sender(m.sender).unwrap_or("?").to_owned(),
+            names.kind(m.kind).unwrap_or("?").to_owned(),
+        );
+        if key.1 == POS_QUAT {
+            reports.push((key.0.clone(), parse_pos_quat(m.payload).unwrap()));
+        }
+        *counts.entry(key).or_insert(0) += 1;
+    }
+    assert_eq!(at, b.len(), "the walk ends exactly at the end");
+    Walk {
+        version,
+        names,
+        counts,
+        reports,
+    }
+}
+
+#[test]
+fn server_to_client_session() {
+    let Some(b) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
+        return;
+    };
+    let Walk {
+        version,
+        names,
+        counts,
+        reports,
+    } = walk(&b);
+    assert_eq!(version, (7, 38));
+    assert_eq!(names.sender(2), Some("Spin0"));
+    assert_eq!(names.kind(4), Some(POS_QUAT));
+    let n = |s: &str, t: &str| {
+        counts
+            .get(&(s.to_owned(), t.to_owned()))
+            .copied()
+            .unwrap_or(0)
+    };
+    assert_eq!(n("Spin0", POS_QUAT), 442);
+    assert_eq!(n("Tracker0", POS_QUAT), 339);
+    assert_eq!(n("Spin0", "vrpn_Tracker Velocity"), 442);
+    assert_eq!(n("Spin0", "vrpn_Base pong_message"), 5);
+    // Spin0 (the spinning tracker): sensors 0 and 1, 221 reports each; Tracker0 (the
+    // server's other tracker): sensors 0 to 2, 113 each.
+    let mut per_sensor: HashMap<(String, i32), usize> = HashMap::new();
+    for (sender, r) in &reports {
+        let q = r.rotation;
+        let norm = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+        assert!((norm - 1.0).abs() < 1e-6, "{r:?}");
+        assert!(r.position.is_finite());
+        *per_sensor.entry((sender.clone(), r.sensor)).or_insert(0) += 1;
+    }
+    let mut got: Vec<((String, i32), usize)> = per_sensor.into_iter().collect();
+    got.sort();
+    let want: Vec<((String, i32), usize)> = [
+        (("Spin0", 0), 221),
+        (("Spin0", 1), 221),
+        (("Tracker0", 0), 113),
+        (("Tracker0", 1), 113),
+        (("Tracker0", 2), 113),
+    ]
+    .into_iter()
+    .map(|((s, k), n)| ((s.to_owned(), k), n))
+    .collect();
+    assert_eq!(got, want);
+    // The spinning tracker turns: its sensor 0 does not report one rotation throughout.
+    let spins: Vec<[f64; 4]> = reports
+        .iter()
+        .filter(|(s, r)| s == "Spin0" && r.sensor == 0)
+        .map(|(_, r)| r.rotation)
+        .collect();
+    assert!(spins.windows(2).any(|w| w[0] != w[1]));
+}
+
+#[test]
+fn client_to_server_session() {
+    let Some(b) = common::shared_file("vrpn/spin0_tcp_session.client_to_server.bin") else {
+        return;
+    };
+    let Walk { version, names, .. } = walk(&b);
+    assert_eq!(version, (7, 38));
+    // The client names its own senders, starting with the device it asks for.
+    assert_eq!(names.sender(1), Some("Spin0"));
+}
