@@ -216,7 +216,9 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             }
             InputConfig::Osc(o) => {
                 let (addr, mapping) = match parse_url(&o.url).map_err(anyhow::Error::msg)? {
-                    InputUrl::NatNet(..) => anyhow::bail!("{}: use type = \"natnet\"", o.url),
+                    InputUrl::NatNet(..) | InputUrl::VrpnTcp { .. } => {
+                        anyhow::bail!("{}: not an osc:// or vmc:// URL", o.url)
+                    }
                     InputUrl::Osc(a) => (
                         a,
                         OscMapping {

@@ -93,7 +93,8 @@ enum Command {
     /// frame (Y up) and flags. The first tool to run when a stage is set up. URLs:
     /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
     /// patterns, and VMC), vmc://HOST:PORT (VMC only), natnet://HOST:PORT[?version=M.m]
-    /// (binds the data port; a multicast address joins the group).
+    /// (binds the data port; a multicast address joins the group),
+    /// vrpn://DEVICE@tcp://HOST:PORT (connects; one marker DEVICE_SENSOR per sensor).
     Listen {
         /// The input URL, e.g. osc://127.0.0.1:9000.
         url: String,
@@ -1135,6 +1136,29 @@ fn listen(
                 stats.packets.load(Ordering::Relaxed),
                 stats.bytes.load(Ordering::Relaxed),
                 stats.decode_errors.load(Ordering::Relaxed)
+            )
+        }
+        InputUrl::VrpnTcp { device, addr } => {
+            use rigless::input::vrpn::{run, sensor_name, VrpnStats};
+            eprintln!("connecting to {addr} for {device} (reconnects by itself); Ctrl-C stops");
+            let stats = VrpnStats::default();
+            run(addr, &device, &stop, &stats, &mut |recv, source, r| {
+                let name = sensor_name(&device, r.sensor);
+                print(
+                    recv,
+                    Some(source),
+                    None,
+                    &[(name.as_str(), r.position, false)],
+                )
+            });
+            format!(
+                "{} connections, {} messages, {} bytes, {} reports, {} pings answered, {} errors",
+                stats.connections.load(Ordering::Relaxed),
+                stats.messages.load(Ordering::Relaxed),
+                stats.bytes.load(Ordering::Relaxed),
+                stats.reports.load(Ordering::Relaxed),
+                stats.pings_answered.load(Ordering::Relaxed),
+                stats.errors.load(Ordering::Relaxed)
             )
         }
         InputUrl::NatNet(addr, version) => {

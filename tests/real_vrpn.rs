@@ -119,3 +119,63 @@ fn client_to_server_session() {
     // The client names its own senders, starting with the device it asks for.
     assert_eq!(names.sender(1), Some("Spin0"));
 }
+
+#[test]
+fn the_tcp_client_reads_a_replayed_real_session() {
+    use rigless::input::vrpn::{run, VrpnStats};
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
+        return;
+    };
+    let expected: Vec<rigless::protocol::vrpn::PosQuat> = walk(&capture)
+        .reports
+        .into_iter()
+        .filter(|(s, _)| s == "Spin0")
+        .map(|(_, r)| r)
+        .collect();
+    // A loopback server that replays the captured bytes, then reads what the client says.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let server = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        s.write_all(&capture).unwrap();
+        s.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .unwrap();
+        let mut hello = vec![0u8; 24];
+        s.read_exact(&mut hello).unwrap();
+        // Keep the connection until the client is done.
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        (hello, rest)
+    });
+    let stop = Arc::new(AtomicBool::new(false));
+    let stats = VrpnStats::default();
+    let mut got = Vec::new();
+    let started = std::time::Instant::now();
+    {
+        let stop2 = Arc::clone(&stop);
+        let n = expected.len();
+        run(addr, "Spin0", &stop, &stats, &mut |_, _, r| {
+            got.push(*r);
+            if got.len() == n {
+                stop2.store(true, Ordering::Relaxed);
+            }
+        });
+    }
+    assert!(started.elapsed() < std::time::Duration::from_secs(10));
+    assert_eq!(got, expected, "every Spin0 report, in order, bit for bit");
+    assert_eq!(stats.connections.load(Ordering::Relaxed), 1);
+    // The client spoke first with a VRPN 07.38 cookie and its descriptions.
+    let (hello, rest) = server.join().unwrap();
+    assert_eq!(parse_cookie(hello[..24].try_into().unwrap()), Ok((7, 38)));
+    let mut names = Names::default();
+    let mut at = 0;
+    while let Ok(Some((m, n))) = decode_message(&rest[at..]) {
+        names.observe(&m).unwrap();
+        at += n;
+    }
+    assert_eq!(names.sender(0), Some("Spin0"));
+    assert_eq!(names.kind(2), Some(POS_QUAT));
+}

@@ -3,6 +3,7 @@
 pub mod natnet;
 pub mod osc;
 pub mod synthetic;
+pub mod vrpn;
 
 use crate::markers::MarkerSample;
 use crossbeam_channel::{Sender, TrySendError};
@@ -85,6 +86,12 @@ pub enum InputUrl {
     /// `natnet://HOST:PORT[?version=M.m]`: bind the data port (join the group when
     /// multicast); NatNet 3.0 unless the version says otherwise.
     NatNet(std::net::SocketAddr, crate::protocol::natnet::Version),
+    /// `vrpn://DEVICE@tcp://HOST:PORT`: connect to a VRPN server over TCP and read
+    /// DEVICE's tracker reports.
+    VrpnTcp {
+        device: String,
+        addr: std::net::SocketAddr,
+    },
 }
 
 /// Parses an input URL, saying what is wrong.
@@ -121,9 +128,28 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
             }
             Ok(InputUrl::NatNet(addr?, version))
         }
-        "vrpn" | "glove" => Err(format!("{url:?}: {scheme} inputs are not supported yet")),
+        "vrpn" => {
+            let (device, target) = rest.split_once('@').ok_or_else(|| {
+                format!("{url:?}: expected vrpn://DEVICE@tcp://HOST:PORT (e.g. vrpn://Tracker0@tcp://127.0.0.1:3883)")
+            })?;
+            if device.is_empty() {
+                return Err(format!("{url:?}: no device name before @"));
+            }
+            match target.strip_prefix("tcp://") {
+                Some(hp) => Ok(InputUrl::VrpnTcp {
+                    device: device.to_owned(),
+                    addr: hp.trim_end_matches('/').parse().map_err(|_| {
+                        format!("{url:?}: {hp:?} is not HOST:PORT with a numeric host")
+                    })?,
+                }),
+                None => Err(format!(
+                    "{url:?}: the UDP connection mode (DEVICE@HOST[:PORT]) is not supported yet; use DEVICE@tcp://HOST:PORT"
+                )),
+            }
+        }
+        "glove" => Err(format!("{url:?}: {scheme} inputs are not supported yet")),
         other => Err(format!(
-            "{url:?}: unknown scheme {other:?} (expected osc, vmc or natnet)"
+            "{url:?}: unknown scheme {other:?} (expected osc, vmc, natnet or vrpn)"
         )),
     }
 }

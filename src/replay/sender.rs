@@ -23,10 +23,11 @@ pub enum Target {
 impl Target {
     /// The target of a URL (`osc://` or `vmc://`).
     pub fn from_url(u: &InputUrl) -> Result<Self, String> {
-        match *u {
-            InputUrl::Osc(a) => Ok(Target::Osc(a)),
-            InputUrl::Vmc(a) => Ok(Target::Vmc(a)),
+        match u {
+            InputUrl::Osc(a) => Ok(Target::Osc(*a)),
+            InputUrl::Vmc(a) => Ok(Target::Vmc(*a)),
             InputUrl::NatNet(..) => Err("replay to natnet:// is not supported yet".into()),
+            InputUrl::VrpnTcp { .. } => Err("replay to vrpn:// is not supported yet".into()),
         }
     }
 }
