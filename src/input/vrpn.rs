@@ -186,3 +186,97 @@ pub fn run(
 pub fn sensor_name(device: &str, sensor: i32) -> String {
     format!("{device}_{sensor}")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::vrpn::Message;
+
+    /// A server that describes `Dev` and its types, sends a ping and one report, and
+    /// returns what the client sent back.
+    #[test]
+    fn pings_are_answered_and_reports_delivered() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let server = std::thread::spawn(move || {
+            let (mut s, _) = listener.accept().unwrap();
+            let mut out = cookie().to_vec();
+            encode_message(
+                &mut out,
+                0,
+                0,
+                7,
+                SENDER_DESCRIPTION,
+                &description_payload("Dev"),
+            );
+            encode_message(
+                &mut out,
+                0,
+                0,
+                3,
+                TYPE_DESCRIPTION,
+                &description_payload(PING),
+            );
+            encode_message(
+                &mut out,
+                0,
+                0,
+                4,
+                TYPE_DESCRIPTION,
+                &description_payload(POS_QUAT),
+            );
+            encode_message(&mut out, 1, 0, 7, 3, &[]);
+            let r = PosQuat {
+                sensor: 3,
+                position: glam::DVec3::new(1.0, 2.0, 3.0),
+                rotation: [0.0, 0.0, 0.0, 1.0],
+            };
+            encode_message(
+                &mut out,
+                2,
+                500_000,
+                7,
+                4,
+                &crate::protocol::vrpn::encode_pos_quat(&r),
+            );
+            s.write_all(&out).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            let mut got = Vec::new();
+            let mut chunk = [0u8; 4096];
+            // Read until the pong has arrived (bounded by the timeout).
+            loop {
+                let n = s.read(&mut chunk).unwrap_or(0);
+                if n == 0 {
+                    break;
+                }
+                got.extend_from_slice(&chunk[..n]);
+                let mut names = Names::default();
+                let mut at = COOKIE_LEN.min(got.len());
+                let mut pong = false;
+                while let Ok(Some((m, used))) = decode_message(&got[at..]) {
+                    let m: Message = m;
+                    let _ = names.observe(&m);
+                    pong |=
+                        names.kind(m.kind) == Some(PONG) && names.sender(m.sender) == Some("Dev");
+                    at += used;
+                }
+                if pong {
+                    return true;
+                }
+            }
+            false
+        });
+        let stop = AtomicBool::new(false);
+        let stats = VrpnStats::default();
+        let mut reports = Vec::new();
+        run(addr, "Dev", &stop, &stats, &mut |_, source, r| {
+            reports.push((source, *r));
+            stop.store(true, Ordering::Relaxed);
+        });
+        assert_eq!(reports.len(), 1);
+        assert_eq!(reports[0].0, 2.5);
+        assert_eq!(reports[0].1.sensor, 3);
+        assert_eq!(stats.pings_answered.load(Ordering::Relaxed), 1);
+        assert!(server.join().unwrap(), "the server got a pong from Dev");
+    }
+}
