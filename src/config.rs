@@ -118,6 +118,20 @@ pub enum InputConfig {
     /// `url = "natnet://239.255.42.99:1511"` (a multicast group is joined) or a unicast
     /// data port; `?version=4.1` for newer servers. Markers are named `SET_1`, `SET_2`...
     NatNet(NatNetInputConfig),
+    /// A VRPN tracker over TCP (`url = "vrpn://Tracker0@tcp://127.0.0.1:3883"`). Each
+    /// sensor is a marker named `DEVICE_SENSOR`, or as `sensors` maps it.
+    Vrpn(VrpnInputConfig),
+}
+
+/// `type = "vrpn"`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VrpnInputConfig {
+    /// `vrpn://DEVICE@tcp://HOST:PORT`.
+    pub url: String,
+    /// Marker name per sensor number, e.g. `{ "0" = "LFHD", "1" = "RFHD" }`.
+    #[serde(default)]
+    pub sensors: std::collections::BTreeMap<String, String>,
 }
 
 /// `type = "natnet"`.
@@ -512,6 +526,24 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     for (i, input) in inputs.iter().enumerate() {
         let at = format!("inputs[{i}]");
         match input {
+            InputConfig::Vrpn(v) => {
+                match crate::input::parse_url(&v.url) {
+                    Ok(crate::input::InputUrl::VrpnTcp { .. }) => {}
+                    Ok(_) => problems.push(lines.at(
+                        &format!("{at}.url"),
+                        format!("{:?} is not a vrpn:// URL", v.url),
+                    )),
+                    Err(e) => problems.push(lines.at(&format!("{at}.url"), e)),
+                }
+                for k in v.sensors.keys() {
+                    if k.parse::<i32>().is_err() {
+                        problems.push(lines.at(
+                            &format!("{at}.sensors"),
+                            format!("{k:?} is not a sensor number"),
+                        ));
+                    }
+                }
+            }
             InputConfig::NatNet(n) => match crate::input::parse_url(&n.url) {
                 Ok(crate::input::InputUrl::NatNet(..)) => {}
                 Ok(_) => problems.push(lines.at(

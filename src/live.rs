@@ -16,6 +16,7 @@ use rigless::input::natnet::{
 use rigless::input::osc::{bind as osc_bind, run as run_osc, OscStats};
 use rigless::input::send_samples;
 use rigless::input::synthetic::{play, SyntheticParams, SyntheticSession};
+use rigless::input::vrpn::{run as run_vrpn, sensor_name as vrpn_sensor_name, VrpnStats};
 use rigless::input::SourceCounters;
 use rigless::input::{parse_url, InputUrl};
 use rigless::markers::buffer::MarkerBuffer;
@@ -173,6 +174,51 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let mut inputs_end_s: Option<f64> = Some(START_S);
     for input in &cfg.inputs {
         match input {
+            InputConfig::Vrpn(v) => {
+                let InputUrl::VrpnTcp { device, addr } =
+                    parse_url(&v.url).map_err(anyhow::Error::msg)?
+                else {
+                    anyhow::bail!("{}: not a vrpn:// URL", v.url);
+                };
+                println!("vrpn input connecting to {addr} for {device}");
+                inputs_end_s = None;
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (clock, stop, tx) = (Arc::clone(&clock), Arc::clone(&stop), tx.clone());
+                let index = MarkerIndex::new(&rig.marker_names);
+                // Sensor number -> marker index, resolved once.
+                let mut by_sensor: std::collections::HashMap<i32, Option<u32>> = Default::default();
+                let sensors = v.sensors.clone();
+                sources.push(
+                    std::thread::Builder::new()
+                        .name("vrpn".into())
+                        .spawn(move || {
+                            let stats = VrpnStats::default();
+                            run_vrpn(addr, &device, &stop, &stats, &mut |_, source, r| {
+                                let k = *by_sensor.entry(r.sensor).or_insert_with(|| {
+                                    let name = sensors
+                                        .get(&r.sensor.to_string())
+                                        .cloned()
+                                        .unwrap_or_else(|| vrpn_sensor_name(&device, r.sensor));
+                                    index.get(&name)
+                                });
+                                if let Some(k) = k {
+                                    let sample = MarkerSample {
+                                        marker: k,
+                                        time_s: clock.now_s(),
+                                        source_time_s: source,
+                                        position_m: r.position,
+                                        occluded: !r.position.is_finite(),
+                                    };
+                                    if !send_samples(&[sample], &tx, &counters) {
+                                        stop.store(true, Ordering::Relaxed);
+                                    }
+                                }
+                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                            });
+                        })?,
+                );
+            }
             InputConfig::NatNet(n) => {
                 let InputUrl::NatNet(addr, version) =
                     parse_url(&n.url).map_err(anyhow::Error::msg)?
@@ -512,6 +558,7 @@ fn describe_input(i: &InputConfig) -> String {
     match i {
         InputConfig::Osc(o) => o.url.clone(),
         InputConfig::NatNet(n) => n.url.clone(),
+        InputConfig::Vrpn(v) => v.url.clone(),
         InputConfig::Synthetic(s) => {
             format!("synthetic:{}", s.motion.as_deref().unwrap_or("default"))
         }
