@@ -2,68 +2,12 @@
 //! characters live and the Python reference client (`protocols/vertex_stream_client.py`)
 //! reads the vertex stream.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// Bounded wait for the demo to print its stream address (binding the hand takes about a
-/// second; a loaded CI machine may take several).
-const STARTUP_TIMEOUT: Duration = Duration::from_secs(60);
+mod common;
 
-/// A running `rigless` with its stdout collected on a thread, and the stream address it
-/// printed.
-struct Daemon {
-    child: std::process::Child,
-    addr: String,
-    lines: std::thread::JoinHandle<Vec<String>>,
-}
-
-impl Daemon {
-    fn start(args: &[&str]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_rigless"))
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start rigless");
-        let stdout = child.stdout.take().unwrap();
-        let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-        let lines = std::thread::spawn(move || {
-            let mut lines = Vec::new();
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
-                    let _ = addr_tx.send(a.to_owned());
-                }
-                lines.push(line);
-            }
-            lines
-        });
-        let Ok(addr) = addr_rx.recv_timeout(STARTUP_TIMEOUT) else {
-            let _ = child.kill();
-            panic!("rigless {args:?} printed no stream address within {STARTUP_TIMEOUT:?}");
-        };
-        Self { child, addr, lines }
-    }
-
-    /// Waits for the exit; returns whether it succeeded and everything it printed.
-    fn finish(mut self) -> (bool, Vec<String>) {
-        let ok = self.child.wait().expect("rigless exits").success();
-        (ok, self.lines.join().unwrap())
-    }
-}
-
-/// Runs the Python reference client against `addr` with extra arguments.
-fn python_client(addr: &str, args: &[&str]) -> std::process::Output {
-    Command::new("python3")
-        .arg(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/protocols/vertex_stream_client.py"
-        ))
-        .arg(addr)
-        .args(args)
-        .output()
-        .expect("run the Python client")
-}
+use common::{python_client, Daemon};
 
 #[test]
 fn python_client_reads_topology_frames_and_goodbye() {

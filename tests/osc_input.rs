@@ -189,38 +189,15 @@ fn the_daemon_solves_what_a_real_osc_sender_sends() {
         format!("[character]\nprocedural = \"hand\"\n\n[[inputs]]\ntype = \"osc\"\nurl = \"osc://127.0.0.1:{port}\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n"),
     )
     .unwrap();
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args(["run", "--config", stage.to_str().unwrap(), "--seconds", "6"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(daemon.stdout.take().unwrap()).lines();
-    let mut addr = None;
-    for line in lines.by_ref().map_while(Result::ok) {
-        if let Some(a) = line.strip_prefix("vertex stream listening on tcp://") {
-            addr = Some(a.to_owned());
-            break;
-        }
-    }
-    let addr = addr.expect("stream address");
+    let daemon =
+        common::Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "6"]);
+    let addr = daemon.addr.clone();
     let markers = hand_markers();
     let sender = std::thread::spawn(move || send_hand(port, 480, &markers));
     std::thread::sleep(Duration::from_millis(500));
     // A client reads 60 frames while the sender runs: every marker measured, the mesh at
     // rest (the markers are at their rest positions).
-    let out = Command::new("python3")
-        .args([
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/protocols/vertex_stream_client.py"
-            ),
-            &addr,
-            "--frames",
-            "60",
-        ])
-        .output()
-        .unwrap();
+    let out = common::python_client(&addr, &["--frames", "60"]);
     sender.join().unwrap();
     assert!(
         out.status.success(),
@@ -233,7 +210,6 @@ fn the_daemon_solves_what_a_real_osc_sender_sends() {
     assert_eq!(s["frames"], 60);
     let measured = s["fill_counts"]["measured"].as_u64().unwrap();
     assert!(measured >= 60 * 8 - 8, "{}", s["fill_counts"]);
-    let _ = daemon.wait();
-    let rest: Vec<String> = lines.map_while(Result::ok).collect();
-    assert!(rest.iter().any(|l| l.starts_with("done (")), "{rest:?}");
+    let (_, lines) = daemon.finish();
+    assert!(lines.iter().any(|l| l.starts_with("done (")), "{lines:?}");
 }

@@ -6,9 +6,10 @@ use rigless::protocol::vrpn::{
     cookie, description_payload, encode_message, encode_pos_quat, PosQuat, POS_QUAT,
     SENDER_DESCRIPTION, TYPE_DESCRIPTION,
 };
-use std::io::{BufRead, BufReader, Write};
-use std::process::{Command, Stdio};
+use std::io::Write;
 use std::time::{Duration, Instant};
+
+mod common;
 
 #[test]
 fn a_vrpn_tracker_drives_the_daemon() {
@@ -79,34 +80,11 @@ fn a_vrpn_tracker_drives_the_daemon() {
         ),
     )
     .unwrap();
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args(["run", "--config", stage.to_str().unwrap(), "--seconds", "5"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(daemon.stdout.take().unwrap()).lines();
-    let addr = lines
-        .by_ref()
-        .map_while(Result::ok)
-        .find_map(|l| {
-            l.strip_prefix("vertex stream listening on tcp://")
-                .map(str::to_owned)
-        })
-        .expect("stream address");
+    let daemon =
+        common::Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "5"]);
+    let addr = daemon.addr.clone();
     std::thread::sleep(Duration::from_millis(500));
-    let out = Command::new("python3")
-        .args([
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/protocols/vertex_stream_client.py"
-            ),
-            &addr,
-            "--frames",
-            "60",
-        ])
-        .output()
-        .unwrap();
+    let out = common::python_client(&addr, &["--frames", "60"]);
     assert!(
         out.status.success(),
         "{}",
@@ -120,7 +98,7 @@ fn a_vrpn_tracker_drives_the_daemon() {
     // between reports on a loaded machine).
     let measured = s["fill_counts"]["measured"].as_u64().unwrap();
     assert!(measured >= 60 * 8 - 16, "{}", s["fill_counts"]);
-    let status = daemon.wait().unwrap();
-    assert!(status.success());
+    let (ok, lines) = daemon.finish();
+    assert!(ok, "{lines:?}");
     let _ = server.join();
 }

@@ -25,6 +25,16 @@ pub struct SourceCounters {
 /// How often a blocked UDP receive wakes to check its stop flag.
 pub const UDP_POLL: std::time::Duration = std::time::Duration::from_millis(100);
 
+/// Whether a socket error only means "nothing yet" (a read timeout or an interruption).
+pub fn is_wait(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock
+            | std::io::ErrorKind::TimedOut
+            | std::io::ErrorKind::Interrupted
+    )
+}
+
 /// Receives datagrams on `socket` (which must have a read timeout) until `stop` is set,
 /// calling `on_packet(receive_unix_s, bytes)` for each. Timeouts and interruptions are
 /// waits; other receive errors (ICMP from an earlier send and the like) go to
@@ -44,13 +54,7 @@ pub fn udp_loop(
                     .map_or(0.0, |d| d.as_secs_f64());
                 on_packet(now, &buf[..n]);
             }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) => {}
+            Err(e) if is_wait(&e) => {}
             Err(e) => {
                 on_error(&e);
                 std::thread::sleep(UDP_POLL);

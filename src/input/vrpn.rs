@@ -91,16 +91,7 @@ fn session(
                 stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
                 buf.extend_from_slice(&chunk[..n]);
             }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
-                continue
-            }
+            Err(e) if super::is_wait(&e) => continue,
             Err(e) => return Err(e),
         }
         let mut at = 0;
