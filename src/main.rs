@@ -115,9 +115,10 @@ enum Command {
         z_up: bool,
     },
     /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
-    /// timing: to an OSC receiver in the native schema (osc://HOST:PORT) or to a VMC
-    /// receiver (vmc://HOST:PORT, markers as trackers). Prints the send-time jitter
-    /// against the file's clock at the end.
+    /// timing: to an OSC receiver in the native schema (osc://HOST:PORT), to a VMC
+    /// receiver (vmc://HOST:PORT, markers as trackers), or as a VRPN tracker server
+    /// (vrpn://DEVICE@tcp://HOST:PORT binds there; each marker a sensor, in label order).
+    /// Prints the send-time jitter against the file's clock at the end.
     Replay {
         /// The recording.
         file: PathBuf,
@@ -359,6 +360,9 @@ fn real_main() -> Result<()> {
                 bail!("{}", problems.join("\n"));
             }
             let target = target.expect("checked above");
+            if let Target::Vrpn { device, bind } = &target {
+                eprintln!("serving {device} as a VRPN tracker on tcp://{bind} (clients: {device}@tcp://{bind})");
+            }
             let rec = rigless::replay::recording::Recording::load_with(&file, bvh_scale)?;
             let subset: Option<Vec<String>> =
                 markers.map(|m| m.split(',').map(|s| s.trim().to_owned()).collect());

@@ -88,3 +88,68 @@ fn replay_to_osc_arrives_sample_by_sample() {
     // The bundled session's gaps came through as occlusions.
     assert!(occluded > 0);
 }
+
+#[test]
+fn replay_as_a_vrpn_server_reaches_a_vrpn_client_sample_by_sample() {
+    use rigless::input::vrpn::{run as run_vrpn, VrpnStats};
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    // A free port for the server (picked, then released: loopback only).
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let addr: std::net::SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+    let frames = 121usize; // 1 s of the file
+    let expected: usize = rec.frames[..frames]
+        .iter()
+        .flatten()
+        .filter(|p| p.is_finite())
+        .count();
+    let stop = Arc::new(AtomicBool::new(false));
+    let client = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let stats = VrpnStats::default();
+            let mut got = Vec::new();
+            run_vrpn(addr, "Hand", &stop, &stats, &mut |_, _, r| {
+                got.push(*r);
+                if got.len() == expected {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+            got
+        })
+    };
+    let opts = ReplayOptions {
+        speed: 2.0,
+        end_s: Some(1.0),
+        ..ReplayOptions::default()
+    };
+    let never = AtomicBool::new(false);
+    let target = Target::Vrpn {
+        device: "Hand".into(),
+        bind: addr,
+    };
+    // Start after a second so that the client (retrying every 0.5 s) is connected.
+    replay(&rec, target, &opts, &SystemClock::new(), 1.0, &never).unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !client.is_finished() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    stop.store(true, Ordering::Relaxed);
+    let got = client.join().unwrap();
+    // Every present sample, in order, exactly (VRPN carries f64).
+    let want: Vec<(i32, glam::DVec3)> = rec.frames[..frames]
+        .iter()
+        .flat_map(|f| {
+            f.iter()
+                .enumerate()
+                .filter(|(_, p)| p.is_finite())
+                .map(|(k, p)| (k as i32, *p))
+        })
+        .collect();
+    let have: Vec<(i32, glam::DVec3)> = got.iter().map(|r| (r.sensor, r.position)).collect();
+    assert_eq!(have, want);
+}

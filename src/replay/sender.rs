@@ -14,10 +14,18 @@ use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Where to send.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Target {
     Osc(SocketAddr),
     Vmc(SocketAddr),
+    /// Act as a VRPN tracker server (TCP connection mode) named `device` on `bind`: each
+    /// marker is a sensor, in the recording's label order; unmodified VRPN clients
+    /// (`vrpn_print_devices DEVICE@tcp://HOST:PORT`) read it. Missing samples are not
+    /// sent (VRPN has no occlusion flag).
+    Vrpn {
+        device: String,
+        bind: SocketAddr,
+    },
 }
 
 impl Target {
@@ -27,7 +35,10 @@ impl Target {
             InputUrl::Osc(a) => Ok(Target::Osc(*a)),
             InputUrl::Vmc(a) => Ok(Target::Vmc(*a)),
             InputUrl::NatNet(..) => Err("replay to natnet:// is not supported yet".into()),
-            InputUrl::VrpnTcp { .. } => Err("replay to vrpn:// is not supported yet".into()),
+            InputUrl::VrpnTcp { device, addr } => Ok(Target::Vrpn {
+                device: device.clone(),
+                bind: *addr,
+            }),
         }
     }
 }
@@ -123,6 +134,113 @@ fn encode_vmc(t_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
     .expect("a bundle of messages always encodes")
 }
 
+/// VRPN ids this server gives its one sender and one type.
+const VRPN_SENDER: i32 = 0;
+const VRPN_POS_QUAT: i32 = 0;
+
+/// One frame as VRPN position messages, one per present marker (sensor = its index).
+fn encode_vrpn(unix_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
+    use crate::protocol::vrpn::{encode_message, encode_pos_quat, PosQuat};
+    let (secs, usecs) = (
+        unix_s.floor() as u32,
+        ((unix_s - unix_s.floor()) * 1e6) as u32,
+    );
+    let mut out = Vec::with_capacity(markers.len() * 96);
+    for (k, (_, p)) in markers.iter().enumerate() {
+        if p.is_finite() {
+            let r = PosQuat {
+                sensor: k as i32,
+                position: *p,
+                rotation: [0.0, 0.0, 0.0, 1.0],
+            };
+            encode_message(
+                &mut out,
+                secs,
+                usecs,
+                VRPN_SENDER,
+                VRPN_POS_QUAT,
+                &encode_pos_quat(&r),
+            );
+        }
+    }
+    out
+}
+
+/// Where the bytes go.
+enum Sink {
+    Udp(UdpSocket, SocketAddr),
+    /// A VRPN server: new clients are accepted at every frame and greeted with the
+    /// cookie and the descriptions; a client that cannot keep up or hangs up is dropped.
+    Vrpn {
+        listener: std::net::TcpListener,
+        clients: Vec<std::net::TcpStream>,
+        greeting: Vec<u8>,
+    },
+}
+
+impl Sink {
+    fn open(target: &Target) -> std::io::Result<Self> {
+        use crate::protocol::vrpn::{cookie, description_payload, encode_message, POS_QUAT};
+        use crate::protocol::vrpn::{SENDER_DESCRIPTION, TYPE_DESCRIPTION};
+        Ok(match target {
+            Target::Osc(a) | Target::Vmc(a) => {
+                let sock = UdpSocket::bind(if a.is_ipv6() { "[::]:0" } else { "0.0.0.0:0" })?;
+                Sink::Udp(sock, *a)
+            }
+            Target::Vrpn { device, bind } => {
+                let listener = std::net::TcpListener::bind(bind)?;
+                listener.set_nonblocking(true)?;
+                let mut greeting = cookie().to_vec();
+                encode_message(
+                    &mut greeting,
+                    0,
+                    0,
+                    VRPN_SENDER,
+                    SENDER_DESCRIPTION,
+                    &description_payload(device),
+                );
+                encode_message(
+                    &mut greeting,
+                    0,
+                    0,
+                    VRPN_POS_QUAT,
+                    TYPE_DESCRIPTION,
+                    &description_payload(POS_QUAT),
+                );
+                Sink::Vrpn {
+                    listener,
+                    clients: Vec::new(),
+                    greeting,
+                }
+            }
+        })
+    }
+
+    /// Sends one frame's bytes; returns the bytes sent (to every client, for VRPN).
+    fn send(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        use std::io::Write;
+        match self {
+            Sink::Udp(sock, dest) => sock.send_to(bytes, *dest),
+            Sink::Vrpn {
+                listener,
+                clients,
+                greeting,
+            } => {
+                while let Ok((c, _)) = listener.accept() {
+                    let _ = c.set_nodelay(true);
+                    let _ = c.set_write_timeout(Some(std::time::Duration::from_millis(100)));
+                    let mut c = c;
+                    if c.write_all(greeting).is_ok() {
+                        clients.push(c);
+                    }
+                }
+                clients.retain_mut(|c| c.write_all(bytes).is_ok());
+                Ok(bytes.len() * clients.len())
+            }
+        }
+    }
+}
+
 /// Sends `rec` to `target` on `clock` from `start_at_s`, until it ends (or forever when
 /// looping) or `stop` is set.
 pub fn replay(
@@ -133,13 +251,7 @@ pub fn replay(
     start_at_s: f64,
     stop: &AtomicBool,
 ) -> std::io::Result<ReplayStats> {
-    let sock = UdpSocket::bind(match target {
-        Target::Osc(a) | Target::Vmc(a) if a.is_ipv6() => "[::]:0",
-        _ => "0.0.0.0:0",
-    })?;
-    let dest = match target {
-        Target::Osc(a) | Target::Vmc(a) => a,
-    };
+    let mut sink = Sink::open(&target)?;
     let period = 1.0 / rec.rate_hz;
     let first = ((opts.start_s * rec.rate_hz).ceil().max(0.0) as usize).min(rec.frames.len());
     let last = opts.end_s.map_or(rec.frames.len(), |e| {
@@ -183,12 +295,13 @@ pub fn replay(
             }
             markers.push((rec.labels[k].as_str(), p));
         }
-        let bytes = match target {
+        let bytes = match &target {
             Target::Osc(_) => encode_native(n as i64, ntp(clock.unix_s(scheduled)), &markers),
             Target::Vmc(_) => encode_vmc(i as f64 * period, &markers),
+            Target::Vrpn { .. } => encode_vrpn(clock.unix_s(scheduled), &markers),
         };
         let sent_at = clock.now_s();
-        match sock.send_to(&bytes, dest) {
+        match sink.send(&bytes) {
             Ok(len) => {
                 stats.packets += 1;
                 stats.bytes += len as u64;
