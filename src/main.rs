@@ -18,6 +18,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the live daemon from a stage config.
+    ///
     /// Run the live daemon from a stage config (TOML: the character, the inputs, the
     /// solver, the outputs; every key is documented in src/config.rs and stages/): bind
     /// the character (or load its bake cache), start the inputs and the solver thread,
@@ -41,6 +43,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Replay a bundled session of a procedural character live (the default demo).
+    ///
     /// The embedded default: play a bundled recorded session of a procedural character
     /// (the hand's finger play by default, or the body's walk or reach; 0.5 mm noise and
     /// 5 % of samples lost in occlusion gaps, see replay/README.md) live through the whole
@@ -74,6 +78,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Bind a character file and cache the result.
+    ///
     /// Bind a character: read its TOML file and mesh, build the control mesh, the Green
     /// coordinates and the factorization, print a summary, and cache the result next to
     /// the character file (`NAME.rigcache`, keyed by a hash of the character file, the
@@ -88,6 +94,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Print what an input (OSC, VMC, NatNet, VRPN) decodes.
+    ///
     /// Print what an input decodes, one line per packet (one JSON object with --json):
     /// receive time, source time, and each marker's name, position in metres in the world
     /// frame (Y up) and flags. The first tool to run when a stage is set up. URLs:
@@ -114,6 +122,8 @@ enum Command {
         #[arg(long)]
         z_up: bool,
     },
+    /// Send a recording as live OSC, VMC or VRPN traffic.
+    ///
     /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
     /// timing: to an OSC receiver in the native schema (osc://HOST:PORT), to a VMC
     /// receiver (vmc://HOST:PORT, markers as trackers), or as a VRPN tracker server
@@ -156,6 +166,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Show what a recording holds.
+    ///
     /// Show what a recording holds (C3D, Qualisys TSV, BVH or a session file): markers, rate, frames,
     /// duration, the file's units, the share of missing samples per marker, the bounding
     /// box (metres, Y up), and anything the reader had to tolerate.
@@ -170,6 +182,8 @@ enum Command {
         #[arg(long, default_value_t = rigless::replay::recording::DEFAULT_BVH_METRES_PER_UNIT)]
         bvh_scale: f64,
     },
+    /// Write the bundled sessions (C3D).
+    ///
     /// Write the bundled sessions (the procedural hand's finger play, the body's walk and
     /// reach, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
     /// tree holds exactly what this writes.
@@ -177,6 +191,8 @@ enum Command {
         /// Folder to write `NAME.c3d` into (created if missing).
         dir: PathBuf,
     },
+    /// Write the procedural hand as an example character.
+    ///
     /// Write the procedural hand as a mesh (OBJ) and a character file (TOML) into a
     /// folder: a complete example of the character format to start from, ready for
     /// `rigless bake DIR/hand.toml`.
