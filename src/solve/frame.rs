@@ -101,7 +101,7 @@ impl Solver {
         let ns = rig.samples.len();
         let green_scratch = rig.green.scratch();
         let nm = rig.n_markers;
-        let held_local = Self::rest_local(&rig);
+        let held_local = rig.ik.marker_offsets().to_vec();
         Self {
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
@@ -135,18 +135,8 @@ impl Solver {
     pub fn reset(&mut self) {
         self.st = self.rig.system.new_state();
         self.ik = self.rig.ik.new_state();
-        self.held_local = Self::rest_local(&self.rig);
-    }
-
-    /// Each marker's rest position in its joint's rest frame (joint frames are
-    /// world-aligned at rest).
-    fn rest_local(rig: &Rig) -> Vec<DVec3> {
-        (0..rig.n_markers)
-            .map(|k| {
-                let j = rig.marker_joint[k];
-                rig.marker_rest[k] - rig.skeleton.joints[j].rest
-            })
-            .collect()
+        self.held_local
+            .copy_from_slice(self.rig.ik.marker_offsets());
     }
 
     /// Solves one frame, warm-started from the previous one, and writes the full-resolution
@@ -163,10 +153,13 @@ impl Solver {
         let rig = Arc::clone(&self.rig);
         let sys = &rig.system;
         let nm = rig.n_markers;
+        // `ik_targets[k]` is finite exactly where marker `k` is present this frame.
+        let mut present = 0;
         for k in 0..nm {
             if frame.is_present(k) {
                 self.st.targets[k] = frame.positions[k];
                 self.ik_targets[k] = frame.positions[k];
+                present += 1;
             } else {
                 self.ik_targets[k] = DVec3::NAN;
             }
@@ -177,7 +170,7 @@ impl Solver {
         rig.ik.begin_frame(&mut self.ik);
         // With no marker at all there is nothing to fit: the posture holds (the priors
         // alone would relax it towards rest).
-        let ik_rep = if self.ik_targets.iter().any(|t| t.is_finite()) {
+        let ik_rep = if present > 0 {
             rig.ik
                 .solve(&mut self.ik, &self.ik_targets, &self.params.ik)
         } else {
@@ -207,7 +200,7 @@ impl Solver {
         // marker's target is remembered in its bone's frame for when it is lost.
         for k in 0..nm {
             let j = rig.marker_joint[k];
-            if frame.is_present(k) {
+            if self.ik_targets[k].is_finite() {
                 self.held_local[k] = wr[j].conjugate() * (self.st.targets[k] - wp[j]);
             } else {
                 self.st.targets[k] = wp[j] + wr[j] * self.held_local[k];

@@ -398,6 +398,12 @@ impl IkModel {
         fit + prior
     }
 
+    /// Each marker's rest position relative to its joint, `m_k^rest − r_J` (the joint's
+    /// frame at rest is world-aligned).
+    pub fn marker_offsets(&self) -> &[DVec3] {
+        &self.marker_offset
+    }
+
     /// Marks the start of a new frame: the current posture becomes the prior's centre.
     pub fn begin_frame(&self, st: &mut IkState) {
         st.prev_angles.copy_from_slice(&st.angles);
@@ -405,8 +411,8 @@ impl IkModel {
 
     /// Fits the posture to the marker targets `m` (one per marker, metres), warm-started
     /// from the state's posture. A non-finite target is a marker with no information: it
-    /// is left out of the fit (the priors keep the posture determinate). On return `st.world_rot`/`st.world_pos` hold its forward
-    /// kinematics.
+    /// is left out of the fit (the priors keep the posture determinate). On return
+    /// `st.world_rot`/`st.world_pos` hold its forward kinematics.
     pub fn solve(&self, st: &mut IkState, m: &[DVec3], params: &IkParams) -> IkReport {
         let np = self.n_params;
         let w = Priors {
