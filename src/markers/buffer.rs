@@ -72,6 +72,11 @@ impl Default for BufferConfig {
 }
 
 impl BufferConfig {
+    /// Gate radius for a prediction `dt` seconds past the last sample, metres.
+    pub fn gate_m(&self, dt: f64) -> f64 {
+        self.gate_floor_m + 0.5 * self.gate_max_accel_m_s2 * dt * dt
+    }
+
     /// Every problem with these settings (empty when valid), each naming its key.
     pub fn problems(&self) -> Vec<String> {
         let mut out = Vec::new();
@@ -141,8 +146,6 @@ struct Track {
     occluded_at: Option<f64>,
     /// A run of rejected samples that agree with each other: newest time, position, count.
     candidate: Option<(f64, DVec3, u32)>,
-    /// Source time of the newest accepted sample.
-    source_time_s: f64,
 }
 
 impl Track {
@@ -161,6 +164,15 @@ impl Track {
         self.ring[self.head] = (t, p);
         self.head = (self.head + 1) % cap;
         self.len = (self.len + 1).min(cap);
+    }
+
+    /// Drops the newest sample.
+    fn pop(&mut self) {
+        if self.len > 0 {
+            let cap = self.ring.len();
+            self.head = (self.head + cap - 1) % cap;
+            self.len -= 1;
+        }
     }
 
     fn clear(&mut self) {
@@ -252,7 +264,6 @@ impl MarkerBuffer {
             len: 0,
             occluded_at: None,
             candidate: None,
-            source_time_s: 0.0,
         };
         let mut segments: Vec<Segment> = Vec::new();
         let mut joints: Vec<usize> = Vec::new();
@@ -317,11 +328,6 @@ impl MarkerBuffer {
         }
     }
 
-    /// Gate radius for a prediction `dt` seconds past the last sample, metres.
-    fn gate_m(&self, dt: f64) -> f64 {
-        self.cfg.gate_floor_m + 0.5 * self.cfg.gate_max_accel_m_s2 * dt * dt
-    }
-
     /// Takes one sample from an input.
     pub fn push(&mut self, s: &MarkerSample) {
         let k = s.marker as usize;
@@ -354,7 +360,7 @@ impl MarkerBuffer {
                 let (pred, _) = self.tracks[k]
                     .predict(s.time_s, &self.cfg)
                     .expect("track has a sample");
-                let gate = self.gate_m(dt);
+                let gate = self.cfg.gate_m(dt);
                 if (s.position_m - pred).length() > gate {
                     self.reject(k, s, gate);
                     return;
@@ -364,15 +370,11 @@ impl MarkerBuffer {
         let tr = &mut self.tracks[k];
         if newest.is_some_and(|(t_last, _)| t_last == s.time_s) {
             // Same instant again: the newer report replaces the older.
-            let cap = tr.ring.len();
-            let i = (tr.head + cap - 1) % cap;
-            tr.ring[i].1 = s.position_m;
-        } else {
-            tr.push(s.time_s, s.position_m);
+            tr.pop();
         }
+        tr.push(s.time_s, s.position_m);
         tr.occluded_at = None;
         tr.candidate = None;
-        tr.source_time_s = s.source_time_s;
         self.counters.accepted += 1;
     }
 
@@ -389,27 +391,18 @@ impl MarkerBuffer {
         if swapped {
             self.counters.label_swaps += 1;
         }
-        let gate_floor = self.cfg.gate_floor_m;
-        let max_accel = self.cfg.gate_max_accel_m_s2;
-        let need = self.cfg.reacquire_samples;
+        let cfg = &self.cfg;
         let tr = &mut self.tracks[k];
         let run = match tr.candidate {
-            Some((t, p, count)) => {
-                let dt = s.time_s - t;
-                let agree = (s.position_m - p).length() <= gate_floor + 0.5 * max_accel * dt * dt;
-                if agree {
-                    count + 1
-                } else {
-                    1
-                }
+            Some((t, p, count)) if (s.position_m - p).length() <= cfg.gate_m(s.time_s - t) => {
+                count + 1
             }
-            None => 1,
+            _ => 1,
         };
         tr.candidate = Some((s.time_s, s.position_m, run));
-        if run >= need {
+        if run >= cfg.reacquire_samples {
             tr.clear();
             tr.push(s.time_s, s.position_m);
-            tr.source_time_s = s.source_time_s;
             self.counters.reacquired += 1;
             self.counters.accepted += 1;
         }
