@@ -1151,12 +1151,7 @@ fn listen(
                     .collect();
                 print(recv, f.source_time_s(), f.frame, &ms)
             });
-            format!(
-                "{} packets, {} bytes, {} not decodable",
-                stats.packets.load(Ordering::Relaxed),
-                stats.bytes.load(Ordering::Relaxed),
-                stats.decode_errors.load(Ordering::Relaxed)
-            )
+            stats.to_string()
         }
         InputUrl::VrpnTcp { device, addr } => {
             use rigless::input::vrpn::{run, sensor_name, VrpnStats};
@@ -1202,12 +1197,10 @@ fn listen(
                 print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms)
             });
             format!(
-                "{} packets, {} bytes, {} frames, {} other messages, {} not decodable",
-                stats.packets.load(Ordering::Relaxed),
-                stats.bytes.load(Ordering::Relaxed),
+                "{}; {} frames, {} other messages",
+                stats.packets,
                 stats.frames.load(Ordering::Relaxed),
-                stats.other.load(Ordering::Relaxed),
-                stats.decode_errors.load(Ordering::Relaxed)
+                stats.other.load(Ordering::Relaxed)
             )
         }
     };

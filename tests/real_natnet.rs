@@ -147,9 +147,9 @@ fn the_input_names_markers_and_receives_real_packets_on_loopback() {
             stop.store(true, Ordering::Relaxed);
         }
     });
-    assert_eq!(stats.packets.load(Ordering::Relaxed), 4);
+    assert_eq!(stats.packets.packets.load(Ordering::Relaxed), 4);
     assert_eq!(stats.other.load(Ordering::Relaxed), 1);
-    assert_eq!(stats.decode_errors.load(Ordering::Relaxed), 1);
+    assert_eq!(stats.packets.decode_errors.load(Ordering::Relaxed), 1);
     // The occluded frame: FakeTree's five members, the second occluded; "all" skipped.
     let names: Vec<&str> = frames[0].iter().map(|m| m.name.as_str()).collect();
     assert_eq!(

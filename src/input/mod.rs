@@ -25,6 +25,79 @@ pub struct SourceCounters {
 /// How often a blocked UDP receive wakes to check its stop flag.
 pub const UDP_POLL: std::time::Duration = std::time::Duration::from_millis(100);
 
+/// Receive buffer asked of the OS for UDP inputs, bytes: a second of a 240 Hz, 50-marker
+/// sender (each datagram costs the kernel a few KiB of buffer on loopback), so a stalled
+/// moment of the receiving thread loses nothing. The OS may grant less (Linux:
+/// `net.core.rmem_max`).
+pub const RECV_BUFFER_BYTES: usize = 4 << 20;
+
+/// Binds a UDP input on `addr` with a large receive buffer and the read timeout
+/// [`udp_loop`] needs; an IPv4 multicast address binds the port on all interfaces and
+/// joins the group there.
+pub fn udp_bind(addr: std::net::SocketAddr) -> std::io::Result<std::net::UdpSocket> {
+    use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+    let s = socket2::Socket::new(
+        socket2::Domain::for_address(addr),
+        socket2::Type::DGRAM,
+        Some(socket2::Protocol::UDP),
+    )?;
+    // Best effort: a smaller grant still works, only with less slack.
+    let _ = s.set_recv_buffer_size(RECV_BUFFER_BYTES);
+    match addr.ip() {
+        IpAddr::V4(g) if g.is_multicast() => {
+            s.set_reuse_address(true)?;
+            s.bind(&SocketAddr::from((Ipv4Addr::UNSPECIFIED, addr.port())).into())?;
+            s.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED)?;
+        }
+        _ => s.bind(&addr.into())?,
+    }
+    let s: std::net::UdpSocket = s.into();
+    s.set_read_timeout(Some(UDP_POLL))?;
+    Ok(s)
+}
+
+/// What a packet input has received (monotonic).
+#[derive(Debug, Default)]
+pub struct PacketStats {
+    pub packets: AtomicU64,
+    pub bytes: AtomicU64,
+    /// Packets that did not decode, and receive errors.
+    pub decode_errors: AtomicU64,
+    /// f64 bits of the Unix time of the newest packet (0 before any).
+    pub last_seen_unix_bits: AtomicU64,
+}
+
+impl PacketStats {
+    /// Counts one received packet.
+    pub fn received(&self, len: usize, unix_s: f64) {
+        self.packets.fetch_add(1, Ordering::Relaxed);
+        self.bytes.fetch_add(len as u64, Ordering::Relaxed);
+        self.last_seen_unix_bits
+            .store(unix_s.to_bits(), Ordering::Relaxed);
+    }
+
+    /// Counts a packet that did not decode, or a receive error.
+    pub fn error(&self) {
+        self.decode_errors.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub fn last_seen_unix_s(&self) -> f64 {
+        f64::from_bits(self.last_seen_unix_bits.load(Ordering::Relaxed))
+    }
+}
+
+impl std::fmt::Display for PacketStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} packets, {} bytes, {} not decodable",
+            self.packets.load(Ordering::Relaxed),
+            self.bytes.load(Ordering::Relaxed),
+            self.decode_errors.load(Ordering::Relaxed)
+        )
+    }
+}
+
 /// Whether a socket error only means "nothing yet" (a read timeout or an interruption).
 pub fn is_wait(e: &std::io::Error) -> bool {
     matches!(

@@ -10,16 +10,15 @@
 
 use crate::protocol::natnet::{decode, Message, MocapFrame, Version};
 use glam::DVec3;
-use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
+use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// What a NatNet input has seen (monotonic).
 #[derive(Debug, Default)]
 pub struct NatNetStats {
-    pub packets: AtomicU64,
-    pub bytes: AtomicU64,
+    pub packets: super::PacketStats,
+    /// Frames of mocap data among them.
     pub frames: AtomicU64,
-    pub decode_errors: AtomicU64,
     /// Packets of other kinds (model definitions, server info, pings).
     pub other: AtomicU64,
 }
@@ -32,26 +31,10 @@ pub struct NamedMarker {
     pub occluded: bool,
 }
 
-/// Binds the data port `addr`; a multicast address binds the port on all interfaces and
-/// joins the group there.
+/// Binds the data port `addr` ([`super::udp_bind`]: a multicast address joins the
+/// group).
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
-    let s = socket2::Socket::new(
-        socket2::Domain::for_address(addr),
-        socket2::Type::DGRAM,
-        Some(socket2::Protocol::UDP),
-    )?;
-    let _ = s.set_recv_buffer_size(crate::input::osc::RECV_BUFFER_BYTES);
-    match addr.ip() {
-        IpAddr::V4(g) if g.is_multicast() => {
-            s.set_reuse_address(true)?;
-            s.bind(&SocketAddr::from((Ipv4Addr::UNSPECIFIED, addr.port())).into())?;
-            s.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED)?;
-        }
-        _ => s.bind(&addr.into())?,
-    }
-    let s: UdpSocket = s.into();
-    s.set_read_timeout(Some(super::UDP_POLL))?;
-    Ok(s)
+    super::udp_bind(addr)
 }
 
 /// The named markers of a frame, appended to `out`. Without marker sets (Motive can
@@ -102,8 +85,7 @@ pub fn run(
         socket,
         stop,
         &mut |now, bytes| {
-            stats.packets.fetch_add(1, Ordering::Relaxed);
-            stats.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+            stats.packets.received(bytes.len(), now);
             match decode(bytes, version) {
                 Ok(Message::Frame(f)) => {
                     stats.frames.fetch_add(1, Ordering::Relaxed);
@@ -112,14 +94,12 @@ pub fn run(
                 Ok(_) => {
                     stats.other.fetch_add(1, Ordering::Relaxed);
                 }
-                Err(_) => {
-                    stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-                }
+                Err(_) => stats.packets.error(),
             }
         },
         &mut |e| {
             tracing::debug!(error = %e, "natnet: receive failed");
-            stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+            stats.packets.error();
         },
     );
 }

@@ -5,43 +5,14 @@
 
 use crate::protocol::osc::{OscFrame, OscMapping};
 use std::net::{SocketAddr, UdpSocket};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::AtomicBool;
 
-/// What an OSC input has seen (monotonic).
-#[derive(Debug, Default)]
-pub struct OscStats {
-    pub packets: AtomicU64,
-    pub bytes: AtomicU64,
-    pub decode_errors: AtomicU64,
-    /// f64 bits of the Unix time of the newest packet (0 before any).
-    pub last_seen_unix_bits: AtomicU64,
-}
+/// What an OSC input has seen.
+pub type OscStats = super::PacketStats;
 
-impl OscStats {
-    pub fn last_seen_unix_s(&self) -> f64 {
-        f64::from_bits(self.last_seen_unix_bits.load(Ordering::Relaxed))
-    }
-}
-
-/// Receive buffer asked of the OS, bytes: a second of a 240 Hz, 50-marker sender (each
-/// datagram costs the kernel a few KiB of buffer on loopback), so a stalled moment of the
-/// receiving thread loses nothing. The OS may grant less (Linux: `net.core.rmem_max`).
-pub const RECV_BUFFER_BYTES: usize = 4 << 20;
-
-/// Binds `addr` for an OSC input (a multicast or any-address bind is the caller's
-/// choice; the stage default is loopback), with a large receive buffer.
+/// Binds `addr` for an OSC input ([`super::udp_bind`]).
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
-    let s = socket2::Socket::new(
-        socket2::Domain::for_address(addr),
-        socket2::Type::DGRAM,
-        Some(socket2::Protocol::UDP),
-    )?;
-    // Best effort: a smaller grant still works, only with less slack.
-    let _ = s.set_recv_buffer_size(RECV_BUFFER_BYTES);
-    s.bind(&addr.into())?;
-    let s: UdpSocket = s.into();
-    s.set_read_timeout(Some(super::UDP_POLL))?;
-    Ok(s)
+    super::udp_bind(addr)
 }
 
 /// Receives on `socket` until `stop` is set; calls `on_frame(receive_unix_s, frame)` for
@@ -59,21 +30,15 @@ pub fn run(
         socket,
         stop,
         &mut |now, bytes| {
-            stats.packets.fetch_add(1, Ordering::Relaxed);
-            stats.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
-            stats
-                .last_seen_unix_bits
-                .store(now.to_bits(), Ordering::Relaxed);
+            stats.received(bytes.len(), now);
             match mapping.decode_into(bytes, &mut frame) {
                 Ok(()) => on_frame(now, &frame),
-                Err(_) => {
-                    stats.decode_errors.fetch_add(1, Ordering::Relaxed);
-                }
+                Err(_) => stats.error(),
             }
         },
         &mut |e| {
             tracing::debug!(error = %e, "osc: receive failed");
-            stats.decode_errors.fetch_add(1, Ordering::Relaxed);
+            stats.error();
         },
     );
 }
@@ -81,6 +46,7 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::Ordering;
 
     #[test]
     fn packets_on_loopback_reach_the_callback_and_garbage_is_counted() {
