@@ -136,6 +136,41 @@ pub fn udp_loop(
     }
 }
 
+/// A source's fixed-rate sending loop: frame `n` (counting across loops) is due at
+/// `start_s + n · period_s` on `clock`; `fill(n, t, batch)` makes its samples (stamped
+/// `t`), which go out without blocking. It ends after `frames` frames unless `looping`,
+/// when `stop` is set, or when the receiver is gone, and marks `counters` finished.
+#[allow(clippy::too_many_arguments)]
+pub fn play_paced(
+    clock: &dyn crate::daemon::clock::Clock,
+    start_s: f64,
+    period_s: f64,
+    frames: usize,
+    looping: bool,
+    tx: &Sender<MarkerSample>,
+    stop: &AtomicBool,
+    counters: &SourceCounters,
+    fill: &mut dyn FnMut(usize, f64, &mut Vec<MarkerSample>),
+) {
+    let mut batch = Vec::new();
+    let mut n = 0usize;
+    while frames > 0 && (looping || n < frames) {
+        let t = start_s + n as f64 * period_s;
+        clock.sleep_until(t);
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        batch.clear();
+        fill(n, t, &mut batch);
+        if !send_samples(&batch, tx, counters) {
+            break;
+        }
+        counters.frames.fetch_add(1, Ordering::Relaxed);
+        n += 1;
+    }
+    counters.finished.store(true, Ordering::Relaxed);
+}
+
 /// Sends one frame's samples without blocking: a full channel drops (and counts) the
 /// sample. Returns false once the receiver is gone.
 pub fn send_samples(batch: &[MarkerSample], tx: &Sender<MarkerSample>, c: &SourceCounters) -> bool {

@@ -2,14 +2,14 @@
 //! as markers with noise and occlusion gaps whose truth is known. The demo plays it live;
 //! tests and the gap-filling benchmark read it frame by frame.
 
-use super::{send_samples, SourceCounters};
+use super::SourceCounters;
 use crate::character::demo::Motion;
 use crate::character::procedural::{skin_pose, Character};
 use crate::daemon::clock::Clock;
 use crate::markers::MarkerSample;
 use crossbeam_channel::Sender;
 use glam::DVec3;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// How a synthetic session is made.
@@ -175,27 +175,17 @@ pub fn play(
 ) {
     let frames = session.frames().max(1);
     let period = 1.0 / session.params.rate_hz;
-    let mut batch = Vec::with_capacity(session.ch.markers.len());
-    let mut n = 0usize;
-    loop {
-        let i = n % frames;
-        if n > 0 && i == 0 && !looping {
-            break;
-        }
-        let t = start_s + n as f64 * period;
-        clock.sleep_until(t);
-        if stop.load(Ordering::Relaxed) {
-            break;
-        }
-        batch.clear();
-        session.frame(i, t, &mut batch);
-        if !send_samples(&batch, tx, counters) {
-            break;
-        }
-        counters.frames.fetch_add(1, Ordering::Relaxed);
-        n += 1;
-    }
-    counters.finished.store(true, Ordering::Relaxed);
+    super::play_paced(
+        clock,
+        start_s,
+        period,
+        frames,
+        looping,
+        tx,
+        stop,
+        counters,
+        &mut |n, t, batch| session.frame(n % frames, t, batch),
+    );
 }
 
 #[cfg(test)]

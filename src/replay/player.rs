@@ -3,10 +3,10 @@
 
 use super::recording::{LabelMap, Recording};
 use crate::daemon::clock::Clock;
-use crate::input::{send_samples, SourceCounters};
+use crate::input::{play_paced, SourceCounters};
 use crate::markers::MarkerSample;
 use crossbeam_channel::Sender;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 
 /// How to play.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,37 +33,30 @@ pub fn play_recording(
 ) {
     let n = rec.frames.len();
     let period = 1.0 / rec.rate_hz;
-    let mut batch = Vec::with_capacity(rec.labels.len());
-    let mut i = 0usize;
-    loop {
-        if i >= n && !params.looping {
-            break;
-        }
-        let source_t = i as f64 * period;
-        let t = params.start_s + source_t / params.speed;
-        clock.sleep_until(t);
-        if stop.load(Ordering::Relaxed) {
-            break;
-        }
-        batch.clear();
-        for (p, m) in rec.frames[i % n].iter().zip(&map.marker_of_label) {
-            if let Some(k) = m {
-                batch.push(MarkerSample {
-                    marker: *k,
-                    time_s: t,
-                    source_time_s: source_t,
-                    position_m: *p,
-                    occluded: !p.is_finite(),
-                });
+    play_paced(
+        clock,
+        params.start_s,
+        period / params.speed,
+        n,
+        params.looping,
+        tx,
+        stop,
+        counters,
+        &mut |i, t, batch| {
+            let source_t = i as f64 * period;
+            for (p, m) in rec.frames[i % n].iter().zip(&map.marker_of_label) {
+                if let Some(k) = m {
+                    batch.push(MarkerSample {
+                        marker: *k,
+                        time_s: t,
+                        source_time_s: source_t,
+                        position_m: *p,
+                        occluded: !p.is_finite(),
+                    });
+                }
             }
-        }
-        if !send_samples(&batch, tx, counters) {
-            break;
-        }
-        counters.frames.fetch_add(1, Ordering::Relaxed);
-        i += 1;
-    }
-    counters.finished.store(true, Ordering::Relaxed);
+        },
+    );
 }
 
 #[cfg(test)]
@@ -72,6 +65,7 @@ mod tests {
     use crate::daemon::clock::ManualClock;
     use crate::replay::recording::map_labels;
     use glam::DVec3;
+    use std::sync::atomic::Ordering;
 
     #[test]
     fn plays_mapped_labels_with_the_recordings_timing_scaled_by_speed() {
