@@ -84,15 +84,7 @@ fn a_vrpn_tracker_drives_the_daemon() {
         common::Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "5"]);
     let addr = daemon.addr.clone();
     std::thread::sleep(Duration::from_millis(500));
-    let out = common::python_client(&addr, &["--frames", "60"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8(out.stdout).unwrap().trim()).unwrap();
-    let s = &v["summary"];
+    let s = &common::client_summary(&addr, &["--frames", "60"]);
     assert_eq!(s["frames"], 60);
     // Every marker fed at 120 Hz: all measured (a frame or two may catch a marker
     // between reports on a loaded machine).

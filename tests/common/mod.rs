@@ -80,3 +80,17 @@ pub fn python_client(addr: &str, args: &[&str]) -> std::process::Output {
         .output()
         .expect("run the Python client")
 }
+
+/// Runs the Python reference client against `addr` and returns its JSON `summary`
+/// (panicking with the client's error output if it failed).
+pub fn client_summary(addr: &str, args: &[&str]) -> serde_json::Value {
+    let out = python_client(addr, args);
+    assert!(
+        out.status.success(),
+        "client failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).expect("UTF-8 output");
+    let v: serde_json::Value = serde_json::from_str(text.trim()).expect("client JSON");
+    v["summary"].clone()
+}
