@@ -121,6 +121,53 @@ pub enum InputConfig {
     /// A VRPN tracker over TCP (`url = "vrpn://Tracker0@tcp://127.0.0.1:3883"`). Each
     /// sensor is a marker named `DEVICE_SENSOR`, or as `sensors` maps it.
     Vrpn(VrpnInputConfig),
+    /// A serial data glove (`protocols/glove.md`):
+    /// `url = "glove:///dev/ttyUSB0?baud=115200&format=alpha"`. Its curls pose the hand's
+    /// finger joints; the wrist follows the optical markers, if any.
+    Glove(GloveInputConfig),
+}
+
+/// `type = "glove"`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GloveInputConfig {
+    /// `glove:///PORT[?baud=115200&format=alpha|legacy&max=4095]`.
+    pub url: String,
+    /// Raw readings of the straight and the fully curled finger, per finger, e.g.
+    /// `index = { open = 350, closed = 3700 }` (default: 0 and the full scale).
+    #[serde(default)]
+    pub calibration: std::collections::BTreeMap<String, crate::input::glove::FingerCalibration>,
+    /// The character's joints each finger drives, base to distal, e.g.
+    /// `index = ["index_1", "index_2", "index_3"]` (default: those names, the procedural
+    /// hand's).
+    #[serde(default)]
+    pub joints: std::collections::BTreeMap<String, [String; 3]>,
+}
+
+impl GloveInputConfig {
+    /// Per-finger calibration, thumb to pinky, defaults filled in for `max_value`.
+    pub fn calibration(&self, max_value: u32) -> [crate::input::glove::FingerCalibration; 5] {
+        crate::protocol::glove::FINGERS.map(|f| {
+            self.calibration
+                .get(f)
+                .copied()
+                .unwrap_or(crate::input::glove::FingerCalibration {
+                    open: 0,
+                    closed: max_value,
+                })
+        })
+    }
+
+    /// Driven joint names, thumb to pinky, defaults filled in.
+    pub fn joints(&self) -> [[String; 3]; 5] {
+        let mut names = crate::input::glove::default_finger_joints();
+        for (f, n) in crate::protocol::glove::FINGERS.iter().zip(names.iter_mut()) {
+            if let Some(given) = self.joints.get(*f) {
+                *n = given.clone();
+            }
+        }
+        names
+    }
 }
 
 /// `type = "vrpn"`.
@@ -544,6 +591,30 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
                     }
                 }
             }
+            InputConfig::Glove(g) => {
+                match crate::input::parse_url(&g.url) {
+                    Ok(crate::input::InputUrl::Glove(_)) => {}
+                    Ok(_) => problems.push(lines.at(
+                        &format!("{at}.url"),
+                        format!("{:?} is not a glove:// URL", g.url),
+                    )),
+                    Err(e) => problems.push(lines.at(&format!("{at}.url"), e)),
+                }
+                let fingers = crate::protocol::glove::FINGERS;
+                for (key, names) in [
+                    ("calibration", g.calibration.keys().collect::<Vec<_>>()),
+                    ("joints", g.joints.keys().collect()),
+                ] {
+                    for k in names {
+                        if !fingers.contains(&k.as_str()) {
+                            problems.push(lines.at(
+                                &format!("{at}.{key}"),
+                                format!("{k:?} is not a finger (expected one of {fingers:?})"),
+                            ));
+                        }
+                    }
+                }
+            }
             InputConfig::NatNet(n) => match crate::input::parse_url(&n.url) {
                 Ok(crate::input::InputUrl::NatNet(..)) => {}
                 Ok(_) => problems.push(lines.at(
@@ -813,6 +884,29 @@ on = true
             "stages/body-walk.toml",
         )
         .unwrap();
+        let glove = parse_stage(
+            include_str!("../stages/hand-glove.toml"),
+            "stages/hand-glove.toml",
+        )
+        .unwrap();
+        let InputConfig::Glove(g) = &glove.inputs[0] else {
+            panic!("{:?}", glove.inputs[0]);
+        };
+        let cal = g.calibration(4095);
+        assert_eq!((cal[1].open, cal[1].closed), (250, 3800));
+        assert_eq!(g.joints()[4], ["pinky_1", "pinky_2", "pinky_3"]);
+    }
+
+    #[test]
+    fn glove_inputs_name_fingers_and_take_glove_urls() {
+        let err = parse_stage(
+            "[character]\nprocedural = \"hand\"\n[[inputs]]\ntype = \"glove\"\nurl = \"osc://127.0.0.1:9\"\ncalibration.thumbs = { open = 0, closed = 9 }\n",
+            "s.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("is not a glove:// URL"), "{err}");
+        assert!(err.contains("\"thumbs\" is not a finger"), "{err}");
     }
 
     #[test]

@@ -10,6 +10,8 @@ use rigless::config::{InputConfig, StageConfig};
 use rigless::daemon::clock::{Clock, SystemClock};
 use rigless::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
 use rigless::daemon::slot::LatestSlot;
+use rigless::daemon::slot::PinSlot;
+use rigless::input::glove::{run as run_glove, GloveStats, HandMap};
 use rigless::input::natnet::{
     bind as natnet_bind, markers_of as natnet_markers, run as run_natnet, NatNetStats,
 };
@@ -172,8 +174,58 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let mut sources = Vec::new();
     let mut source_counters = Vec::new();
     let mut inputs_end_s: Option<f64> = Some(START_S);
+    // Joint angles from the gloves, shared by all of them (each writes its own joints).
+    let pin_slot = Arc::new(PinSlot::new(rig.ik.n_params()));
+    if cfg
+        .inputs
+        .iter()
+        .any(|i| matches!(i, InputConfig::Glove(_)))
+    {
+        pipeline = pipeline.with_pins(Arc::clone(&pin_slot));
+    }
     for input in &cfg.inputs {
         match input {
+            InputConfig::Glove(g) => {
+                let InputUrl::Glove(port) = parse_url(&g.url).map_err(anyhow::Error::msg)? else {
+                    anyhow::bail!("{}: not a glove:// URL", g.url);
+                };
+                let map = HandMap::new(
+                    &rig.skeleton,
+                    &g.joints(),
+                    g.calibration(port.max_value),
+                    port.max_value,
+                )
+                .map_err(|errs| {
+                    let lines: Vec<String> = errs.iter().map(|e| format!("  {e}")).collect();
+                    anyhow::anyhow!(
+                        "{}: the glove cannot drive {}:\n{}",
+                        g.url,
+                        name,
+                        lines.join("\n")
+                    )
+                })?;
+                println!(
+                    "glove input reading {} ({} baud, {:?})",
+                    port.path.display(),
+                    port.baud,
+                    port.format
+                );
+                inputs_end_s = None;
+                let counters = Arc::new(SourceCounters::default());
+                source_counters.push(Arc::clone(&counters));
+                let (stop, slot, rig) =
+                    (Arc::clone(&stop), Arc::clone(&pin_slot), Arc::clone(&rig));
+                sources.push(std::thread::Builder::new().name("glove".into()).spawn(
+                    move || {
+                        let stats = GloveStats::default();
+                        let first = |j: usize| rig.ik.angle_params(j);
+                        run_glove(&port, &stop, &stats, &mut |_, r| {
+                            slot.write(|pins| map.write_pins(r, &first, pins));
+                            counters.frames.fetch_add(1, Ordering::Relaxed);
+                        });
+                    },
+                )?);
+            }
             InputConfig::Vrpn(v) => {
                 let InputUrl::VrpnTcp { device, addr } =
                     parse_url(&v.url).map_err(anyhow::Error::msg)?
@@ -262,7 +314,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             }
             InputConfig::Osc(o) => {
                 let (addr, mapping) = match parse_url(&o.url).map_err(anyhow::Error::msg)? {
-                    InputUrl::NatNet(..) | InputUrl::VrpnTcp { .. } => {
+                    InputUrl::NatNet(..) | InputUrl::VrpnTcp { .. } | InputUrl::Glove(_) => {
                         anyhow::bail!("{}: not an osc:// or vmc:// URL", o.url)
                     }
                     InputUrl::Osc(a) => (
@@ -559,6 +611,7 @@ fn describe_input(i: &InputConfig) -> String {
         InputConfig::Osc(o) => o.url.clone(),
         InputConfig::NatNet(n) => n.url.clone(),
         InputConfig::Vrpn(v) => v.url.clone(),
+        InputConfig::Glove(g) => g.url.clone(),
         InputConfig::Synthetic(s) => {
             format!("synthetic:{}", s.motion.as_deref().unwrap_or("default"))
         }

@@ -94,7 +94,7 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Print what an input (OSC, VMC, NatNet, VRPN) decodes.
+    /// Print what an input (OSC, VMC, NatNet, VRPN, data glove) decodes.
     ///
     /// Print what an input decodes, one line per packet (one JSON object with --json):
     /// receive time, source time, and each marker's name, position in metres in the world
@@ -102,7 +102,11 @@ enum Command {
     /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
     /// patterns, and VMC), vmc://HOST:PORT (VMC only), natnet://HOST:PORT[?version=M.m]
     /// (binds the data port; a multicast address joins the group),
-    /// vrpn://DEVICE@tcp://HOST:PORT (connects; one marker DEVICE_SENSOR per sensor).
+    /// vrpn://DEVICE@tcp://HOST:PORT (connects; one marker DEVICE_SENSOR per sensor),
+    /// glove:///dev/ttyUSB0[?baud=115200&format=alpha|legacy&max=4095] (a serial data
+    /// glove, reopened when replugged; one line per glove line: curls, splay, joystick and
+    /// buttons as fractions of full scale, and the procedural hand's finger joints posed
+    /// by them with the wrist at rest).
     Listen {
         /// The input URL, e.g. osc://127.0.0.1:9000.
         url: String,
@@ -262,6 +266,7 @@ fn real_main() -> Result<()> {
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     match cli.command {
@@ -1080,10 +1085,11 @@ fn listen(
     let mut print = |recv: f64,
                      src: Option<f64>,
                      frame: Option<i64>,
-                     ms: &[(&str, glam::DVec3, bool)]| {
+                     ms: &[(&str, glam::DVec3, bool)],
+                     extra: Option<(&str, serde_json::Value)>| {
         use std::io::Write;
         let line = if json {
-            serde_json::json!({
+            let mut v = serde_json::json!({
                 "receive_unix_s": recv,
                 "source_time_s": src,
                 "frame": frame,
@@ -1092,8 +1098,13 @@ fn listen(
                     "position_m": if *occluded { serde_json::Value::Null } else { serde_json::json!(p.to_array()) },
                     "occluded": occluded,
                 })).collect::<Vec<_>>(),
-            })
-            .to_string()
+            });
+            if let Some((key, value)) = extra {
+                v[key] = value;
+            }
+            v.to_string()
+        } else if let Some((key, value)) = extra {
+            format!("recv {recv:.6}  {key} {value}")
         } else {
             let text: Vec<String> = ms
                 .iter()
@@ -1149,7 +1160,7 @@ fn listen(
                     .iter()
                     .map(|m| (m.name.as_str(), m.position_m, m.occluded))
                     .collect();
-                print(recv, f.source_time_s(), f.frame, &ms)
+                print(recv, f.source_time_s(), f.frame, &ms, None)
             });
             stats.to_string()
         }
@@ -1164,6 +1175,7 @@ fn listen(
                     Some(source),
                     None,
                     &[(name.as_str(), r.position, false)],
+                    None,
                 )
             });
             format!(
@@ -1175,6 +1187,62 @@ fn listen(
                 stats.pings_answered.load(Ordering::Relaxed),
                 stats.errors.load(Ordering::Relaxed)
             )
+        }
+        InputUrl::Glove(port) => {
+            use rigless::input::glove::{
+                default_finger_joints, run, FingerCalibration, GloveStats, HandMap,
+            };
+            use rigless::protocol::glove::buttons;
+            // Joint positions on the procedural hand, wrist at rest, full-scale calibration.
+            let hand = rigless::character::demo::demo_hand();
+            let sk = &hand.skeleton;
+            let cal = [FingerCalibration {
+                open: 0,
+                closed: port.max_value,
+            }; 5];
+            let map = HandMap::new(sk, &default_finger_joints(), cal, port.max_value)
+                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            let shown: Vec<usize> = map
+                .joints()
+                .iter()
+                .flat_map(|f| [f[0], f[1], f[2], f[2] + 1])
+                .filter(|&j| j < sk.len())
+                .collect();
+            let mut local = vec![glam::DQuat::IDENTITY; sk.len()];
+            let (mut wr, mut wp) = (local.clone(), vec![glam::DVec3::ZERO; sk.len()]);
+            eprintln!(
+                "reading {} ({} baud, {:?}, full scale {}; reopens by itself); Ctrl-C stops",
+                port.path.display(),
+                port.baud,
+                port.format,
+                port.max_value
+            );
+            let stats = GloveStats::default();
+            let max = f64::from(port.max_value);
+            run(&port, &stop, &stats, &mut |recv, r| {
+                map.local_rotations(r, &mut local);
+                sk.forward(&local, glam::DVec3::ZERO, &mut wr, &mut wp);
+                let ms: Vec<(&str, glam::DVec3, bool)> = shown
+                    .iter()
+                    .map(|&j| (sk.joints[j].name.as_str(), wp[j], false))
+                    .collect();
+                let frac = |v: &[Option<u32>]| -> Vec<Option<f64>> {
+                    v.iter().map(|x| x.map(|x| f64::from(x) / max)).collect()
+                };
+                let pressed: Vec<&str> = (0..8)
+                    .filter(|b| r.buttons & (1 << b) != 0)
+                    .map(|b| buttons::NAMES[b])
+                    .collect();
+                let glove = serde_json::json!({
+                    "curl": frac(&r.curl),
+                    "splay": frac(&r.splay),
+                    "joystick": frac(&r.joystick),
+                    "trigger": r.trigger.map(|x| f64::from(x) / max),
+                    "buttons": pressed,
+                });
+                print(recv, None, None, &ms, Some(("glove", glove)))
+            });
+            stats.to_string()
         }
         InputUrl::NatNet(addr, version) => {
             use rigless::input::natnet::{bind, markers_of, run, NatNetStats};
@@ -1194,7 +1262,7 @@ fn listen(
                     .iter()
                     .map(|m| (m.name.as_str(), m.position_m, m.occluded))
                     .collect();
-                print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms)
+                print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms, None)
             });
             format!(
                 "{}; {} frames, {} other messages",

@@ -92,11 +92,11 @@ pub fn run() -> Vec<CodecRecord> {
     let mapping = OscMapping::default();
     let nat = natnet_frame(n);
     let mut out = Vec::new();
-    let mut rec = |codec, bytes: usize, s: Spread| {
+    let mut rec = |codec, markers: usize, bytes: usize, s: Spread| {
         out.push(CodecRecord {
             suite: "codecs",
             codec,
-            markers: n,
+            markers,
             packet_bytes: bytes,
             decode_us_median: s.median_ms * 1e3,
             decode_us_p10: s.p10_ms * 1e3,
@@ -110,12 +110,38 @@ pub fn run() -> Vec<CodecRecord> {
             .expect("valid");
         assert_eq!(frame.markers().len(), n);
     });
-    rec("osc_native", osc.len(), s);
+    rec("osc_native", n, osc.len(), s);
     let s = time(|| {
         let m = natnet::decode(std::hint::black_box(&nat), Version(3, 0)).expect("valid");
         std::hint::black_box(m);
     });
-    rec("natnet_3_0", nat.len(), s);
+    rec("natnet_3_0", n, nat.len(), s);
+    // A glove line with every key (curls, 20 joint curls, splay, joystick, trigger,
+    // buttons): its 20 posed joints count as markers.
+    use crate::protocol::glove::{decode_line, encode_alpha, GloveFormat, GloveReading};
+    let full = GloveReading {
+        curl: [Some(4095); 5],
+        joint_curl: [[Some(1234); 4]; 5],
+        splay: [Some(2047); 5],
+        joystick: [Some(2047); 2],
+        trigger: Some(100),
+        buttons: 0xff,
+        unknown_keys: 0,
+    };
+    let mut line = String::new();
+    encode_alpha(&full, &mut line);
+    let mut reading = GloveReading::default();
+    let s = time(|| {
+        decode_line(
+            std::hint::black_box(line.as_bytes()),
+            GloveFormat::Alpha,
+            4095,
+            &mut reading,
+        )
+        .expect("valid");
+        assert_eq!(reading, full);
+    });
+    rec("glove_alpha", 20, line.len(), s);
     out
 }
 

@@ -7,7 +7,7 @@
 //! allocate once warm: published frames come back to a pool when every sink has let go.
 
 use super::clock::Clock;
-use super::slot::LatestSlot;
+use super::slot::{LatestSlot, PinSlot};
 use crate::markers::buffer::MarkerBuffer;
 use crate::markers::{MarkerFrame, MarkerSample};
 use crate::protocol::vertex_stream::{DeformedFrame, StopCode, Topology};
@@ -89,6 +89,10 @@ pub struct Pipeline {
     deadline_stops: u64,
     interval_frames: u64,
     interval_iterations: u64,
+    /// Joint angles from a glove source, the version last copied, and the copy.
+    pin_slot: Option<Arc<PinSlot>>,
+    pin_version: u64,
+    pins: Vec<f64>,
 }
 
 impl Pipeline {
@@ -118,6 +122,9 @@ impl Pipeline {
             deadline_stops: 0,
             interval_frames: 0,
             interval_iterations: 0,
+            pin_slot: None,
+            pin_version: 0,
+            pins: Vec::new(),
         }
     }
 
@@ -129,6 +136,14 @@ impl Pipeline {
     /// channel drops the copy and counts it, never blocking the loop.
     pub fn with_recorder(mut self, tx: Sender<MarkerSample>) -> Self {
         self.recorder = Some(tx);
+        self
+    }
+
+    /// Imposes the joint angles a source writes into `slot` (a data glove) on every
+    /// frame's posture, from the tick after they change.
+    pub fn with_pins(mut self, slot: Arc<PinSlot>) -> Self {
+        self.pins = vec![f64::NAN; self.solver.rig().ik.n_params()];
+        self.pin_slot = Some(slot);
         self
     }
 
@@ -162,6 +177,11 @@ impl Pipeline {
         }
         self.samples += drained as u64;
         self.buffer.sample_at(t_s, &mut self.markers);
+        if let Some(slot) = &self.pin_slot {
+            if slot.read_if_newer(&mut self.pin_version, &mut self.pins) {
+                self.solver.set_pins(&self.pins);
+            }
+        }
         let solve = self
             .solver
             .solve(&self.markers, deadline, &mut self.vertices);

@@ -93,6 +93,45 @@ impl<T> Drop for LatestSlot<T> {
 unsafe impl<T: Send + Sync> Send for LatestSlot<T> {}
 unsafe impl<T: Send + Sync> Sync for LatestSlot<T> {}
 
+/// The newest joint angles a source imposes on the posture (a data glove), for the
+/// solver thread: the source replaces them under a short lock; the loop copies them only
+/// when they changed (no allocation on either side).
+pub struct PinSlot {
+    version: AtomicU64,
+    pins: std::sync::Mutex<Vec<f64>>,
+}
+
+impl PinSlot {
+    /// A slot for `n` posture parameters, all free (NaN).
+    pub fn new(n: usize) -> Self {
+        Self {
+            version: AtomicU64::new(0),
+            pins: std::sync::Mutex::new(vec![f64::NAN; n]),
+        }
+    }
+
+    /// Changes the angles in place (`write` sees the current ones).
+    pub fn write(&self, write: impl FnOnce(&mut [f64])) {
+        let mut pins = self.pins.lock().unwrap_or_else(|p| p.into_inner());
+        write(&mut pins);
+        self.version.fetch_add(1, Ordering::Release);
+    }
+
+    /// Copies the angles into `out` if they changed since version `seen` (updated);
+    /// returns whether they did.
+    pub fn read_if_newer(&self, seen: &mut u64, out: &mut [f64]) -> bool {
+        let v = self.version.load(Ordering::Acquire);
+        if v == *seen {
+            return false;
+        }
+        let pins = self.pins.lock().unwrap_or_else(|p| p.into_inner());
+        let n = out.len().min(pins.len());
+        out[..n].copy_from_slice(&pins[..n]);
+        *seen = v;
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,5 +1,6 @@
 //! Input sources that feed marker samples into the daemon's bounded channel.
 
+pub mod glove;
 pub mod natnet;
 pub mod osc;
 pub mod synthetic;
@@ -204,12 +205,15 @@ pub enum InputUrl {
         device: String,
         addr: std::net::SocketAddr,
     },
+    /// `glove:///dev/ttyUSB0[?baud=115200&format=alpha|legacy&max=4095]`: a serial data
+    /// glove (8N1; 115200 baud, the alpha encoding and a 4095 full scale by default).
+    Glove(glove::GlovePort),
 }
 
 /// Parses an input URL, saying what is wrong.
 pub fn parse_url(url: &str) -> Result<InputUrl, String> {
     let (scheme, rest) = url.split_once("://").ok_or_else(|| {
-        format!("{url:?} is not a URL (expected osc://, vmc:// or natnet://HOST:PORT)")
+        format!("{url:?} is not a URL (expected osc://, vmc://, natnet://HOST:PORT, vrpn://DEVICE@tcp://HOST:PORT or glove:///PORT)")
     })?;
     let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
     let addr = rest.trim_end_matches('/').parse().map_err(|_| {
@@ -259,9 +263,47 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
                 )),
             }
         }
-        "glove" => Err(format!("{url:?}: {scheme} inputs are not supported yet")),
+        "glove" => {
+            use crate::protocol::glove::{GloveFormat, DEFAULT_MAX_VALUE};
+            if rest.is_empty() {
+                return Err(format!(
+                    "{url:?}: no port path (e.g. glove:///dev/ttyUSB0?baud=115200&format=alpha)"
+                ));
+            }
+            let mut port = glove::GlovePort {
+                path: rest.into(),
+                baud: 115_200,
+                format: GloveFormat::Alpha,
+                max_value: DEFAULT_MAX_VALUE,
+            };
+            for kv in query.split('&').filter(|s| !s.is_empty()) {
+                match kv.split_once('=') {
+                    Some(("baud", v)) => {
+                        port.baud = v.parse().ok().filter(|&b| b > 0).ok_or_else(|| {
+                            format!("{url:?}: baud {v:?} is not a positive whole number")
+                        })?
+                    }
+                    Some(("format", "alpha")) => port.format = GloveFormat::Alpha,
+                    Some(("format", "legacy")) => port.format = GloveFormat::Legacy,
+                    Some(("format", v)) => {
+                        return Err(format!("{url:?}: format {v:?} is not alpha or legacy"))
+                    }
+                    Some(("max", v)) => {
+                        port.max_value = v.parse().ok().filter(|&m| m > 0).ok_or_else(|| {
+                            format!("{url:?}: max {v:?} is not a positive whole number")
+                        })?
+                    }
+                    _ => {
+                        return Err(format!(
+                            "{url:?}: unknown option {kv:?} (expected baud=, format= or max=)"
+                        ))
+                    }
+                }
+            }
+            Ok(InputUrl::Glove(port))
+        }
         other => Err(format!(
-            "{url:?}: unknown scheme {other:?} (expected osc, vmc, natnet or vrpn)"
+            "{url:?}: unknown scheme {other:?} (expected osc, vmc, natnet, vrpn or glove)"
         )),
     }
 }
@@ -298,5 +340,27 @@ mod tests {
             .unwrap_err()
             .contains("HOST:PORT"));
         assert!(parse_url("ftp://x").unwrap_err().contains("unknown scheme"));
+        assert_eq!(
+            parse_url("glove:///dev/ttyUSB0?baud=9600&format=legacy&max=1023"),
+            Ok(InputUrl::Glove(glove::GlovePort {
+                path: "/dev/ttyUSB0".into(),
+                baud: 9600,
+                format: crate::protocol::glove::GloveFormat::Legacy,
+                max_value: 1023,
+            }))
+        );
+        assert_eq!(
+            parse_url("glove:///dev/ttyACM1"),
+            Ok(InputUrl::Glove(glove::GlovePort {
+                path: "/dev/ttyACM1".into(),
+                baud: 115_200,
+                format: crate::protocol::glove::GloveFormat::Alpha,
+                max_value: 4095,
+            }))
+        );
+        assert!(parse_url("glove:///dev/x?format=beta")
+            .unwrap_err()
+            .contains("not alpha or legacy"));
+        assert!(parse_url("glove://").unwrap_err().contains("no port path"));
     }
 }

@@ -35,6 +35,10 @@ impl Target {
             InputUrl::Osc(a) => Ok(Target::Osc(*a)),
             InputUrl::Vmc(a) => Ok(Target::Vmc(*a)),
             InputUrl::NatNet(..) => Err("replay to natnet:// is not supported yet".into()),
+            InputUrl::Glove(_) => Err(
+                "a recording holds markers, not glove readings: it cannot replay to glove://"
+                    .into(),
+            ),
             InputUrl::VrpnTcp { device, addr } => Ok(Target::Vrpn {
                 device: device.clone(),
                 bind: *addr,

@@ -91,6 +91,10 @@ pub struct Solver {
     ik_targets: Vec<DVec3>,
     /// Each marker's last target in its joint's frame (rest offset until first seen).
     held_local: Vec<DVec3>,
+    /// Joint angles imposed after the marker fit, one per posture parameter (radians,
+    /// NaN: free; see [`Self::set_pins`]).
+    pins: Vec<f64>,
+    any_pin: bool,
 }
 
 impl Solver {
@@ -102,6 +106,7 @@ impl Solver {
         let green_scratch = rig.green.scratch();
         let nm = rig.n_markers;
         let held_local = rig.ik.marker_offsets().to_vec();
+        let rig_params = rig.ik.n_params();
         Self {
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
@@ -114,6 +119,8 @@ impl Solver {
             green_scratch,
             ik_targets: vec![DVec3::ZERO; nm],
             held_local,
+            pins: vec![f64::NAN; rig_params],
+            any_pin: false,
         }
     }
 
@@ -129,6 +136,17 @@ impl Solver {
     /// The fitted posture: world rotation and position of every joint.
     pub fn joint_world(&self) -> (&[DQuat], &[DVec3]) {
         (&self.ik.world_rot, &self.ik.world_pos)
+    }
+
+    /// Joint angles that override the marker fit from the next frame on: one entry per
+    /// posture parameter (see [`crate::solve::ik::IkModel::angle_params`]), radians, NaN
+    /// where the fit decides. The angles are clamped to the joint limits; the skeleton
+    /// samples then carry the pinned joints' positions to the control mesh (the paper's
+    /// skeleton joints as control inputs). Entries beyond the parameter count are ignored.
+    pub fn set_pins(&mut self, pins: &[f64]) {
+        let n = pins.len().min(self.pins.len());
+        self.pins[..n].copy_from_slice(&pins[..n]);
+        self.any_pin = self.pins.iter().any(|v| v.is_finite());
     }
 
     /// Forgets the previous frame (cold start at the rest pose).
@@ -176,6 +194,9 @@ impl Solver {
         } else {
             IkReport::default()
         };
+        if self.any_pin {
+            rig.ik.pin(&mut self.ik, &self.pins);
+        }
         let t_ik = Instant::now();
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {

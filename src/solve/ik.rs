@@ -404,6 +404,27 @@ impl IkModel {
         &self.marker_offset
     }
 
+    /// The first of joint `j`'s three parameters `(twist, bend, side)`, radians; `None`
+    /// for roots and leaves (no angles).
+    pub fn angle_params(&self, j: usize) -> Option<usize> {
+        match self.dofs.get(j)? {
+            Dofs::Angles { first } => Some(*first),
+            _ => None,
+        }
+    }
+
+    /// Imposes the finite entries of `pins` (one per parameter, radians; NaN: free) on the
+    /// posture, clamped to the joint limits, and recomputes its forward kinematics. The
+    /// joints a data glove drives take their angles this way after the marker fit.
+    pub fn pin(&self, st: &mut IkState, pins: &[f64]) {
+        for (i, &v) in pins.iter().enumerate().take(self.n_params) {
+            if v.is_finite() {
+                st.angles[i] = v.clamp(self.lo[i], self.hi[i]);
+            }
+        }
+        self.refresh(st);
+    }
+
     /// Marks the start of a new frame: the current posture becomes the prior's centre.
     pub fn begin_frame(&self, st: &mut IkState) {
         st.prev_angles.copy_from_slice(&st.angles);
