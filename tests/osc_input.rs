@@ -205,3 +205,84 @@ fn the_daemon_solves_what_a_real_osc_sender_sends() {
     let (_, lines) = daemon.finish();
     assert!(lines.iter().any(|l| l.starts_with("done (")), "{lines:?}");
 }
+
+/// liblo's `oscsend` (Debian's liblo-tools, which `.ci/run` installs), one message per
+/// run as a stage's existing sender would send it: `/marker/NAME fff` and
+/// `/mocap/NAME fff`, read by `rigless listen` with their values.
+#[test]
+fn listen_decodes_what_liblo_oscsend_sends() {
+    let have = Command::new("oscsend")
+        .output()
+        .is_ok_and(|o| !o.stderr.is_empty() || !o.stdout.is_empty());
+    assert!(
+        have,
+        "liblo's oscsend is missing: apt-get install liblo-tools (.ci/run does)"
+    );
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let sends: Vec<(String, [f32; 3])> = (0..20)
+        .map(|i| {
+            let name = if i % 2 == 0 {
+                "/marker/LFHD"
+            } else {
+                "/mocap/RWRA"
+            };
+            let f = i as f32;
+            (name.to_owned(), [0.125 * f, -1.5 + f, 1e-3 * f])
+        })
+        .collect();
+    let mut listen = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args([
+            "listen",
+            &format!("osc://127.0.0.1:{port}"),
+            "--json",
+            "--packets",
+            &sends.len().to_string(),
+            "--seconds",
+            "30",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(listen.stderr.take().unwrap());
+    let mut first = String::new();
+    err.read_line(&mut first).unwrap();
+    assert!(first.starts_with("listening on"), "{first}");
+    for (addr, p) in &sends {
+        let out = Command::new("oscsend")
+            .args(["127.0.0.1", &port.to_string(), addr, "fff"])
+            .args(p.map(|v| v.to_string()))
+            .output()
+            .expect("run oscsend");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // Loopback keeps order; the pause only keeps the processes apart.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let out = listen.wait_with_output().unwrap();
+    let lines: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), sends.len());
+    for (l, (addr, p)) in lines.iter().zip(&sends) {
+        let ms = l["markers"].as_array().unwrap();
+        assert_eq!(ms.len(), 1);
+        assert_eq!(ms[0]["name"], addr.rsplit('/').next().unwrap());
+        // A lone message has no time tag.
+        assert!(l["source_time_s"].is_null());
+        let got: Vec<f64> = serde_json::from_value(ms[0]["position_m"].clone()).unwrap();
+        // f32 on the wire: exact once narrowed back (JSON may round the widened value's
+        // last bit).
+        let got: Vec<f32> = got.iter().map(|&v| v as f32).collect();
+        assert_eq!(got, p.to_vec());
+    }
+}
