@@ -118,8 +118,9 @@ pub enum InputConfig {
     /// `url = "natnet://239.255.42.99:1511"` (a multicast group is joined) or a unicast
     /// data port; `?version=4.1` for newer servers. Markers are named `SET_1`, `SET_2`...
     NatNet(NatNetInputConfig),
-    /// A VRPN tracker over TCP (`url = "vrpn://Tracker0@tcp://127.0.0.1:3883"`). Each
-    /// sensor is a marker named `DEVICE_SENSOR`, or as `sensors` maps it.
+    /// A VRPN tracker (`url = "vrpn://Tracker0@127.0.0.1"` for the UDP connection mode,
+    /// `"vrpn://Tracker0@tcp://127.0.0.1:3883"` for TCP only). Each sensor is a marker
+    /// named `DEVICE_SENSOR`, or as `sensors` maps it.
     Vrpn(VrpnInputConfig),
     /// A serial data glove (`protocols/glove.md`):
     /// `url = "glove:///dev/ttyUSB0?baud=115200&format=alpha"`. Its curls pose the hand's
@@ -174,7 +175,7 @@ impl GloveInputConfig {
 #[derive(Clone, Debug, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VrpnInputConfig {
-    /// `vrpn://DEVICE@tcp://HOST:PORT`.
+    /// `vrpn://DEVICE@HOST[:PORT]` or `vrpn://DEVICE@tcp://HOST:PORT`.
     pub url: String,
     /// Marker name per sensor number, e.g. `{ "0" = "LFHD", "1" = "RFHD" }`.
     #[serde(default)]
@@ -575,7 +576,7 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         match input {
             InputConfig::Vrpn(v) => {
                 match crate::input::parse_url(&v.url) {
-                    Ok(crate::input::InputUrl::VrpnTcp { .. }) => {}
+                    Ok(crate::input::InputUrl::Vrpn { .. }) => {}
                     Ok(_) => problems.push(lines.at(
                         &format!("{at}.url"),
                         format!("{:?} is not a vrpn:// URL", v.url),

@@ -18,7 +18,7 @@ use rigless::input::natnet::{
 use rigless::input::osc::{bind as osc_bind, run as run_osc, OscStats};
 use rigless::input::send_samples;
 use rigless::input::synthetic::{play, SyntheticParams, SyntheticSession};
-use rigless::input::vrpn::{run as run_vrpn, sensor_name as vrpn_sensor_name, VrpnStats};
+use rigless::input::vrpn::{run_mode as run_vrpn, sensor_name as vrpn_sensor_name, VrpnStats};
 use rigless::input::SourceCounters;
 use rigless::input::{parse_url, InputUrl};
 use rigless::markers::buffer::MarkerBuffer;
@@ -227,7 +227,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                 )?);
             }
             InputConfig::Vrpn(v) => {
-                let InputUrl::VrpnTcp { device, addr } =
+                let InputUrl::Vrpn { device, addr, mode } =
                     parse_url(&v.url).map_err(anyhow::Error::msg)?
                 else {
                     anyhow::bail!("{}: not a vrpn:// URL", v.url);
@@ -246,7 +246,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                         .name("vrpn".into())
                         .spawn(move || {
                             let stats = VrpnStats::default();
-                            run_vrpn(addr, &device, &stop, &stats, &mut |_, source, r| {
+                            run_vrpn(mode, addr, &device, &stop, &stats, &mut |_, source, r| {
                                 let k = *by_sensor.entry(r.sensor).or_insert_with(|| {
                                     let name = sensors
                                         .get(&r.sensor.to_string())
@@ -314,7 +314,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             }
             InputConfig::Osc(o) => {
                 let (addr, mapping) = match parse_url(&o.url).map_err(anyhow::Error::msg)? {
-                    InputUrl::NatNet(..) | InputUrl::VrpnTcp { .. } | InputUrl::Glove(_) => {
+                    InputUrl::NatNet(..) | InputUrl::Vrpn { .. } | InputUrl::Glove(_) => {
                         anyhow::bail!("{}: not an osc:// or vmc:// URL", o.url)
                     }
                     InputUrl::Osc(a) => (

@@ -102,7 +102,9 @@ enum Command {
     /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
     /// patterns, and VMC), vmc://HOST:PORT (VMC only), natnet://HOST:PORT[?version=M.m]
     /// (binds the data port; a multicast address joins the group),
-    /// vrpn://DEVICE@tcp://HOST:PORT (connects; one marker DEVICE_SENSOR per sensor),
+    /// vrpn://DEVICE@HOST[:PORT] (UDP connection mode: the server calls back and sends
+    /// reports over UDP; port 3883 by default) or vrpn://DEVICE@tcp://HOST:PORT (connects;
+    /// one marker DEVICE_SENSOR per sensor),
     /// glove:///dev/ttyUSB0[?baud=115200&format=alpha|legacy&max=4095] (a serial data
     /// glove, reopened when replugged; one line per glove line: curls, splay, joystick and
     /// buttons as fractions of full scale, and the procedural hand's finger joints posed
@@ -131,7 +133,8 @@ enum Command {
     /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
     /// timing: to an OSC receiver in the native schema (osc://HOST:PORT), to a VMC
     /// receiver (vmc://HOST:PORT, markers as trackers), or as a VRPN tracker server
-    /// (vrpn://DEVICE@tcp://HOST:PORT binds there; each marker a sensor, in label order).
+    /// (vrpn://DEVICE@HOST:PORT binds TCP and UDP there and serves clients in both VRPN
+    /// connection modes; each marker a sensor, in label order).
     /// Prints the send-time jitter against the file's clock at the end.
     Replay {
         /// The recording.
@@ -382,7 +385,7 @@ fn real_main() -> Result<()> {
             }
             let target = target.expect("checked above");
             if let Target::Vrpn { device, bind } = &target {
-                eprintln!("serving {device} as a VRPN tracker on tcp://{bind} (clients: {device}@tcp://{bind})");
+                eprintln!("serving {device} as a VRPN tracker on TCP and UDP {bind} (clients: {device}@{bind} or {device}@tcp://{bind})");
             }
             let rec = rigless::replay::recording::Recording::load_with(&file, bvh_scale)?;
             let subset: Option<Vec<String>> =
@@ -1164,28 +1167,44 @@ fn listen(
             });
             stats.to_string()
         }
-        InputUrl::VrpnTcp { device, addr } => {
-            use rigless::input::vrpn::{run, sensor_name, VrpnStats};
-            eprintln!("connecting to {addr} for {device} (reconnects by itself); Ctrl-C stops");
+        InputUrl::Vrpn { device, addr, mode } => {
+            use rigless::input::vrpn::{run_mode, sensor_name, VrpnMode, VrpnStats};
+            match mode {
+                VrpnMode::Tcp => eprintln!(
+                    "connecting to {addr} for {device} (reconnects by itself); Ctrl-C stops"
+                ),
+                VrpnMode::Udp => eprintln!(
+                    "asking {addr} (UDP) to call back for {device} (asks again after a drop); Ctrl-C stops"
+                ),
+            }
             let stats = VrpnStats::default();
-            run(addr, &device, &stop, &stats, &mut |recv, source, r| {
-                let name = sensor_name(&device, r.sensor);
-                print(
-                    recv,
-                    Some(source),
-                    None,
-                    &[(name.as_str(), r.position, false)],
-                    None,
-                )
-            });
+            run_mode(
+                mode,
+                addr,
+                &device,
+                &stop,
+                &stats,
+                &mut |recv, source, r| {
+                    let name = sensor_name(&device, r.sensor);
+                    print(
+                        recv,
+                        Some(source),
+                        None,
+                        &[(name.as_str(), r.position, false)],
+                        None,
+                    )
+                },
+            );
             format!(
-                "{} connections, {} messages, {} bytes, {} reports, {} pings answered, {} errors",
+                "{} connections, {} messages, {} bytes, {} reports, {} pings answered, {} errors, {} datagrams ({} bad)",
                 stats.connections.load(Ordering::Relaxed),
                 stats.messages.load(Ordering::Relaxed),
                 stats.bytes.load(Ordering::Relaxed),
                 stats.reports.load(Ordering::Relaxed),
                 stats.pings_answered.load(Ordering::Relaxed),
-                stats.errors.load(Ordering::Relaxed)
+                stats.errors.load(Ordering::Relaxed),
+                stats.datagrams.load(Ordering::Relaxed),
+                stats.bad_datagrams.load(Ordering::Relaxed)
             )
         }
         InputUrl::Glove(port) => {

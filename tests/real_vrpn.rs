@@ -179,3 +179,103 @@ fn the_tcp_client_reads_a_replayed_real_session() {
     assert_eq!(names.sender(0), Some("Spin0"));
     assert_eq!(names.kind(2), Some(POS_QUAT));
 }
+
+/// The UDP connection mode with the real session's bytes: a loopback server that acts as
+/// `vrpn_server` does (takes the client's connection request on its UDP port, calls back
+/// over TCP, sends the cookie and descriptions there, and the rest of the capture as
+/// datagrams of whole messages to the UDP port the client described).
+#[test]
+fn the_udp_mode_client_reads_a_real_session_sent_as_datagrams() {
+    use rigless::input::vrpn::{run_udp, VrpnStats};
+    use rigless::protocol::vrpn::{
+        datagrams, parse_connection_request, parse_udp_description, UDP_DESCRIPTION,
+    };
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
+        return;
+    };
+    let expected: Vec<rigless::protocol::vrpn::PosQuat> = walk(&capture)
+        .reports
+        .into_iter()
+        .filter(|(s, _)| s == "Spin0")
+        .map(|(_, r)| r)
+        .collect();
+    // Split the capture: descriptions (negative types) for TCP, the rest for UDP.
+    let (mut tcp_part, mut udp_part) = (capture[..24].to_vec(), Vec::new());
+    let mut at = 24;
+    while let Ok(Some((m, n))) = decode_message(&capture[at..]) {
+        let bytes = &capture[at..at + n];
+        if m.kind < 0 {
+            tcp_part.extend_from_slice(bytes);
+        } else {
+            udp_part.extend_from_slice(bytes);
+        }
+        at += n;
+    }
+    let server_udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    server_udp
+        .set_read_timeout(Some(std::time::Duration::from_secs(5)))
+        .unwrap();
+    let addr = server_udp.local_addr().unwrap();
+    let server = std::thread::spawn(move || {
+        let mut req = [0u8; 256];
+        let (n, _) = server_udp
+            .recv_from(&mut req)
+            .expect("a connection request");
+        let back = parse_connection_request(&req[..n]).unwrap();
+        let mut s = std::net::TcpStream::connect(back).unwrap();
+        s.write_all(&tcp_part).unwrap();
+        s.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+            .unwrap();
+        // Read the client's cookie and messages until its UDP description.
+        let mut got = Vec::new();
+        let mut chunk = [0u8; 4096];
+        let dest = loop {
+            let n = s.read(&mut chunk).unwrap();
+            assert!(n > 0, "the client hung up before describing its UDP port");
+            got.extend_from_slice(&chunk[..n]);
+            let mut at = 24.min(got.len());
+            let mut dest = None;
+            while let Ok(Some((m, used))) = decode_message(&got[at..]) {
+                if m.kind == UDP_DESCRIPTION {
+                    dest = Some(parse_udp_description(&m).unwrap());
+                }
+                at += used;
+            }
+            if let Some(d) = dest {
+                break d;
+            }
+        };
+        let parts = datagrams(&udp_part, 1472);
+        for r in &parts {
+            server_udp.send_to(&udp_part[r.clone()], dest).unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        // Keep the connection until the client is done.
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        parts.len()
+    });
+    let stop = Arc::new(AtomicBool::new(false));
+    let stats = VrpnStats::default();
+    let mut got = Vec::new();
+    let started = std::time::Instant::now();
+    {
+        let stop2 = Arc::clone(&stop);
+        let n = expected.len();
+        run_udp(addr, "Spin0", &stop, &stats, &mut |_, _, r| {
+            got.push(*r);
+            if got.len() == n {
+                stop2.store(true, Ordering::Relaxed);
+            }
+        });
+    }
+    assert!(started.elapsed() < std::time::Duration::from_secs(10));
+    assert_eq!(got, expected, "every Spin0 report, in order, bit for bit");
+    let sent = server.join().unwrap();
+    assert_eq!(stats.datagrams.load(Ordering::Relaxed), sent as u64);
+    assert_eq!(stats.bad_datagrams.load(Ordering::Relaxed), 0);
+    assert_eq!(stats.connections.load(Ordering::Relaxed), 1);
+}

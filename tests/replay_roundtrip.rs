@@ -90,8 +90,19 @@ fn replay_to_osc_arrives_sample_by_sample() {
 }
 
 #[test]
-fn replay_as_a_vrpn_server_reaches_a_vrpn_client_sample_by_sample() {
-    use rigless::input::vrpn::{run as run_vrpn, VrpnStats};
+fn replay_as_a_vrpn_server_reaches_a_tcp_mode_vrpn_client_sample_by_sample() {
+    vrpn_round_trip(rigless::input::vrpn::VrpnMode::Tcp);
+}
+
+/// The UDP connection mode: the client asks over UDP, the server calls back, and the
+/// reports come as datagrams (loopback neither loses nor reorders them).
+#[test]
+fn replay_as_a_vrpn_server_reaches_a_udp_mode_vrpn_client_sample_by_sample() {
+    vrpn_round_trip(rigless::input::vrpn::VrpnMode::Udp);
+}
+
+fn vrpn_round_trip(mode: rigless::input::vrpn::VrpnMode) {
+    use rigless::input::vrpn::{run_mode, VrpnMode, VrpnStats};
     let rec =
         Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
     // A free port for the server (picked, then released: loopback only).
@@ -113,13 +124,13 @@ fn replay_as_a_vrpn_server_reaches_a_vrpn_client_sample_by_sample() {
         std::thread::spawn(move || {
             let stats = VrpnStats::default();
             let mut got = Vec::new();
-            run_vrpn(addr, "Hand", &stop, &stats, &mut |_, _, r| {
+            run_mode(mode, addr, "Hand", &stop, &stats, &mut |_, _, r| {
                 got.push(*r);
                 if got.len() == expected {
                     stop.store(true, Ordering::Relaxed);
                 }
             });
-            got
+            (got, stats)
         })
     };
     let opts = ReplayOptions {
@@ -132,14 +143,27 @@ fn replay_as_a_vrpn_server_reaches_a_vrpn_client_sample_by_sample() {
         device: "Hand".into(),
         bind: addr,
     };
-    // Start after a second so that the client (retrying every 0.5 s) is connected.
-    replay(&rec, target, &opts, &SystemClock::new(), 1.0, &never).unwrap();
+    // Start once the client is connected (TCP: it retries every 0.5 s) or has asked to
+    // be (UDP: it asks every second; the server calls back at its first frame).
+    let start_s = match mode {
+        VrpnMode::Tcp => 1.0,
+        VrpnMode::Udp => 2.5,
+    };
+    replay(&rec, target, &opts, &SystemClock::new(), start_s, &never).unwrap();
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
     while !client.is_finished() && std::time::Instant::now() < deadline {
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     stop.store(true, Ordering::Relaxed);
-    let got = client.join().unwrap();
+    let (got, stats) = client.join().unwrap();
+    if mode == VrpnMode::Udp {
+        // The first frames go over TCP, until the client's UDP description has arrived
+        // (a frame or three at 240 frames a second); the rest as datagrams of whole
+        // messages.
+        let datagrams = stats.datagrams.load(Ordering::Relaxed);
+        assert!(datagrams >= frames as u64 - 6, "{datagrams} datagrams");
+        assert_eq!(stats.bad_datagrams.load(Ordering::Relaxed), 0);
+    }
     // Every present sample, in order, exactly (VRPN carries f64).
     let want: Vec<(i32, glam::DVec3)> = rec.frames[..frames]
         .iter()
@@ -151,5 +175,11 @@ fn replay_as_a_vrpn_server_reaches_a_vrpn_client_sample_by_sample() {
         })
         .collect();
     let have: Vec<(i32, glam::DVec3)> = got.iter().map(|r| (r.sensor, r.position)).collect();
-    assert_eq!(have, want);
+    let first_diff = have.iter().zip(&want).position(|(a, b)| a != b);
+    assert!(
+        have.len() == want.len() && first_diff.is_none(),
+        "{} of {} samples, first difference at {first_diff:?}",
+        have.len(),
+        want.len()
+    );
 }

@@ -199,11 +199,13 @@ pub enum InputUrl {
     /// `natnet://HOST:PORT[?version=M.m]`: bind the data port (join the group when
     /// multicast); NatNet 3.0 unless the version says otherwise.
     NatNet(std::net::SocketAddr, crate::protocol::natnet::Version),
-    /// `vrpn://DEVICE@tcp://HOST:PORT`: connect to a VRPN server over TCP and read
-    /// DEVICE's tracker reports.
-    VrpnTcp {
+    /// `vrpn://DEVICE@tcp://HOST:PORT` (TCP connection mode) or
+    /// `vrpn://DEVICE@HOST[:PORT]` (UDP connection mode; port 3883 by default): a VRPN
+    /// server's DEVICE, whose tracker reports are read.
+    Vrpn {
         device: String,
         addr: std::net::SocketAddr,
+        mode: vrpn::VrpnMode,
     },
     /// `glove:///dev/ttyUSB0[?baud=115200&format=alpha|legacy&max=4095]`: a serial data
     /// glove (8N1; 115200 baud, the alpha encoding and a 4095 full scale by default).
@@ -246,22 +248,28 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
         }
         "vrpn" => {
             let (device, target) = rest.split_once('@').ok_or_else(|| {
-                format!("{url:?}: expected vrpn://DEVICE@tcp://HOST:PORT (e.g. vrpn://Tracker0@tcp://127.0.0.1:3883)")
+                format!("{url:?}: expected vrpn://DEVICE@HOST[:PORT] or vrpn://DEVICE@tcp://HOST:PORT (e.g. vrpn://Tracker0@127.0.0.1)")
             })?;
             if device.is_empty() {
                 return Err(format!("{url:?}: no device name before @"));
             }
-            match target.strip_prefix("tcp://") {
-                Some(hp) => Ok(InputUrl::VrpnTcp {
-                    device: device.to_owned(),
-                    addr: hp.trim_end_matches('/').parse().map_err(|_| {
-                        format!("{url:?}: {hp:?} is not HOST:PORT with a numeric host")
-                    })?,
-                }),
-                None => Err(format!(
-                    "{url:?}: the UDP connection mode (DEVICE@HOST[:PORT]) is not supported yet; use DEVICE@tcp://HOST:PORT"
-                )),
-            }
+            let (mode, hp) = match target.strip_prefix("tcp://") {
+                Some(hp) => (vrpn::VrpnMode::Tcp, hp.trim_end_matches('/')),
+                None => (vrpn::VrpnMode::Udp, target.trim_end_matches('/')),
+            };
+            let with_port = if hp.parse::<std::net::SocketAddr>().is_ok() {
+                hp.to_owned()
+            } else {
+                format!("{hp}:{}", vrpn::DEFAULT_PORT)
+            };
+            let addr = with_port
+                .parse()
+                .map_err(|_| format!("{url:?}: {hp:?} is not HOST[:PORT] with a numeric host"))?;
+            Ok(InputUrl::Vrpn {
+                device: device.to_owned(),
+                addr,
+                mode,
+            })
         }
         "glove" => {
             use crate::protocol::glove::{GloveFormat, DEFAULT_MAX_VALUE};
@@ -333,9 +341,25 @@ mod tests {
         assert!(parse_url("natnet://127.0.0.1:1511?version=2.9")
             .unwrap_err()
             .contains("3.x or 4.x"));
+        assert_eq!(
+            parse_url("vrpn://Tracker0@127.0.0.1"),
+            Ok(InputUrl::Vrpn {
+                device: "Tracker0".into(),
+                addr: "127.0.0.1:3883".parse().unwrap(),
+                mode: vrpn::VrpnMode::Udp,
+            })
+        );
+        assert_eq!(
+            parse_url("vrpn://Spin0@tcp://10.0.0.2:3884"),
+            Ok(InputUrl::Vrpn {
+                device: "Spin0".into(),
+                addr: "10.0.0.2:3884".parse().unwrap(),
+                mode: vrpn::VrpnMode::Tcp,
+            })
+        );
         assert!(parse_url("vrpn://Tracker0@localhost")
             .unwrap_err()
-            .contains("not supported yet"));
+            .contains("numeric host"));
         assert!(parse_url("osc://localhost")
             .unwrap_err()
             .contains("HOST:PORT"));

@@ -1,19 +1,39 @@
-//! The VRPN tracker input, TCP connection mode (`vrpn://DEVICE@tcp://HOST:PORT`):
-//! connects, exchanges cookies (checking the major version), describes this side's
-//! sender and types, reads the device's position reports, answers the server's pings,
-//! and reconnects after a drop. Each report becomes a marker named `DEVICE_SENSOR`
-//! (stage configs map those names to the character's markers).
+//! The VRPN tracker input, in both connection modes of VRPN 07.x:
+//!
+//! - TCP (`vrpn://DEVICE@tcp://HOST:PORT`): the client connects to the server.
+//! - UDP (`vrpn://DEVICE@HOST[:PORT]`): the client listens on a TCP port of its own and
+//!   sends `"IP PORT"` datagrams to the server's port until the server calls back; both
+//!   sides then describe a UDP port, and the server sends its low-latency messages (the
+//!   tracker reports) there as datagrams of whole messages.
+//!
+//! Either way the client exchanges cookies (checking the major version), describes this
+//! side's sender and types, reads the device's position reports, answers the server's
+//! pings, and reconnects after a drop. Each report becomes a marker named
+//! `DEVICE_SENSOR` (stage configs map those names to the character's markers).
 //!
 //! The codec is [`crate::protocol::vrpn`]; this module owns the socket.
 
 use crate::protocol::vrpn::{
-    cookie, decode_message, description_payload, encode_message, parse_cookie, parse_pos_quat,
-    Names, PosQuat, COOKIE_LEN, PING, PONG, POS_QUAT, SENDER_DESCRIPTION, TYPE_DESCRIPTION,
+    cookie, decode_message, description_payload, encode_connection_request, encode_message,
+    parse_cookie, parse_pos_quat, udp_description, Names, PosQuat, COOKIE_LEN, PING, PONG,
+    POS_QUAT, SENDER_DESCRIPTION, TYPE_DESCRIPTION, UDP_DESCRIPTION,
 };
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpStream};
+use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+/// VRPN servers' usual port (TCP and UDP).
+pub const DEFAULT_PORT: u16 = 3883;
+
+/// How a client reaches a VRPN server.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VrpnMode {
+    /// `DEVICE@tcp://HOST:PORT`: the client connects; everything over TCP.
+    Tcp,
+    /// `DEVICE@HOST[:PORT]`: the server calls back; reports over UDP.
+    Udp,
+}
 
 /// What a VRPN input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -25,6 +45,10 @@ pub struct VrpnStats {
     pub pings_answered: AtomicU64,
     /// Connection attempts that failed, and dropped or broken connections.
     pub errors: AtomicU64,
+    /// Datagrams received on the UDP port (UDP connection mode).
+    pub datagrams: AtomicU64,
+    /// Datagrams that did not hold whole, well-formed messages (dropped).
+    pub bad_datagrams: AtomicU64,
 }
 
 /// Wait between reconnection attempts.
@@ -44,10 +68,22 @@ fn unix_now() -> (f64, u32, u32) {
     (d.as_secs_f64(), d.as_secs() as u32, d.subsec_micros())
 }
 
-/// The descriptions this side sends after its cookie.
-fn hello(device: &str) -> Vec<u8> {
+/// How often a UDP-mode client repeats its connection request until called back.
+const REQUEST_INTERVAL: Duration = Duration::from_millis(1000);
+
+/// How long a UDP-mode session waits on its UDP port before looking at TCP again (TCP
+/// carries only descriptions and pings there: this is their latency).
+const UDP_WAIT: Duration = Duration::from_millis(2);
+
+/// The cookie and the descriptions this side sends first; in the UDP mode, with the
+/// UDP description of `udp_inbound` before them (VRPN's order).
+fn hello(device: &str, udp_inbound: Option<SocketAddr>) -> Vec<u8> {
     let mut out = cookie().to_vec();
     let (_, s, us) = unix_now();
+    if let Some(a) = udp_inbound {
+        let (port, payload) = udp_description(a);
+        encode_message(&mut out, s, us, port, UDP_DESCRIPTION, &payload);
+    }
     encode_message(
         &mut out,
         s,
@@ -69,74 +105,143 @@ fn hello(device: &str) -> Vec<u8> {
     out
 }
 
-/// Serves one connection until it drops or `stop` is set; returns whether to reconnect.
-fn session(
-    mut sock: TcpStream,
-    device: &str,
-    stop: &AtomicBool,
-    stats: &VrpnStats,
-    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
-) -> std::io::Result<()> {
-    sock.set_read_timeout(Some(POLL))?;
-    sock.set_nodelay(true)?;
-    sock.write_all(&hello(device))?;
-    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
-    let mut chunk = vec![0u8; 1 << 16];
-    let mut cookie_seen = false;
-    let mut names = Names::default();
-    while !stop.load(Ordering::Relaxed) {
-        match sock.read(&mut chunk) {
-            Ok(0) => return Ok(()),
-            Ok(n) => {
-                stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
-                buf.extend_from_slice(&chunk[..n]);
-            }
-            Err(e) if super::is_wait(&e) => continue,
-            Err(e) => return Err(e),
-        }
+fn invalid(e: crate::protocol::vrpn::VrpnError) -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::InvalidData, e)
+}
+
+/// The server's side of one connection as this client reads it: its names, and what to
+/// do with each message.
+struct Peer<'a> {
+    device: &'a str,
+    names: Names,
+    stats: &'a VrpnStats,
+}
+
+impl Peer<'_> {
+    /// Handles every whole message in `b`; returns the bytes used. Pongs go to `replies`.
+    fn handle(
+        &mut self,
+        b: &[u8],
+        replies: &mut Vec<u8>,
+        on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+    ) -> std::io::Result<usize> {
         let mut at = 0;
-        if !cookie_seen {
-            if buf.len() < COOKIE_LEN {
-                continue;
-            }
-            let c: &[u8; COOKIE_LEN] = buf[..COOKIE_LEN].try_into().expect("24 bytes");
-            parse_cookie(c).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
-            cookie_seen = true;
-            at = COOKIE_LEN;
-        }
-        let mut replies = Vec::new();
-        loop {
-            let msg = decode_message(&buf[at..])
-                .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
-            let Some((m, used)) = msg else { break };
+        while let Some((m, used)) = decode_message(&b[at..]).map_err(invalid)? {
             at += used;
-            stats.messages.fetch_add(1, Ordering::Relaxed);
-            if names
-                .observe(&m)
-                .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?
-            {
+            self.stats.messages.fetch_add(1, Ordering::Relaxed);
+            if self.names.observe(&m).map_err(invalid)? {
                 continue;
             }
-            let from_device = names.sender(m.sender) == Some(device);
-            match names.kind(m.kind) {
+            let from_device = self.names.sender(m.sender) == Some(self.device);
+            match self.names.kind(m.kind) {
                 Some(POS_QUAT) if from_device => {
                     if let Some(r) = parse_pos_quat(m.payload) {
-                        stats.reports.fetch_add(1, Ordering::Relaxed);
+                        self.stats.reports.fetch_add(1, Ordering::Relaxed);
                         let source_s = m.seconds as f64 + m.microseconds as f64 * 1e-6;
                         on_report(unix_now().0, source_s, &r);
                     }
                 }
                 Some(PING) if from_device => {
                     let (_, s, us) = unix_now();
-                    encode_message(&mut replies, s, us, OUR_SENDER, OUR_PONG, &[]);
-                    stats.pings_answered.fetch_add(1, Ordering::Relaxed);
+                    encode_message(replies, s, us, OUR_SENDER, OUR_PONG, &[]);
+                    self.stats.pings_answered.fetch_add(1, Ordering::Relaxed);
                 }
                 _ => {}
             }
         }
-        buf.drain(..at);
+        Ok(at)
+    }
+}
+
+/// Serves one connection until it drops or `stop` is set. With `udp` (the UDP
+/// connection mode) datagrams on that socket are read too; each must hold whole
+/// messages.
+fn session(
+    mut sock: TcpStream,
+    udp: Option<&UdpSocket>,
+    device: &str,
+    stop: &AtomicBool,
+    stats: &VrpnStats,
+    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+) -> std::io::Result<()> {
+    sock.set_nodelay(true)?;
+    sock.write_all(&hello(device, udp.map(|u| u.local_addr()).transpose()?))?;
+    match udp {
+        // TCP is only polled; the UDP port is where reports arrive and where we wait.
+        Some(u) => {
+            sock.set_nonblocking(true)?;
+            u.set_read_timeout(Some(UDP_WAIT))?;
+        }
+        None => sock.set_read_timeout(Some(POLL))?,
+    }
+    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
+    let mut chunk = vec![0u8; 1 << 16];
+    let mut cookie_seen = false;
+    let mut peer = Peer {
+        device,
+        names: Names::default(),
+        stats,
+    };
+    let mut replies = Vec::new();
+    let mut datagram = vec![0u8; 1 << 16];
+    while !stop.load(Ordering::Relaxed) {
+        replies.clear();
+        // Wait on the UDP port (UDP mode) or on TCP.
+        let mut got_datagram = None;
+        if let Some(u) = udp {
+            match u.recv(&mut datagram) {
+                Ok(n) => {
+                    stats.datagrams.fetch_add(1, Ordering::Relaxed);
+                    stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
+                    got_datagram = Some(n);
+                }
+                Err(e) if super::is_wait(&e) => {}
+                // ICMP from an earlier send and the like: the datagram is lost.
+                Err(e) => tracing::debug!(error = %e, "vrpn: udp receive"),
+            }
+        }
+        // TCP first: the descriptions a datagram's messages refer to came that way.
+        let mut tcp_progress = false;
+        match sock.read(&mut chunk) {
+            Ok(0) => return Ok(()),
+            Ok(n) => {
+                stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
+                buf.extend_from_slice(&chunk[..n]);
+                tcp_progress = true;
+            }
+            Err(e) if super::is_wait(&e) => {}
+            Err(e) => return Err(e),
+        }
+        if tcp_progress {
+            let mut at = 0;
+            if !cookie_seen && buf.len() >= COOKIE_LEN {
+                let c: &[u8; COOKIE_LEN] = buf[..COOKIE_LEN].try_into().expect("24 bytes");
+                parse_cookie(c).map_err(invalid)?;
+                cookie_seen = true;
+                at = COOKIE_LEN;
+            }
+            if cookie_seen {
+                at += peer.handle(&buf[at..], &mut replies, on_report)?;
+                buf.drain(..at);
+            }
+        }
+        if let Some(n) = got_datagram {
+            // A datagram holds whole messages; one that does not costs only itself.
+            match peer.handle(&datagram[..n], &mut replies, on_report) {
+                Ok(used) if used == n => {}
+                _ => {
+                    stats.bad_datagrams.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
         if !replies.is_empty() {
-            sock.write_all(&replies)?;
+            if udp.is_some() {
+                sock.set_nonblocking(false)?;
+                sock.write_all(&replies)?;
+                sock.set_nonblocking(true)?;
+            } else {
+                sock.write_all(&replies)?;
+            }
         }
     }
     Ok(())
@@ -156,7 +261,7 @@ pub fn run(
         match TcpStream::connect_timeout(&addr, Duration::from_secs(2)) {
             Ok(sock) => {
                 stats.connections.fetch_add(1, Ordering::Relaxed);
-                if let Err(e) = session(sock, device, stop, stats, on_report) {
+                if let Err(e) = session(sock, None, device, stop, stats, on_report) {
                     tracing::debug!(error = %e, "vrpn: connection lost");
                     stats.errors.fetch_add(1, Ordering::Relaxed);
                 }
@@ -171,6 +276,96 @@ pub fn run(
             std::thread::sleep(POLL.min(RECONNECT));
         }
     }
+}
+
+/// [`run`] or [`run_udp`], as `mode` says.
+pub fn run_mode(
+    mode: VrpnMode,
+    addr: SocketAddr,
+    device: &str,
+    stop: &AtomicBool,
+    stats: &VrpnStats,
+    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+) {
+    match mode {
+        VrpnMode::Tcp => run(addr, device, stop, stats, on_report),
+        VrpnMode::Udp => run_udp(addr, device, stop, stats, on_report),
+    }
+}
+
+/// The UDP connection mode: asks the server at `server` (its UDP port, the same number
+/// as its TCP port) to call back, serves the connection it makes, and asks again after
+/// a drop, until `stop` is set. Reports arrive on this side's UDP port (or over TCP if
+/// the server prefers); `on_report` as for [`run`].
+pub fn run_udp(
+    server: SocketAddr,
+    device: &str,
+    stop: &AtomicBool,
+    stats: &VrpnStats,
+    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+) {
+    while !stop.load(Ordering::Relaxed) {
+        match call_back(server, stop, stats) {
+            Ok(Some((sock, udp))) => {
+                stats.connections.fetch_add(1, Ordering::Relaxed);
+                if let Err(e) = session(sock, Some(&udp), device, stop, stats, on_report) {
+                    tracing::debug!(error = %e, "vrpn: connection lost");
+                    stats.errors.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Ok(None) => {}
+            Err(e) => {
+                tracing::debug!(error = %e, "vrpn: cannot ask for a connection");
+                stats.errors.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let until = std::time::Instant::now() + RECONNECT;
+        while !stop.load(Ordering::Relaxed) && std::time::Instant::now() < until {
+            std::thread::sleep(POLL.min(RECONNECT));
+        }
+    }
+}
+
+/// Opens this side's TCP and UDP ports on the interface that reaches `server`, and sends
+/// connection requests every [`REQUEST_INTERVAL`] until the server connects (or `stop`).
+fn call_back(
+    server: SocketAddr,
+    stop: &AtomicBool,
+    stats: &VrpnStats,
+) -> std::io::Result<Option<(TcpStream, UdpSocket)>> {
+    let any: SocketAddr = if server.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+    };
+    // The local address a datagram to the server leaves from is the one it can call back.
+    let lob = UdpSocket::bind(any)?;
+    lob.connect(server)?;
+    let ip = lob.local_addr()?.ip();
+    let listener = TcpListener::bind((ip, 0))?;
+    listener.set_nonblocking(true)?;
+    let udp = UdpSocket::bind((ip, 0))?;
+    let request = encode_connection_request(listener.local_addr()?);
+    while !stop.load(Ordering::Relaxed) {
+        // A send can fail with the ICMP error of the one before (nobody was on the
+        // server's port yet): that consumes the error, so send once more.
+        if let Err(e) = lob.send(&request).or_else(|_| lob.send(&request)) {
+            tracing::debug!(error = %e, "vrpn: connection request");
+            stats.errors.fetch_add(1, Ordering::Relaxed);
+        }
+        let until = std::time::Instant::now() + REQUEST_INTERVAL;
+        while std::time::Instant::now() < until && !stop.load(Ordering::Relaxed) {
+            match listener.accept() {
+                Ok((sock, _)) => {
+                    sock.set_nonblocking(false)?;
+                    return Ok(Some((sock, udp)));
+                }
+                Err(e) if super::is_wait(&e) => std::thread::sleep(Duration::from_millis(10)),
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    Ok(None)
 }
 
 /// The marker name of a device's sensor.

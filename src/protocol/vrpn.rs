@@ -41,6 +41,10 @@ pub enum VrpnError {
     Length { len: u32 },
     #[error("description payload malformed")]
     Description,
+    #[error("connection request {text:?} is not \"IP PORT\" with a numeric IP")]
+    Request { text: String },
+    #[error("UDP description {text:?} (port {port}) is not a numeric IP and a port")]
+    UdpDescription { text: String, port: i32 },
 }
 
 /// The peer's VRPN version from its cookie.
@@ -149,6 +153,76 @@ pub fn parse_description(payload: &[u8]) -> Result<String, VrpnError> {
     Ok(String::from_utf8_lossy(name).into_owned())
 }
 
+/// Longest connection request accepted, bytes (VRPN's own buffer is 150).
+pub const MAX_REQUEST_LEN: usize = 150;
+
+/// The datagram a client in the UDP connection mode (`DEVICE@HOST[:PORT]`) sends to the
+/// server's port, asking to be called back over TCP: `"IP PORT"` and a NUL.
+pub fn encode_connection_request(callback: std::net::SocketAddr) -> Vec<u8> {
+    let mut b = format!("{} {}", callback.ip(), callback.port()).into_bytes();
+    b.push(0);
+    b
+}
+
+/// The TCP address a connection request asks the server to call back.
+pub fn parse_connection_request(b: &[u8]) -> Result<std::net::SocketAddr, VrpnError> {
+    let b = &b[..b.len().min(MAX_REQUEST_LEN)];
+    let text = b.split(|&c| c == 0).next().unwrap_or_default();
+    let text = String::from_utf8_lossy(text).into_owned();
+    let bad = || VrpnError::Request { text: text.clone() };
+    let (ip, port) = text.trim().split_once(' ').ok_or_else(bad)?;
+    let ip: std::net::IpAddr = ip.parse().map_err(|_| bad())?;
+    let port: u16 = port.trim().parse().map_err(|_| bad())?;
+    if port == 0 {
+        return Err(bad());
+    }
+    Ok(std::net::SocketAddr::new(ip, port))
+}
+
+/// The UDP description each side sends after its cookie (type [`UDP_DESCRIPTION`]): the
+/// header's `sender` field is the UDP port its low-latency messages should go to, the
+/// payload the IP as text with a NUL. Returns `(sender field, payload)`.
+pub fn udp_description(inbound: std::net::SocketAddr) -> (i32, Vec<u8>) {
+    let mut p = inbound.ip().to_string().into_bytes();
+    p.push(0);
+    (i32::from(inbound.port()), p)
+}
+
+/// Where a UDP description asks for low-latency messages to go.
+pub fn parse_udp_description(m: &Message) -> Result<std::net::SocketAddr, VrpnError> {
+    let text = m.payload.split(|&c| c == 0).next().unwrap_or_default();
+    let text = String::from_utf8_lossy(&text[..text.len().min(MAX_REQUEST_LEN)]).into_owned();
+    let bad = || VrpnError::UdpDescription {
+        text: text.clone(),
+        port: m.sender,
+    };
+    let ip: std::net::IpAddr = text.trim().parse().map_err(|_| bad())?;
+    let port = u16::try_from(m.sender)
+        .ok()
+        .filter(|&p| p != 0)
+        .ok_or_else(bad)?;
+    Ok(std::net::SocketAddr::new(ip, port))
+}
+
+/// Splits a run of whole messages into datagrams of at most `max_bytes` each (a message
+/// longer than that goes alone), as VRPN packs its low-latency messages: returns the
+/// byte ranges.
+pub fn datagrams(messages: &[u8], max_bytes: usize) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let (mut start, mut at) = (0, 0);
+    while let Ok(Some((_, used))) = decode_message(&messages[at..]) {
+        if at > start && at + used - start > max_bytes {
+            out.push(start..at);
+            start = at;
+        }
+        at += used;
+    }
+    if at > start {
+        out.push(start..at);
+    }
+    out
+}
+
 /// A tracker position report.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PosQuat {
@@ -220,6 +294,43 @@ mod tests {
     use proptest::prelude::*;
 
     #[test]
+    fn connection_requests_and_udp_descriptions_round_trip() {
+        let a: std::net::SocketAddr = "127.0.0.1:40123".parse().unwrap();
+        let req = encode_connection_request(a);
+        assert_eq!(req, b"127.0.0.1 40123\0");
+        assert_eq!(parse_connection_request(&req), Ok(a));
+        for bad in [
+            &b"127.0.0.1\0"[..],
+            b"host 1\0",
+            b"1.2.3.4 0\0",
+            b"1.2.3.4 x",
+            b"",
+        ] {
+            assert!(parse_connection_request(bad).is_err(), "{bad:?}");
+        }
+        let (port, payload) = udp_description(a);
+        let mut b = Vec::new();
+        encode_message(&mut b, 0, 0, port, UDP_DESCRIPTION, &payload);
+        let (m, _) = decode_message(&b).unwrap().unwrap();
+        assert_eq!(parse_udp_description(&m), Ok(a));
+    }
+
+    #[test]
+    fn datagrams_hold_whole_messages_up_to_the_limit() {
+        let mut b = Vec::new();
+        for k in 0..40 {
+            encode_message(&mut b, 0, 0, 0, 0, &[k as u8; 72]);
+        }
+        let parts = datagrams(&b, 1472);
+        // 96 bytes a message: 15 fit in 1,472.
+        assert_eq!(
+            parts.iter().map(|r| r.len()).collect::<Vec<_>>(),
+            [1440, 1440, 960]
+        );
+        assert_eq!(parts.last().unwrap().end, b.len());
+    }
+
+    #[test]
     fn messages_round_trip_with_padding() {
         let mut b = cookie().to_vec();
         encode_message(
@@ -259,9 +370,12 @@ mod tests {
             let mut at = 0;
             while let Ok(Some((m, n))) = decode_message(&b[at..]) {
                 let _ = names.observe(&m);
+                let _ = parse_udp_description(&m);
                 let _ = parse_pos_quat(m.payload);
                 at += n;
             }
+            let _ = parse_connection_request(&b);
+            let _ = datagrams(&b, 1472);
             if b.len() >= 24 {
                 let _ = parse_cookie(b[..24].try_into().unwrap());
             }

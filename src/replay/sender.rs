@@ -18,10 +18,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 pub enum Target {
     Osc(SocketAddr),
     Vmc(SocketAddr),
-    /// Act as a VRPN tracker server (TCP connection mode) named `device` on `bind`: each
-    /// marker is a sensor, in the recording's label order; unmodified VRPN clients
-    /// (`vrpn_print_devices DEVICE@tcp://HOST:PORT`) read it. Missing samples are not
-    /// sent (VRPN has no occlusion flag).
+    /// Act as a VRPN tracker server named `device` on `bind` (TCP and UDP, the same port
+    /// number, as VRPN servers do): each marker is a sensor, in the recording's label
+    /// order; unmodified VRPN clients read it in either connection mode
+    /// (`vrpn_print_devices DEVICE@tcp://HOST:PORT` or `DEVICE@HOST:PORT`, which asks for
+    /// a call back over UDP and then gets the reports as datagrams). Missing samples are
+    /// not sent (VRPN has no occlusion flag).
     Vrpn {
         device: String,
         bind: SocketAddr,
@@ -39,7 +41,7 @@ impl Target {
                 "a recording holds markers, not glove readings: it cannot replay to glove://"
                     .into(),
             ),
-            InputUrl::VrpnTcp { device, addr } => Ok(Target::Vrpn {
+            InputUrl::Vrpn { device, addr, .. } => Ok(Target::Vrpn {
                 device: device.clone(),
                 bind: *addr,
             }),
@@ -170,14 +172,92 @@ fn encode_vrpn(unix_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
     out
 }
 
+/// Largest datagram of low-latency messages sent to a UDP-mode VRPN client, bytes
+/// (Ethernet's MTU less the IP and UDP headers, as VRPN's own buffer).
+const VRPN_DATAGRAM_BYTES: usize = 1472;
+
+/// Cap on what a VRPN client may have sent us unread, bytes (it only ever sends a few
+/// descriptions).
+const VRPN_CLIENT_INBOX_BYTES: usize = 1 << 16;
+
+/// A VRPN client of the replay server.
+struct VrpnClient {
+    tcp: std::net::TcpStream,
+    /// Bytes received and not yet parsed.
+    inbox: Vec<u8>,
+    cookie_seen: bool,
+    /// Where its UDP description asks for low-latency messages to go.
+    udp_dest: Option<SocketAddr>,
+}
+
+impl VrpnClient {
+    /// Reads what the client sent without blocking and takes in its UDP description.
+    /// Returns false when the client is gone or misbehaves.
+    fn poll(&mut self) -> bool {
+        use crate::protocol::vrpn::{
+            decode_message, parse_cookie, parse_udp_description, COOKIE_LEN, UDP_DESCRIPTION,
+        };
+        use std::io::Read;
+        let mut chunk = [0u8; 4096];
+        if self.tcp.set_nonblocking(true).is_err() {
+            return false;
+        }
+        let alive = loop {
+            match self.tcp.read(&mut chunk) {
+                Ok(0) => break false,
+                Ok(n) if self.inbox.len() + n <= VRPN_CLIENT_INBOX_BYTES => {
+                    self.inbox.extend_from_slice(&chunk[..n])
+                }
+                Ok(_) => break false,
+                Err(e) => break crate::input::is_wait(&e),
+            }
+        };
+        if !alive || self.tcp.set_nonblocking(false).is_err() {
+            return false;
+        }
+        let mut at = 0;
+        if !self.cookie_seen {
+            if self.inbox.len() < COOKIE_LEN {
+                return true;
+            }
+            let c: &[u8; COOKIE_LEN] = self.inbox[..COOKIE_LEN].try_into().expect("24 bytes");
+            if parse_cookie(c).is_err() {
+                return false;
+            }
+            self.cookie_seen = true;
+            at = COOKIE_LEN;
+        }
+        loop {
+            match decode_message(&self.inbox[at..]) {
+                Ok(Some((m, used))) => {
+                    if m.kind == UDP_DESCRIPTION {
+                        match parse_udp_description(&m) {
+                            Ok(a) => self.udp_dest = Some(a),
+                            Err(_) => return false,
+                        }
+                    }
+                    at += used;
+                }
+                Ok(None) => break,
+                Err(_) => return false,
+            }
+        }
+        self.inbox.drain(..at);
+        true
+    }
+}
+
 /// Where the bytes go.
 enum Sink {
     Udp(UdpSocket, SocketAddr),
-    /// A VRPN server: new clients are accepted at every frame and greeted with the
-    /// cookie and the descriptions; a client that cannot keep up or hangs up is dropped.
+    /// A VRPN server: new clients (connecting over TCP, or asking over UDP to be called
+    /// back) are taken in at every frame and greeted with the cookie and the
+    /// descriptions; a client that cannot keep up or hangs up is dropped.
     Vrpn {
         listener: std::net::TcpListener,
-        clients: Vec<std::net::TcpStream>,
+        /// The server's UDP port: connection requests in, low-latency messages out.
+        udp: UdpSocket,
+        clients: Vec<VrpnClient>,
         greeting: Vec<u8>,
     },
 }
@@ -194,6 +274,9 @@ impl Sink {
             Target::Vrpn { device, bind } => {
                 let listener = std::net::TcpListener::bind(bind)?;
                 listener.set_nonblocking(true)?;
+                // The same port number for UDP (a bind to port 0 takes TCP's).
+                let udp = UdpSocket::bind(listener.local_addr()?)?;
+                udp.set_nonblocking(true)?;
                 let mut greeting = cookie().to_vec();
                 encode_message(
                     &mut greeting,
@@ -213,6 +296,7 @@ impl Sink {
                 );
                 Sink::Vrpn {
                     listener,
+                    udp,
                     clients: Vec::new(),
                     greeting,
                 }
@@ -227,19 +311,66 @@ impl Sink {
             Sink::Udp(sock, dest) => sock.send_to(bytes, *dest),
             Sink::Vrpn {
                 listener,
+                udp,
                 clients,
                 greeting,
             } => {
+                let mut fresh: Vec<std::net::TcpStream> = Vec::new();
                 while let Ok((c, _)) = listener.accept() {
-                    let _ = c.set_nodelay(true);
-                    let _ = c.set_write_timeout(Some(std::time::Duration::from_millis(100)));
-                    let mut c = c;
-                    if c.write_all(greeting).is_ok() {
-                        clients.push(c);
+                    fresh.push(c);
+                }
+                // UDP connection mode: "IP PORT" asks to be called back there.
+                let mut request = [0u8; 256];
+                while let Ok((n, _)) = udp.recv_from(&mut request) {
+                    let Ok(back) = crate::protocol::vrpn::parse_connection_request(&request[..n])
+                    else {
+                        continue;
+                    };
+                    // A client repeats its request until called back: once is enough.
+                    if clients.iter().any(|c| c.tcp.peer_addr().ok() == Some(back)) {
+                        continue;
+                    }
+                    if let Ok(c) = std::net::TcpStream::connect_timeout(
+                        &back,
+                        std::time::Duration::from_millis(200),
+                    ) {
+                        fresh.push(c);
                     }
                 }
-                clients.retain_mut(|c| c.write_all(bytes).is_ok());
-                Ok(bytes.len() * clients.len())
+                for mut c in fresh {
+                    let _ = c.set_nodelay(true);
+                    let _ = c.set_write_timeout(Some(std::time::Duration::from_millis(100)));
+                    if c.set_nonblocking(false).is_ok() && c.write_all(greeting).is_ok() {
+                        clients.push(VrpnClient {
+                            tcp: c,
+                            inbox: Vec::new(),
+                            cookie_seen: false,
+                            udp_dest: None,
+                        });
+                    }
+                }
+                let mut sent = 0;
+                clients.retain_mut(|c| {
+                    if !c.poll() {
+                        return false;
+                    }
+                    match c.udp_dest {
+                        Some(dest) => {
+                            for r in crate::protocol::vrpn::datagrams(bytes, VRPN_DATAGRAM_BYTES) {
+                                if let Ok(n) = udp.send_to(&bytes[r], dest) {
+                                    sent += n;
+                                }
+                            }
+                            true
+                        }
+                        None => {
+                            let ok = c.tcp.write_all(bytes).is_ok();
+                            sent += if ok { bytes.len() } else { 0 };
+                            ok
+                        }
+                    }
+                });
+                Ok(sent)
             }
         }
     }
