@@ -13,7 +13,7 @@ use rigless::daemon::slot::LatestSlot;
 use rigless::daemon::slot::PinSlot;
 use rigless::input::glove::{run as run_glove, GloveStats, HandMap};
 use rigless::input::natnet::{
-    bind as natnet_bind, markers_of as natnet_markers, run as run_natnet, NatNetStats,
+    bind as natnet_bind, markers_of as natnet_markers, run_input as run_natnet, NatNetStats,
 };
 use rigless::input::osc::{bind as osc_bind, run as run_osc, OscStats};
 use rigless::input::send_samples;
@@ -272,7 +272,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                 );
             }
             InputConfig::NatNet(n) => {
-                let InputUrl::NatNet(addr, version) =
+                let InputUrl::NatNet(addr, version, server) =
                     parse_url(&n.url).map_err(anyhow::Error::msg)?
                 else {
                     anyhow::bail!("{}: not a natnet:// URL", n.url);
@@ -288,27 +288,40 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                     move || {
                         let stats = NatNetStats::default();
                         let (mut named, mut batch) = (Vec::new(), Vec::new());
-                        run_natnet(&sock, version, &stop, &stats, &mut |_, f| {
-                            let t = clock.now_s();
-                            named.clear();
-                            natnet_markers(f, &mut named);
-                            batch.clear();
-                            for m in &named {
-                                if let Some(k) = index.get(&m.name) {
-                                    batch.push(MarkerSample {
-                                        marker: k,
-                                        time_s: t,
-                                        source_time_s: f.timestamp_s,
-                                        position_m: m.position_m,
-                                        occluded: m.occluded,
-                                    });
+                        let run = run_natnet(
+                            &sock,
+                            addr,
+                            version,
+                            server,
+                            &stop,
+                            &stats,
+                            &mut |_, f, names| {
+                                let t = clock.now_s();
+                                named.clear();
+                                natnet_markers(f, names, &mut named);
+                                batch.clear();
+                                for m in &named {
+                                    if let Some(k) = index.get(&m.name) {
+                                        batch.push(MarkerSample {
+                                            marker: k,
+                                            time_s: t,
+                                            source_time_s: f.timestamp_s,
+                                            position_m: m.position_m,
+                                            occluded: m.occluded,
+                                        });
+                                    }
                                 }
-                            }
-                            if !send_samples(&batch, &tx, &counters) {
-                                stop.store(true, Ordering::Relaxed);
-                            }
-                            counters.frames.fetch_add(1, Ordering::Relaxed);
-                        });
+                                if !send_samples(&batch, &tx, &counters) {
+                                    stop.store(true, Ordering::Relaxed);
+                                }
+                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                            },
+                        );
+                        if let Err(e) = run {
+                            tracing::error!(
+                                "natnet input {addr}: cannot open its command socket: {e}"
+                            );
+                        }
                     },
                 )?);
             }

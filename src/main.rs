@@ -100,8 +100,10 @@ enum Command {
     /// receive time, source time, and each marker's name, position in metres in the world
     /// frame (Y up) and flags. The first tool to run when a stage is set up. URLs:
     /// osc://HOST:PORT (binds it; native schema, /marker/{name} and /mocap/{name}
-    /// patterns, and VMC), vmc://HOST:PORT (VMC only), natnet://HOST:PORT[?version=M.m]
-    /// (binds the data port; a multicast address joins the group),
+    /// patterns, and VMC), vmc://HOST:PORT (VMC only),
+    /// natnet://HOST:PORT[?version=M.m&server=IP[:PORT]] (binds the data port; a multicast
+    /// address joins the group; with server=, connects to Motive's command port for its
+    /// version and marker names, and keeps a unicast stream alive),
     /// vrpn://DEVICE@HOST[:PORT] (UDP connection mode: the server calls back and sends
     /// reports over UDP; port 3883 by default) or vrpn://DEVICE@tcp://HOST:PORT (connects;
     /// one marker DEVICE_SENSOR per sensor),
@@ -1263,8 +1265,8 @@ fn listen(
             });
             stats.to_string()
         }
-        InputUrl::NatNet(addr, version) => {
-            use rigless::input::natnet::{bind, markers_of, run, NatNetStats};
+        InputUrl::NatNet(addr, version, server) => {
+            use rigless::input::natnet::{bind, markers_of, run_input, NatNetStats};
             let sock = bind(addr).with_context(|| format!("binding {addr}"))?;
             eprintln!(
                 "listening on {url} (bound {}, NatNet {}.{}); Ctrl-C stops",
@@ -1274,15 +1276,27 @@ fn listen(
             );
             let stats = NatNetStats::default();
             let mut named = Vec::new();
-            run(&sock, version, &stop, &stats, &mut |recv, f| {
-                named.clear();
-                markers_of(f, &mut named);
-                let ms: Vec<(&str, glam::DVec3, bool)> = named
-                    .iter()
-                    .map(|m| (m.name.as_str(), m.position_m, m.occluded))
-                    .collect();
-                print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms, None)
-            });
+            if let Some(server) = server {
+                eprintln!("talking to the NatNet server's command port {server}: version and marker names from it");
+            }
+            run_input(
+                &sock,
+                addr,
+                version,
+                server,
+                &stop,
+                &stats,
+                &mut |recv, f, names| {
+                    named.clear();
+                    markers_of(f, names, &mut named);
+                    let ms: Vec<(&str, glam::DVec3, bool)> = named
+                        .iter()
+                        .map(|m| (m.name.as_str(), m.position_m, m.occluded))
+                        .collect();
+                    print(recv, Some(f.timestamp_s), Some(f.frame as i64), &ms, None)
+                },
+            )
+            .with_context(|| format!("opening a command socket for {url}"))?;
             format!(
                 "{}; {} frames, {} other messages",
                 stats.packets,

@@ -144,7 +144,11 @@ fn listen_receives_every_packet_from_a_real_sender() {
     let mut first = String::new();
     err.read_line(&mut first).unwrap();
     assert!(first.starts_with("listening on"), "{first}");
-    let markers = hand_markers();
+    // The target: 50 markers a frame at 240 Hz (the hand's 8 and 42 more).
+    let mut markers = hand_markers();
+    for k in 0..42 {
+        markers.push((format!("M{k:02}"), [0.01 * k as f64, 1.0, -0.5]));
+    }
     send_hand(port, 240, &markers);
     let out = listen.wait_with_output().unwrap();
     let lines: Vec<serde_json::Value> = String::from_utf8(out.stdout)
@@ -152,12 +156,13 @@ fn listen_receives_every_packet_from_a_real_sender() {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    // One second at 240 Hz, 8 markers a packet, on loopback: nothing lost.
+    // One second at 240 Hz, 50 markers a packet, on loopback: nothing lost.
     assert_eq!(lines.len(), 240);
     for (i, l) in lines.iter().enumerate() {
         assert_eq!(l["frame"], i as i64);
         let ms = l["markers"].as_array().unwrap();
-        assert_eq!(ms.len(), 8);
+        assert_eq!(ms.len(), 50);
+        assert_eq!(ms[49]["name"], "M41");
         assert_eq!(ms[0]["name"], markers[0].0.as_str());
         let p: Vec<f64> = ms[0]["position_m"]
             .as_array()

@@ -2,7 +2,9 @@
 //! `../shared/data/natnet` (skipped, with the reason printed, when absent). Expected figures
 //! were read off the packets independently (a Python struct walk that consumed every byte).
 
-use rigless::protocol::natnet::{decode, Description, Message, Version};
+use rigless::protocol::natnet::{
+    decode, encode_connect, encode_request_modeldef, Description, Message, ServerInfo, Version,
+};
 
 mod common;
 
@@ -82,13 +84,25 @@ fn model_definitions_and_server_info() {
         );
     }
     if let Some(b) = packet("serverinfo_packet_v3.bin") {
+        // Motive 2.1 speaking NatNet 3.0, streaming to the default group on 1511.
         assert_eq!(
             decode(&b, V3).unwrap(),
-            Message::ServerInfo {
+            Message::ServerInfo(ServerInfo {
                 app: "Motive".into(),
-                natnet: Version(3, 0)
-            }
+                app_version: [2, 1, 0, 0],
+                natnet: Version(3, 0),
+                clock_hz: Some(3_312_787),
+                data_port: Some(1511),
+                multicast_group: Some(std::net::Ipv4Addr::new(239, 255, 42, 99)),
+            })
         );
+    }
+    // What a client sends, byte for byte as the NatNet SDK's client sent it.
+    if let Some(b) = packet("connect_packet_v3.bin") {
+        assert_eq!(encode_connect(V3), b);
+    }
+    if let Some(b) = packet("requestmodeldef_packet_v3.bin") {
+        assert_eq!(encode_request_modeldef().to_vec(), b);
     }
     for (name, id) in [
         ("echoresponse_packet_v3.bin", 13),
@@ -141,7 +155,7 @@ fn the_input_names_markers_and_receives_real_packets_on_loopback() {
     let mut frames = Vec::new();
     run(&sock, V3, &stop, &stats, &mut |_, f| {
         let mut named = Vec::new();
-        markers_of(f, &mut named);
+        markers_of(f, &Default::default(), &mut named);
         frames.push(named);
         if frames.len() == 2 {
             stop.store(true, Ordering::Relaxed);
@@ -169,4 +183,100 @@ fn the_input_names_markers_and_receives_real_packets_on_loopback() {
     // packet independently).
     let names: Vec<&str> = frames[1].iter().map(|m| m.name.as_str()).collect();
     assert_eq!(names, ["2_1", "2_2", "2_3", "2_4", "2_5", "0_50007"]);
+}
+
+/// The command port with Motive's real answers: a loopback server takes the client's
+/// connect request (byte for byte the NatNet SDK's), answers with the real server info
+/// and, asked, the real model definitions, then streams the real frame unicast to the
+/// client's data port while counting its keep-alives. The labelled markers of asset 2
+/// (the rigid body "RaceQuad") get the names of its marker set.
+#[test]
+fn the_command_port_names_markers_and_keeps_unicast_alive() {
+    use rigless::input::natnet::{bind, markers_of, run_input, NatNetStats};
+    use rigless::protocol::natnet::{NAT_KEEPALIVE, NAT_REQUEST_MODELDEF};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+    let (Some(info), Some(models), Some(frame)) = (
+        packet("serverinfo_packet_v3.bin"),
+        packet("modeldef_packet_v3.bin"),
+        packet("mocapframe_packet_v3.bin"),
+    ) else {
+        return;
+    };
+    let server = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    server
+        .set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    let server_addr = server.local_addr().unwrap();
+    let data_addr: std::net::SocketAddr = "127.0.0.1:0".parse().unwrap();
+    let data = bind(data_addr).unwrap();
+    let data_addr = data.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let client = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let stats = NatNetStats::default();
+            let mut frames: Vec<Vec<String>> = Vec::new();
+            run_input(
+                &data,
+                data_addr,
+                V3,
+                Some(server_addr),
+                &stop,
+                &stats,
+                &mut |_, f, names| {
+                    let mut named = Vec::new();
+                    markers_of(f, names, &mut named);
+                    frames.push(named.into_iter().map(|m| m.name).collect());
+                },
+            )
+            .unwrap();
+            frames
+        })
+    };
+    let (mut connects, mut model_requests, mut keepalives) = (0, 0, 0);
+    let mut buf = [0u8; 2048];
+    let end = Instant::now() + Duration::from_millis(3500);
+    let mut next_frame = Instant::now();
+    while Instant::now() < end {
+        if let Ok((n, from)) = server.recv_from(&mut buf) {
+            let id = u16::from_le_bytes([buf[0], buf[1]]);
+            if buf[..n] == encode_connect(V3)[..] {
+                connects += 1;
+                server.send_to(&info, from).unwrap();
+            } else if id == NAT_REQUEST_MODELDEF {
+                model_requests += 1;
+                server.send_to(&models, from).unwrap();
+            } else if id == NAT_KEEPALIVE {
+                keepalives += 1;
+            }
+        }
+        if connects > 0 && Instant::now() >= next_frame {
+            server.send_to(&frame, data_addr).unwrap();
+            next_frame += Duration::from_millis(50);
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    let frames = client.join().unwrap();
+    assert_eq!(
+        (connects, model_requests),
+        (1, 1),
+        "each asked once, answered at once"
+    );
+    // One a second once connected, over about 3.4 s.
+    assert!((2..=4).contains(&keepalives), "{keepalives} keep-alives");
+    assert!(frames.len() >= 40, "{} frames", frames.len());
+    let named: Vec<&str> = frames.last().unwrap().iter().map(String::as_str).collect();
+    assert_eq!(
+        named,
+        [
+            "RaceQuad:Marker1",
+            "RaceQuad:Marker2",
+            "RaceQuad:Marker3",
+            "RaceQuad:Marker4",
+            "RaceQuad:Marker5",
+            "0_50007"
+        ]
+    );
 }

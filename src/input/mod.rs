@@ -196,9 +196,15 @@ pub enum InputUrl {
     Osc(std::net::SocketAddr),
     /// `vmc://HOST:PORT`: bind, VMC only.
     Vmc(std::net::SocketAddr),
-    /// `natnet://HOST:PORT[?version=M.m]`: bind the data port (join the group when
-    /// multicast); NatNet 3.0 unless the version says otherwise.
-    NatNet(std::net::SocketAddr, crate::protocol::natnet::Version),
+    /// `natnet://HOST:PORT[?version=M.m&server=IP[:PORT]]`: bind the data port (join the
+    /// group when multicast); NatNet 3.0 unless the version says otherwise. With a
+    /// server, talk to its command port (1510 by default): connect, take its version and
+    /// model definitions, keep a unicast stream alive.
+    NatNet(
+        std::net::SocketAddr,
+        crate::protocol::natnet::Version,
+        Option<std::net::SocketAddr>,
+    ),
     /// `vrpn://DEVICE@tcp://HOST:PORT` (TCP connection mode) or
     /// `vrpn://DEVICE@HOST[:PORT]` (UDP connection mode; port 3883 by default): a VRPN
     /// server's DEVICE, whose tracker reports are read.
@@ -226,8 +232,19 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
         "vmc" => Ok(InputUrl::Vmc(addr?)),
         "natnet" => {
             let mut version = crate::protocol::natnet::Version(3, 0);
+            let mut server = None;
             for kv in query.split('&').filter(|s| !s.is_empty()) {
                 match kv.split_once('=') {
+                    Some(("server", v)) => {
+                        let with_port = if v.parse::<std::net::SocketAddr>().is_ok() {
+                            v.to_owned()
+                        } else {
+                            format!("{v}:{}", natnet::COMMAND_PORT)
+                        };
+                        server = Some(with_port.parse().map_err(|_| {
+                            format!("{url:?}: server {v:?} is not IP[:PORT] with a numeric IP")
+                        })?);
+                    }
                     Some(("version", v)) => {
                         let (a, b) = v.split_once('.').unwrap_or((v, "0"));
                         match (a.parse::<u8>(), b.parse::<u8>()) {
@@ -237,14 +254,12 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
                             _ => return Err(format!("{url:?}: version {v:?} is not 3.x or 4.x")),
                         }
                     }
-                    _ => {
-                        return Err(format!(
-                            "{url:?}: unknown option {kv:?} (expected version=M.m)"
-                        ))
-                    }
+                    _ => return Err(format!(
+                        "{url:?}: unknown option {kv:?} (expected version=M.m or server=IP[:PORT])"
+                    )),
                 }
             }
-            Ok(InputUrl::NatNet(addr?, version))
+            Ok(InputUrl::NatNet(addr?, version, server))
         }
         "vrpn" => {
             let (device, target) = rest.split_once('@').ok_or_else(|| {
@@ -335,7 +350,16 @@ mod tests {
             parse_url("natnet://239.255.42.99:1511?version=4.1"),
             Ok(InputUrl::NatNet(
                 "239.255.42.99:1511".parse().unwrap(),
-                Version(4, 1)
+                Version(4, 1),
+                None
+            ))
+        );
+        assert_eq!(
+            parse_url("natnet://127.0.0.1:1511?server=10.0.0.5"),
+            Ok(InputUrl::NatNet(
+                "127.0.0.1:1511".parse().unwrap(),
+                Version(3, 0),
+                Some("10.0.0.5:1510".parse().unwrap())
             ))
         );
         assert!(parse_url("natnet://127.0.0.1:1511?version=2.9")

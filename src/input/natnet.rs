@@ -1,17 +1,28 @@
 //! The NatNet input (OptiTrack Motive's data stream, UDP): binds the data port (joining the
 //! group when the address is multicast), decodes frames of mocap data with
-//! [`crate::protocol::natnet`], and hands each frame's markers to a callback.
+//! [`crate::protocol::natnet`], and hands each frame's markers to a callback. With the
+//! server's address it also talks to the command port ([`CommandClient`]): connects,
+//! learns the server's NatNet version, asks for the model definitions (marker names), and
+//! keeps a unicast stream alive.
 //!
-//! Marker names: a marker set's markers are `SET_1`, `SET_2`, ... in the set's order (the
-//! names Motive itself gives the members of its `all` set); the `all` set is skipped as a
-//! duplicate; a frame without marker sets names its labelled markers `ASSET_MEMBER`. A
-//! member is occluded when a labelled marker at its very position is flagged
-//! occluded (Motive repeats the member's position there).
+//! Marker names: with model definitions, a marker set's markers are `SET:NAME` and a
+//! labelled marker of a rigid body is `BODY:NAME` (its marker set's names, by member);
+//! without them a marker set's markers are `SET_1`, `SET_2`, ... in the set's order (the
+//! names Motive itself gives the members of its `all` set) and labelled markers
+//! `ASSET_MEMBER`. The `all` set is skipped as a duplicate; a frame without marker sets
+//! gives its labelled markers. A member is occluded when a labelled marker at its very
+//! position is flagged occluded (Motive repeats the member's position there).
 
-use crate::protocol::natnet::{decode, Message, MocapFrame, Version};
+use crate::protocol::natnet::{
+    decode, encode_connect, encode_keepalive, encode_request_modeldef, Description, Message,
+    MocapFrame, ServerInfo, Version,
+};
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+/// Motive's command port.
+pub const COMMAND_PORT: u16 = 1510;
 
 /// What a NatNet input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -31,16 +42,60 @@ pub struct NamedMarker {
     pub occluded: bool,
 }
 
+/// Marker names from the server's model definitions.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModelNames {
+    /// Marker set name to its markers' names, in order.
+    pub sets: std::collections::HashMap<String, Vec<String>>,
+    /// Rigid body (asset) id to its name.
+    pub bodies: std::collections::HashMap<i32, String>,
+}
+
+impl ModelNames {
+    pub fn from_descriptions(d: &[Description]) -> Self {
+        let mut n = Self::default();
+        for x in d {
+            match x {
+                Description::MarkerSet { name, markers } => {
+                    n.sets.insert(name.clone(), markers.clone());
+                }
+                Description::RigidBody { name, id, .. } => {
+                    n.bodies.insert(*id, name.clone());
+                }
+                Description::Skeleton { .. } => {}
+            }
+        }
+        n
+    }
+
+    /// The name of member `k` (0-based) of marker set `set`, if described.
+    fn member(&self, set: &str, k: usize) -> Option<String> {
+        self.sets
+            .get(set)
+            .and_then(|m| m.get(k))
+            .map(|m| format!("{set}:{m}"))
+    }
+
+    /// The name of a labelled marker (asset id, 1-based member), if described.
+    fn labelled(&self, asset: u16, member: u16) -> Option<String> {
+        let body = self.bodies.get(&i32::from(asset))?;
+        Some(
+            self.member(body, usize::from(member).checked_sub(1)?)
+                .unwrap_or_else(|| format!("{body}_{member}")),
+        )
+    }
+}
+
 /// Binds the data port `addr` ([`super::udp_bind`]: a multicast address joins the
 /// group).
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
     super::udp_bind(addr)
 }
 
-/// The named markers of a frame, appended to `out`. Without marker sets (Motive can
-/// stream labelled markers only), the labelled markers come out as `ASSET_MEMBER` by
-/// their ids.
-pub fn markers_of(f: &MocapFrame, out: &mut Vec<NamedMarker>) {
+/// The named markers of a frame, appended to `out` (names from `names` where they
+/// describe it, see the module doc). Without marker sets (Motive can stream labelled
+/// markers only), the labelled markers come out.
+pub fn markers_of(f: &MocapFrame, names: &ModelNames, out: &mut Vec<NamedMarker>) {
     let start = out.len();
     for (set, ps) in &f.marker_sets {
         if set.eq_ignore_ascii_case("all") {
@@ -51,7 +106,9 @@ pub fn markers_of(f: &MocapFrame, out: &mut Vec<NamedMarker>) {
             let occluded =
                 f.labeled.iter().any(|m| m.occluded && m.position_m == *p) || !p.is_finite();
             out.push(NamedMarker {
-                name: format!("{set}_{}", k + 1),
+                name: names
+                    .member(set, k)
+                    .unwrap_or_else(|| format!("{set}_{}", k + 1)),
                 position_m: if occluded { DVec3::NAN } else { p.as_dvec3() },
                 occluded,
             });
@@ -60,7 +117,9 @@ pub fn markers_of(f: &MocapFrame, out: &mut Vec<NamedMarker>) {
     if out.len() == start {
         for m in &f.labeled {
             out.push(NamedMarker {
-                name: format!("{}_{}", m.asset_id, m.member_id),
+                name: names
+                    .labelled(m.asset_id, m.member_id)
+                    .unwrap_or_else(|| format!("{}_{}", m.asset_id, m.member_id)),
                 position_m: if m.occluded {
                     DVec3::NAN
                 } else {
@@ -68,6 +127,213 @@ pub fn markers_of(f: &MocapFrame, out: &mut Vec<NamedMarker>) {
                 },
                 occluded: m.occluded,
             });
+        }
+    }
+}
+
+/// How often the command client repeats an unanswered request, and sends a unicast
+/// keep-alive, seconds.
+pub const COMMAND_INTERVAL_S: f64 = 1.0;
+
+/// The client side of the command port, as a state machine with time passed in: which
+/// packet to send when, and what the server's answers mean.
+#[derive(Clone, Debug)]
+pub struct CommandClient {
+    /// Ask for this version until the server says which it speaks.
+    pub version: Version,
+    /// Send keep-alives (the data arrives unicast).
+    pub unicast: bool,
+    /// The server's answer to the connect request, once it came.
+    pub server: Option<ServerInfo>,
+    pub names: Option<ModelNames>,
+    last_connect_s: f64,
+    last_request_s: f64,
+    last_keepalive_s: f64,
+}
+
+impl CommandClient {
+    pub fn new(version: Version, unicast: bool) -> Self {
+        Self {
+            version,
+            unicast,
+            server: None,
+            names: None,
+            last_connect_s: f64::NEG_INFINITY,
+            last_request_s: f64::NEG_INFINITY,
+            last_keepalive_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// What to send at time `now_s`, if anything: a connect request until the server
+    /// answers, then a model-definition request until they come, and (unicast) a
+    /// keep-alive every [`COMMAND_INTERVAL_S`].
+    pub fn poll(&mut self, now_s: f64) -> Option<Vec<u8>> {
+        let due = |last: f64| now_s - last >= COMMAND_INTERVAL_S;
+        if self.server.is_none() {
+            if due(self.last_connect_s) {
+                self.last_connect_s = now_s;
+                return Some(encode_connect(self.version));
+            }
+            return None;
+        }
+        if self.names.is_none() && due(self.last_request_s) {
+            self.last_request_s = now_s;
+            return Some(encode_request_modeldef().to_vec());
+        }
+        if self.unicast && due(self.last_keepalive_s) {
+            self.last_keepalive_s = now_s;
+            return Some(encode_keepalive().to_vec());
+        }
+        None
+    }
+
+    /// Takes in a message from the server; true when it changed what the client knows.
+    pub fn on_message(&mut self, m: &Message) -> bool {
+        match m {
+            Message::ServerInfo(info) => {
+                if (3..=4).contains(&info.natnet.0) {
+                    self.version = info.natnet;
+                }
+                let fresh = self.server.as_ref() != Some(info);
+                self.server = Some(info.clone());
+                fresh
+            }
+            Message::ModelDef(d) => {
+                let n = ModelNames::from_descriptions(d);
+                let fresh = self.names.as_ref() != Some(&n);
+                self.names = Some(n);
+                fresh
+            }
+            _ => false,
+        }
+    }
+
+    /// Forgets the server (after it went quiet): connect again.
+    pub fn reset(&mut self) {
+        *self = Self::new(self.version, self.unicast);
+    }
+}
+
+fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Seconds without any packet from the server after which the command client connects
+/// again (a restarted Motive forgets its unicast clients).
+pub const SERVER_SILENCE_S: f64 = 5.0;
+
+/// [`run`] with the command port of the server at `server` (usually port 1510): frames
+/// are decoded with the version the server states and named by its model definitions;
+/// a unicast stream is kept alive. Frames may arrive on the data socket or, as some
+/// servers send unicast data, on the command socket. `on_frame(receive_unix_s, frame,
+/// names)`.
+pub fn run_with_server(
+    data: &UdpSocket,
+    server: SocketAddr,
+    client: &mut CommandClient,
+    stop: &AtomicBool,
+    stats: &NatNetStats,
+    on_frame: &mut dyn FnMut(f64, &MocapFrame, &ModelNames),
+) -> std::io::Result<()> {
+    let any: SocketAddr = if server.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+    };
+    let command = UdpSocket::bind(any)?;
+    command.set_nonblocking(true)?;
+    data.set_read_timeout(Some(
+        super::UDP_POLL.min(std::time::Duration::from_millis(20)),
+    ))?;
+    let empty = ModelNames::default();
+    let mut buf = vec![0u8; 65_536];
+    let mut last_heard = unix_now();
+    while !stop.load(Ordering::Relaxed) {
+        let now = unix_now();
+        if client.server.is_some() && now - last_heard > SERVER_SILENCE_S {
+            tracing::warn!(
+                "natnet: server {server} silent for {SERVER_SILENCE_S} s; connecting again"
+            );
+            client.reset();
+            last_heard = now;
+        }
+        if let Some(p) = client.poll(now) {
+            if let Err(e) = command.send_to(&p, server) {
+                tracing::debug!(error = %e, "natnet: command send");
+            }
+        }
+        // The command socket (answers, and unicast data from some servers), then the
+        // data socket (waits briefly).
+        for sock in [&command, data] {
+            let (n, _) = match sock.recv_from(&mut buf) {
+                Ok(x) => x,
+                Err(e) if super::is_wait(&e) => continue,
+                Err(e) => {
+                    tracing::debug!(error = %e, "natnet: receive failed");
+                    stats.packets.error();
+                    continue;
+                }
+            };
+            let now = unix_now();
+            last_heard = now;
+            stats.packets.received(n, now);
+            match decode(&buf[..n], client.version) {
+                Ok(Message::Frame(f)) => {
+                    stats.frames.fetch_add(1, Ordering::Relaxed);
+                    on_frame(now, &f, client.names.as_ref().unwrap_or(&empty));
+                }
+                Ok(m) => {
+                    stats.other.fetch_add(1, Ordering::Relaxed);
+                    if client.on_message(&m) {
+                        match &m {
+                            Message::ServerInfo(i) => tracing::info!(
+                                "natnet: {} {}.{}.{}.{} at {server}, NatNet {}.{}",
+                                i.app,
+                                i.app_version[0],
+                                i.app_version[1],
+                                i.app_version[2],
+                                i.app_version[3],
+                                i.natnet.0,
+                                i.natnet.1
+                            ),
+                            Message::ModelDef(d) => {
+                                tracing::info!("natnet: {} model definitions", d.len())
+                            }
+                            _ => {}
+                        }
+                    }
+                }
+                Err(_) => stats.packets.error(),
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The input as a URL describes it: [`run_with_server`] when the server is known (the
+/// stream is unicast unless `data` is a multicast group), else [`run`] with no names.
+pub fn run_input(
+    data: &UdpSocket,
+    data_addr: SocketAddr,
+    version: Version,
+    server: Option<SocketAddr>,
+    stop: &AtomicBool,
+    stats: &NatNetStats,
+    on_frame: &mut dyn FnMut(f64, &MocapFrame, &ModelNames),
+) -> std::io::Result<()> {
+    match server {
+        Some(server) => {
+            let mut client = CommandClient::new(version, !data_addr.ip().is_multicast());
+            run_with_server(data, server, &mut client, stop, stats, on_frame)
+        }
+        None => {
+            let empty = ModelNames::default();
+            run(data, version, stop, stats, &mut |now, f| {
+                on_frame(now, f, &empty)
+            });
+            Ok(())
         }
     }
 }
@@ -109,13 +375,66 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_command_client_connects_asks_for_models_and_keeps_unicast_alive() {
+        let mut c = CommandClient::new(Version(3, 0), true);
+        // Connect requests every second until the server answers.
+        let first = c.poll(0.0).unwrap();
+        assert_eq!(first, encode_connect(Version(3, 0)));
+        assert_eq!(c.poll(0.5), None);
+        assert_eq!(c.poll(1.0), Some(first));
+        let info = ServerInfo {
+            app: "Motive".into(),
+            app_version: [3, 1, 0, 0],
+            natnet: Version(4, 1),
+            clock_hz: None,
+            data_port: Some(1511),
+            multicast_group: None,
+        };
+        assert!(c.on_message(&Message::ServerInfo(info.clone())));
+        assert!(!c.on_message(&Message::ServerInfo(info)));
+        assert_eq!(
+            c.version,
+            Version(4, 1),
+            "frames decode as the server speaks"
+        );
+        // Then model definitions until they come, and keep-alives.
+        assert_eq!(c.poll(1.1), Some(encode_request_modeldef().to_vec()));
+        assert_eq!(c.poll(1.2), Some(encode_keepalive().to_vec()));
+        assert_eq!(c.poll(1.5), None);
+        assert_eq!(c.poll(2.1), Some(encode_request_modeldef().to_vec()));
+        assert!(
+            c.on_message(&Message::ModelDef(vec![Description::RigidBody {
+                name: "Hand".into(),
+                id: 3,
+                parent: -1
+            }]))
+        );
+        assert_eq!(c.poll(2.2), Some(encode_keepalive().to_vec()));
+        assert_eq!(c.poll(3.1), None);
+        assert_eq!(c.poll(3.2), Some(encode_keepalive().to_vec()));
+        // A multicast client sends no keep-alives.
+        let mut m = CommandClient::new(Version(3, 0), false);
+        m.poll(0.0);
+        m.on_message(&Message::ModelDef(Vec::new()));
+        m.server = Some(ServerInfo {
+            app: String::new(),
+            app_version: [0; 4],
+            natnet: Version(3, 0),
+            clock_hz: None,
+            data_port: None,
+            multicast_group: None,
+        });
+        assert_eq!(m.poll(10.0), None);
+    }
+
+    #[test]
     fn marker_sets_are_named_by_member_and_all_is_skipped() {
         let b = crate::bench::codecs::natnet_frame(3);
         let Message::Frame(f) = decode(&b, Version(3, 0)).unwrap() else {
             panic!("a frame")
         };
         let mut out = Vec::new();
-        markers_of(&f, &mut out);
+        markers_of(&f, &ModelNames::default(), &mut out);
         let names: Vec<&str> = out.iter().map(|m| m.name.as_str()).collect();
         assert_eq!(names, ["Body_1", "Body_2", "Body_3"]);
         assert!((out[1].position_m - DVec3::new(0.03, 0.04, 0.05)).length() < 1e-6);

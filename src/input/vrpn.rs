@@ -49,6 +49,21 @@ pub struct VrpnStats {
     pub datagrams: AtomicU64,
     /// Datagrams that did not hold whole, well-formed messages (dropped).
     pub bad_datagrams: AtomicU64,
+    /// f64 bits of the Unix time of the newest bytes from the server (0 before any).
+    pub last_seen_unix_bits: AtomicU64,
+}
+
+impl VrpnStats {
+    /// Counts `n` bytes received now.
+    fn received(&self, n: usize) {
+        self.bytes.fetch_add(n as u64, Ordering::Relaxed);
+        self.last_seen_unix_bits
+            .store(unix_now().0.to_bits(), Ordering::Relaxed);
+    }
+
+    pub fn last_seen_unix_s(&self) -> f64 {
+        f64::from_bits(self.last_seen_unix_bits.load(Ordering::Relaxed))
+    }
 }
 
 /// Wait between reconnection attempts.
@@ -192,7 +207,7 @@ fn session(
             match u.recv(&mut datagram) {
                 Ok(n) => {
                     stats.datagrams.fetch_add(1, Ordering::Relaxed);
-                    stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
+                    stats.received(n);
                     got_datagram = Some(n);
                 }
                 Err(e) if super::is_wait(&e) => {}
@@ -205,7 +220,7 @@ fn session(
         match sock.read(&mut chunk) {
             Ok(0) => return Ok(()),
             Ok(n) => {
-                stats.bytes.fetch_add(n as u64, Ordering::Relaxed);
+                stats.received(n);
                 buf.extend_from_slice(&chunk[..n]);
                 tcp_progress = true;
             }

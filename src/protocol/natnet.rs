@@ -14,7 +14,10 @@
 use glam::Vec3;
 
 /// Message ids.
+pub const NAT_CONNECT: u16 = 0;
 pub const NAT_SERVERINFO: u16 = 1;
+pub const NAT_REQUEST_MODELDEF: u16 = 4;
+pub const NAT_KEEPALIVE: u16 = 10;
 pub const NAT_MODELDEF: u16 = 5;
 pub const NAT_FRAMEOFDATA: u16 = 7;
 
@@ -70,16 +73,28 @@ pub enum Description {
     Skeleton { name: String, id: i32 },
 }
 
+/// The server's answer to a connect request.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServerInfo {
+    /// Application name ("Motive").
+    pub app: String,
+    pub app_version: [u8; 4],
+    /// The NatNet version the server speaks (frames are decoded with it).
+    pub natnet: Version,
+    /// Connection info (NatNet 3 and later): the server's clock rate, data port and, when
+    /// it streams multicast, the group.
+    pub clock_hz: Option<u64>,
+    pub data_port: Option<u16>,
+    pub multicast_group: Option<std::net::Ipv4Addr>,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
     Frame(MocapFrame),
     /// Descriptions up to the first of a kind this decoder skips (force plates, devices,
     /// cameras), which ends the list.
     ModelDef(Vec<Description>),
-    ServerInfo {
-        app: String,
-        natnet: Version,
-    },
+    ServerInfo(ServerInfo),
     /// Any other message id (pings, responses, ...).
     Other {
         id: u16,
@@ -325,6 +340,37 @@ fn rigid_body_description(r: &mut Rd, v: Version) -> Result<Description, NatNetE
     Ok(Description::RigidBody { name, id, parent })
 }
 
+/// Name a client gives itself in its connect request (the NatNet SDK's own).
+pub const CLIENT_NAME: &str = "NatNetLib";
+
+/// A client's connect request to the command port, asking for NatNet `v`: the sender
+/// block (name in 256 bytes, NUL-padded; application version; NatNet version).
+pub fn encode_connect(v: Version) -> Vec<u8> {
+    let mut b = Vec::with_capacity(268);
+    b.extend_from_slice(&NAT_CONNECT.to_le_bytes());
+    b.extend_from_slice(&264u16.to_le_bytes());
+    let mut name = [0u8; 256];
+    name[..CLIENT_NAME.len()].copy_from_slice(CLIENT_NAME.as_bytes());
+    b.extend_from_slice(&name);
+    b.extend_from_slice(&[v.0, v.1, 0, 0]);
+    b.extend_from_slice(&[v.0, v.1, 0, 0]);
+    b
+}
+
+/// A request for the model definitions (no payload).
+pub fn encode_request_modeldef() -> [u8; 4] {
+    let mut b = [0u8; 4];
+    b[..2].copy_from_slice(&NAT_REQUEST_MODELDEF.to_le_bytes());
+    b
+}
+
+/// A unicast client's keep-alive (no payload): the server keeps streaming to it.
+pub fn encode_keepalive() -> [u8; 4] {
+    let mut b = [0u8; 4];
+    b[..2].copy_from_slice(&NAT_KEEPALIVE.to_le_bytes());
+    b
+}
+
 /// Decodes one UDP datagram from a server speaking NatNet `v`.
 pub fn decode(b: &[u8], v: Version) -> Result<Message, NatNetError> {
     if b.len() < 4 {
@@ -351,12 +397,26 @@ pub fn decode(b: &[u8], v: Version) -> Result<Message, NatNetError> {
             let app_bytes = r.take(256)?;
             let end = app_bytes.iter().position(|c| *c == 0).unwrap_or(256);
             let app = String::from_utf8_lossy(&app_bytes[..end]).into_owned();
-            let _app_version = r.take(4)?;
+            let app_version: [u8; 4] = r.take(4)?.try_into().expect("4 bytes");
             let nv = r.take(4)?;
-            Message::ServerInfo {
-                app,
-                natnet: Version(nv[0], nv[1]),
+            // Connection info, when the payload carries it: u64 clock rate, u16 data
+            // port, u8 multicast flag, 4 bytes of group address.
+            let (mut clock_hz, mut data_port, mut multicast_group) = (None, None, None);
+            if let Ok(c) = r.take(15) {
+                clock_hz = Some(u64::from_le_bytes(c[..8].try_into().expect("8 bytes")));
+                data_port = Some(u16::from_le_bytes([c[8], c[9]]));
+                if c[10] != 0 {
+                    multicast_group = Some(std::net::Ipv4Addr::new(c[11], c[12], c[13], c[14]));
+                }
             }
+            Message::ServerInfo(ServerInfo {
+                app,
+                app_version,
+                natnet: Version(nv[0], nv[1]),
+                clock_hz,
+                data_port,
+                multicast_group,
+            })
         }
         other => Message::Other { id: other },
     })
