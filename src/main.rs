@@ -130,13 +130,16 @@ enum Command {
         #[arg(long)]
         z_up: bool,
     },
-    /// Send a recording as live OSC, VMC or VRPN traffic.
+    /// Send a recording as live OSC, VMC, VRPN or NatNet traffic.
     ///
     /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
     /// timing: to an OSC receiver in the native schema (osc://HOST:PORT), to a VMC
     /// receiver (vmc://HOST:PORT, markers as trackers), or as a VRPN tracker server
     /// (vrpn://DEVICE@HOST:PORT binds TCP and UDP there and serves clients in both VRPN
-    /// connection modes; each marker a sensor, in label order).
+    /// connection modes; each marker a sensor, in label order), or as a NatNet 3.0
+    /// server (natnet://HOST:PORT receives the frames, unicast or a multicast group;
+    /// ?server=IP:PORT binds a command port that answers connect and model-definition
+    /// requests, naming the markers replay:LABEL).
     /// Prints the send-time jitter against the file's clock at the end.
     Replay {
         /// The recording.
@@ -386,6 +389,12 @@ fn real_main() -> Result<()> {
                 bail!("{}", problems.join("\n"));
             }
             let target = target.expect("checked above");
+            if let Target::NatNet { data, command } = &target {
+                match command {
+                    Some(c) => eprintln!("serving NatNet 3.0 frames to {data}; command port {c} (clients: natnet://{data}?server={c})"),
+                    None => eprintln!("sending NatNet 3.0 frames to {data} (markers named replay_1, replay_2...; add ?server=IP:PORT for a command port that names them)"),
+                }
+            }
             if let Target::Vrpn { device, bind } = &target {
                 eprintln!("serving {device} as a VRPN tracker on TCP and UDP {bind} (clients: {device}@{bind} or {device}@tcp://{bind})");
             }

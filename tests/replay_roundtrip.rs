@@ -183,3 +183,88 @@ fn vrpn_round_trip(mode: rigless::input::vrpn::VrpnMode) {
         want.len()
     );
 }
+
+/// Replay as a NatNet server: the NatNet input, told the replay's command port, connects,
+/// gets the model definitions and reads every frame, markers named `replay:LABEL`, each
+/// sample as in the file (to f32), missing ones occluded.
+#[test]
+fn replay_to_natnet_reaches_the_natnet_input_sample_by_sample() {
+    use rigless::input::natnet::{bind as natnet_bind, markers_of, run_input, NatNetStats};
+    use rigless::protocol::natnet::Version;
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let data = natnet_bind("127.0.0.1:0".parse().unwrap()).unwrap();
+    let data_addr = data.local_addr().unwrap();
+    // A free port for the replay's command socket (picked, then released: loopback only).
+    let command = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let frames = 121usize; // 1 s of the file
+    let receiver = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let stats = NatNetStats::default();
+            let mut got: Vec<Received> = Vec::new();
+            run_input(
+                &data,
+                data_addr,
+                Version(3, 0),
+                Some(command),
+                &stop,
+                &stats,
+                &mut |_, f, names| {
+                    // Frames before the model definitions arrived carry no names: skip.
+                    if names.sets.is_empty() {
+                        return;
+                    }
+                    let mut named = Vec::new();
+                    markers_of(f, names, &mut named);
+                    got.push((
+                        i64::from(f.frame),
+                        named
+                            .into_iter()
+                            .map(|m| (m.name, m.position_m, m.occluded))
+                            .collect(),
+                    ));
+                },
+            )
+            .unwrap();
+            got
+        })
+    };
+    let opts = ReplayOptions {
+        speed: 2.0,
+        end_s: Some(1.0),
+        ..ReplayOptions::default()
+    };
+    let never = AtomicBool::new(false);
+    let target = Target::NatNet {
+        data: data_addr,
+        command: Some(command),
+    };
+    // The client asks for a connection every second: start once it has (its first
+    // request waits in the command socket's buffer until the first frame reads it).
+    replay(&rec, target, &opts, &SystemClock::new(), 1.5, &never).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    stop.store(true, Ordering::Relaxed);
+    let got = receiver.join().unwrap();
+    // The first frame answers the connect request, the second the model-definition
+    // request: named frames follow from about the third on, to the last.
+    assert!(got.len() >= frames - 4, "{} named frames", got.len());
+    assert_eq!(got.last().unwrap().0, frames as i64 - 1);
+    for (n, markers) in &got {
+        let row = &rec.frames[*n as usize];
+        assert_eq!(markers.len(), rec.labels.len());
+        for ((name, p, occluded), (label, want)) in markers.iter().zip(rec.labels.iter().zip(row)) {
+            assert_eq!(name, &format!("replay:{label}"));
+            if want.is_finite() {
+                assert!(!occluded);
+                assert_eq!(p.as_vec3(), want.as_vec3(), "{name} frame {n}");
+            } else {
+                assert!(*occluded && !p.is_finite(), "{name} frame {n}");
+            }
+        }
+    }
+}

@@ -25,42 +25,33 @@ const BATCHES: usize = 200;
 
 /// A NatNet 3.0 frame of data with one marker set and `n` labelled markers.
 pub fn natnet_frame(n: usize) -> Vec<u8> {
-    let mut p = Vec::new();
-    let i32b = |p: &mut Vec<u8>, v: i32| p.extend_from_slice(&v.to_le_bytes());
-    let f32b = |p: &mut Vec<u8>, v: f32| p.extend_from_slice(&v.to_le_bytes());
-    i32b(&mut p, 1234);
-    i32b(&mut p, 1);
-    p.extend_from_slice(b"Body\0");
-    i32b(&mut p, n as i32);
-    for k in 0..n {
-        for c in 0..3 {
-            f32b(&mut p, (k * 3 + c) as f32 * 0.01);
-        }
-    }
-    i32b(&mut p, 0); // legacy unlabelled markers
-    i32b(&mut p, 0); // rigid bodies
-    i32b(&mut p, 0); // skeletons
-    i32b(&mut p, n as i32);
-    for k in 0..n {
-        i32b(&mut p, (1 << 16) | (k as i32 + 1));
-        for c in 0..3 {
-            f32b(&mut p, (k * 3 + c) as f32 * 0.01);
-        }
-        f32b(&mut p, 0.014);
-        p.extend_from_slice(&2i16.to_le_bytes());
-        f32b(&mut p, 0.0002);
-    }
-    i32b(&mut p, 0); // force plates
-    i32b(&mut p, 0); // devices
-    p.extend_from_slice(&[0; 8]); // timecode
-    p.extend_from_slice(&12.5f64.to_le_bytes());
-    p.extend_from_slice(&[0; 24]); // camera stamps
-    p.extend_from_slice(&0i16.to_le_bytes());
-    i32b(&mut p, 0); // end tag
-    let mut b = natnet::NAT_FRAMEOFDATA.to_le_bytes().to_vec();
-    b.extend_from_slice(&(p.len() as u16).to_le_bytes());
-    b.extend_from_slice(&p);
-    b
+    use glam::Vec3;
+    let p = |k: usize| {
+        Vec3::new(
+            k as f32 * 0.03,
+            (k * 3 + 1) as f32 * 0.01,
+            (k * 3 + 2) as f32 * 0.01,
+        )
+    };
+    natnet::encode_frame(&natnet::MocapFrame {
+        frame: 1234,
+        marker_sets: vec![("Body".into(), (0..n).map(p).collect())],
+        labeled: (0..n)
+            .map(|k| natnet::LabeledMarker {
+                asset_id: 1,
+                member_id: k as u16 + 1,
+                position_m: p(k),
+                size_m: 0.014,
+                occluded: false,
+                point_cloud_solved: true,
+                model_solved: false,
+                residual_m: 0.0002,
+            })
+            .collect(),
+        timestamp_s: 12.5,
+        ..natnet::MocapFrame::default()
+    })
+    .expect("a small frame")
 }
 
 fn time(mut f: impl FnMut()) -> Spread {

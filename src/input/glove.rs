@@ -262,24 +262,26 @@ pub fn run(
     let mut framer = LineFramer::default();
     let mut reading = GloveReading::default();
     let mut buf = [0u8; 1024];
-    let mut warned = false;
+    // The last failure to open that was logged (each different one is, once).
+    let mut logged: Option<String> = None;
     while !stop.load(Ordering::Relaxed) {
         let mut serial = match open(&port.path, port.baud) {
             Ok(s) => s,
             Err(e) => {
-                if !warned {
+                let text = e.to_string();
+                if logged.as_deref() != Some(text.as_str()) {
                     tracing::warn!(
-                        "glove port {}: {e}; retrying every {} ms",
+                        "glove port {}: {text}; retrying every {} ms",
                         port.path.display(),
                         REOPEN_INTERVAL.as_millis()
                     );
-                    warned = true;
+                    logged = Some(text);
                 }
                 std::thread::sleep(REOPEN_INTERVAL);
                 continue;
             }
         };
-        warned = false;
+        logged = None;
         stats.connections.fetch_add(1, Ordering::Relaxed);
         tracing::info!("glove port {} open", port.path.display());
         framer.reset();

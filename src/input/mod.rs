@@ -254,9 +254,11 @@ pub fn parse_url(url: &str) -> Result<InputUrl, String> {
                             _ => return Err(format!("{url:?}: version {v:?} is not 3.x or 4.x")),
                         }
                     }
-                    _ => return Err(format!(
+                    _ => {
+                        return Err(format!(
                         "{url:?}: unknown option {kv:?} (expected version=M.m or server=IP[:PORT])"
-                    )),
+                    ))
+                    }
                 }
             }
             Ok(InputUrl::NatNet(addr?, version, server))

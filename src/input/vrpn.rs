@@ -168,6 +168,21 @@ impl Peer<'_> {
     }
 }
 
+/// Handles one datagram: it holds whole messages; one that does not costs only itself.
+fn handle_datagram(
+    peer: &mut Peer,
+    d: &[u8],
+    replies: &mut Vec<u8>,
+    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+) {
+    match peer.handle(d, replies, on_report) {
+        Ok(used) if used == d.len() => {}
+        _ => {
+            peer.stats.bad_datagrams.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
 /// Serves one connection until it drops or `stop` is set. With `udp` (the UDP
 /// connection mode) datagrams on that socket are read too; each must hold whole
 /// messages.
@@ -218,7 +233,20 @@ fn session(
         // TCP first: the descriptions a datagram's messages refer to came that way.
         let mut tcp_progress = false;
         match sock.read(&mut chunk) {
-            Ok(0) => return Ok(()),
+            Ok(0) => {
+                // The server hung up: what it sent last over UDP may still be on its way.
+                if let Some(u) = udp {
+                    if let Some(n) = got_datagram {
+                        handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
+                    }
+                    while let Ok(n) = u.recv(&mut datagram) {
+                        stats.datagrams.fetch_add(1, Ordering::Relaxed);
+                        stats.received(n);
+                        handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
+                    }
+                }
+                return Ok(());
+            }
             Ok(n) => {
                 stats.received(n);
                 buf.extend_from_slice(&chunk[..n]);
@@ -241,13 +269,7 @@ fn session(
             }
         }
         if let Some(n) = got_datagram {
-            // A datagram holds whole messages; one that does not costs only itself.
-            match peer.handle(&datagram[..n], &mut replies, on_report) {
-                Ok(used) if used == n => {}
-                _ => {
-                    stats.bad_datagrams.fetch_add(1, Ordering::Relaxed);
-                }
-            }
+            handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
         }
         if !replies.is_empty() {
             if udp.is_some() {

@@ -105,6 +105,8 @@ pub enum Message {
 pub enum NatNetError {
     #[error("packet shorter than its 4-byte header")]
     Short,
+    #[error("a {bytes}-byte payload does not fit a NatNet packet (65,535 bytes at most)")]
+    TooLarge { bytes: usize },
     #[error("message {id}: payload length {declared} but {have} bytes follow")]
     Length {
         id: u16,
@@ -340,6 +342,135 @@ fn rigid_body_description(r: &mut Rd, v: Version) -> Result<Description, NatNetE
     Ok(Description::RigidBody { name, id, parent })
 }
 
+/// Wraps a payload in the packet header.
+fn packet(id: u16, payload: Vec<u8>) -> Result<Vec<u8>, NatNetError> {
+    let len = u16::try_from(payload.len()).map_err(|_| NatNetError::TooLarge {
+        bytes: payload.len(),
+    })?;
+    let mut b = Vec::with_capacity(4 + payload.len());
+    b.extend_from_slice(&id.to_le_bytes());
+    b.extend_from_slice(&len.to_le_bytes());
+    b.extend_from_slice(&payload);
+    Ok(b)
+}
+
+fn put_vec3(p: &mut Vec<u8>, v: Vec3) {
+    for c in v.to_array() {
+        p.extend_from_slice(&c.to_le_bytes());
+    }
+}
+
+fn put_cstr(p: &mut Vec<u8>, s: &str) {
+    p.extend(s.bytes().filter(|&c| c != 0));
+    p.push(0);
+}
+
+/// A frame of mocap data as a NatNet 3.0 server sends it (the inverse of [`decode`] for
+/// that version; skeletons go out as top-level rigid bodies, force plates and devices
+/// empty).
+pub fn encode_frame(f: &MocapFrame) -> Result<Vec<u8>, NatNetError> {
+    let mut p = Vec::new();
+    let count = |p: &mut Vec<u8>, n: usize| p.extend_from_slice(&(n as i32).to_le_bytes());
+    p.extend_from_slice(&f.frame.to_le_bytes());
+    count(&mut p, f.marker_sets.len());
+    for (name, ps) in &f.marker_sets {
+        put_cstr(&mut p, name);
+        count(&mut p, ps.len());
+        for v in ps {
+            put_vec3(&mut p, *v);
+        }
+    }
+    count(&mut p, f.unlabeled.len());
+    for v in &f.unlabeled {
+        put_vec3(&mut p, *v);
+    }
+    count(&mut p, f.rigid_bodies.len());
+    for rb in &f.rigid_bodies {
+        p.extend_from_slice(&rb.id.to_le_bytes());
+        put_vec3(&mut p, rb.position_m);
+        for q in rb.rotation {
+            p.extend_from_slice(&q.to_le_bytes());
+        }
+        p.extend_from_slice(&rb.mean_error_m.to_le_bytes());
+        p.extend_from_slice(&i16::from(rb.tracking_valid).to_le_bytes());
+    }
+    count(&mut p, 0); // skeletons
+    count(&mut p, f.labeled.len());
+    for m in &f.labeled {
+        let id = (u32::from(m.asset_id) << 16) | u32::from(m.member_id);
+        p.extend_from_slice(&id.to_le_bytes());
+        put_vec3(&mut p, m.position_m);
+        p.extend_from_slice(&m.size_m.to_le_bytes());
+        let params = i16::from(m.occluded)
+            | (i16::from(m.point_cloud_solved) << 1)
+            | (i16::from(m.model_solved) << 2);
+        p.extend_from_slice(&params.to_le_bytes());
+        p.extend_from_slice(&m.residual_m.to_le_bytes());
+    }
+    count(&mut p, 0); // force plates
+    count(&mut p, 0); // devices
+    p.extend_from_slice(&f.timecode.to_le_bytes());
+    p.extend_from_slice(&f.timecode_sub.to_le_bytes());
+    p.extend_from_slice(&f.timestamp_s.to_le_bytes());
+    p.extend_from_slice(&[0; 24]); // camera mid-exposure, received, transmit stamps
+    p.extend_from_slice(&f.params.to_le_bytes());
+    count(&mut p, 0); // end tag
+    packet(NAT_FRAMEOFDATA, p)
+}
+
+/// Model definitions as a NatNet 3.0 server sends them: marker sets, and rigid bodies
+/// (without markers) and skeletons (without bones).
+pub fn encode_model_def(d: &[Description]) -> Result<Vec<u8>, NatNetError> {
+    let mut p = (d.len() as i32).to_le_bytes().to_vec();
+    for x in d {
+        match x {
+            Description::MarkerSet { name, markers } => {
+                p.extend_from_slice(&0i32.to_le_bytes());
+                put_cstr(&mut p, name);
+                p.extend_from_slice(&(markers.len() as i32).to_le_bytes());
+                for m in markers {
+                    put_cstr(&mut p, m);
+                }
+            }
+            Description::RigidBody { name, id, parent } => {
+                p.extend_from_slice(&1i32.to_le_bytes());
+                put_cstr(&mut p, name);
+                p.extend_from_slice(&id.to_le_bytes());
+                p.extend_from_slice(&parent.to_le_bytes());
+                put_vec3(&mut p, Vec3::ZERO);
+                p.extend_from_slice(&0i32.to_le_bytes());
+            }
+            Description::Skeleton { name, id } => {
+                p.extend_from_slice(&2i32.to_le_bytes());
+                put_cstr(&mut p, name);
+                p.extend_from_slice(&id.to_le_bytes());
+                p.extend_from_slice(&0i32.to_le_bytes());
+            }
+        }
+    }
+    packet(NAT_MODELDEF, p)
+}
+
+/// A server's answer to a connect request (the layout [`decode`] reads).
+pub fn encode_server_info(info: &ServerInfo) -> Vec<u8> {
+    let mut p = vec![0u8; 256];
+    let name = info.app.as_bytes();
+    let n = name.len().min(255);
+    p[..n].copy_from_slice(&name[..n]);
+    p.extend_from_slice(&info.app_version);
+    p.extend_from_slice(&[info.natnet.0, info.natnet.1, 0, 0]);
+    p.extend_from_slice(&info.clock_hz.unwrap_or(0).to_le_bytes());
+    p.extend_from_slice(&info.data_port.unwrap_or(0).to_le_bytes());
+    p.push(u8::from(info.multicast_group.is_some()));
+    p.extend_from_slice(
+        &info
+            .multicast_group
+            .unwrap_or(std::net::Ipv4Addr::UNSPECIFIED)
+            .octets(),
+    );
+    packet(NAT_SERVERINFO, p).expect("a 283-byte packet")
+}
+
 /// Name a client gives itself in its connect request (the NatNet SDK's own).
 pub const CLIENT_NAME: &str = "NatNetLib";
 
@@ -427,7 +558,120 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    #[test]
+    fn model_definitions_and_server_info_round_trip() {
+        let d = vec![
+            Description::MarkerSet {
+                name: "take".into(),
+                markers: vec!["LFHD".into(), "RFHD".into()],
+            },
+            Description::RigidBody {
+                name: "Hand".into(),
+                id: 3,
+                parent: -1,
+            },
+            Description::Skeleton {
+                name: "Actor".into(),
+                id: 7,
+            },
+        ];
+        let b = encode_model_def(&d).unwrap();
+        assert_eq!(decode(&b, Version(3, 0)), Ok(Message::ModelDef(d)));
+        let info = ServerInfo {
+            app: "rigless".into(),
+            app_version: [0, 1, 0, 0],
+            natnet: Version(3, 0),
+            clock_hz: Some(1_000_000),
+            data_port: Some(1511),
+            multicast_group: None,
+        };
+        let b = encode_server_info(&info);
+        assert_eq!(b.len(), 283, "Motive's own length");
+        assert_eq!(decode(&b, Version(3, 0)), Ok(Message::ServerInfo(info)));
+        let huge = MocapFrame {
+            unlabeled: vec![Vec3::ZERO; 6000],
+            ..MocapFrame::default()
+        };
+        assert_eq!(
+            encode_frame(&huge),
+            Err(NatNetError::TooLarge { bytes: 72_072 })
+        );
+    }
+
+    fn vec3() -> impl Strategy<Value = Vec3> {
+        (-10.0f32..10.0, -10.0f32..10.0, -10.0f32..10.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    fn any_frame() -> impl Strategy<Value = MocapFrame> {
+        let set = (
+            "[A-Za-z][A-Za-z0-9_]{0,8}",
+            proptest::collection::vec(vec3(), 0..6),
+        );
+        let rb = (
+            any::<i32>(),
+            vec3(),
+            any::<[f32; 4]>(),
+            any::<f32>(),
+            any::<bool>(),
+        )
+            .prop_map(|(id, position_m, rotation, mean_error_m, tracking_valid)| {
+                RigidBody {
+                    id,
+                    position_m,
+                    rotation: rotation.map(|v| if v.is_nan() { 0.0 } else { v }),
+                    mean_error_m: if mean_error_m.is_nan() {
+                        0.0
+                    } else {
+                        mean_error_m
+                    },
+                    tracking_valid,
+                }
+            });
+        let lm = (any::<u16>(), any::<u16>(), vec3(), any::<[bool; 3]>()).prop_map(
+            |(asset_id, member_id, position_m, f)| LabeledMarker {
+                asset_id,
+                member_id,
+                position_m,
+                size_m: 0.014,
+                occluded: f[0],
+                point_cloud_solved: f[1],
+                model_solved: f[2],
+                residual_m: 0.0002,
+            },
+        );
+        (
+            any::<i32>(),
+            proptest::collection::vec(set, 0..4),
+            proptest::collection::vec(vec3(), 0..4),
+            proptest::collection::vec(rb, 0..3),
+            proptest::collection::vec(lm, 0..8),
+            any::<(u32, u32, i16)>(),
+            0.0f64..1e6,
+        )
+            .prop_map(
+                |(frame, sets, unlabeled, rigid_bodies, labeled, (tc, tcs, params), t)| {
+                    MocapFrame {
+                        frame,
+                        marker_sets: sets,
+                        unlabeled,
+                        rigid_bodies,
+                        labeled,
+                        timecode: tc,
+                        timecode_sub: tcs,
+                        timestamp_s: t,
+                        params,
+                    }
+                },
+            )
+    }
+
     proptest! {
+        #[test]
+        fn encoded_frames_decode_to_themselves(f in any_frame()) {
+            let b = encode_frame(&f).unwrap();
+            prop_assert_eq!(decode(&b, Version(3, 0)), Ok(Message::Frame(f)));
+        }
+
         #[test]
         fn arbitrary_bytes_never_panic(b in proptest::collection::vec(any::<u8>(), 0..600)) {
             for v in [Version(3, 0), Version(4, 0), Version(4, 1)] {

@@ -28,15 +28,30 @@ pub enum Target {
         device: String,
         bind: SocketAddr,
     },
+    /// Act as a NatNet 3.0 server (OptiTrack Motive): frames of mocap data go to `data`
+    /// (a client's data port, or a multicast group), the recording's markers as one
+    /// marker set named [`NATNET_SET`] (a missing sample as NaN). With `command`, that
+    /// address is the server's command port: clients connect there for the server info
+    /// and the model definitions that name the markers (`SET:LABEL`).
+    NatNet {
+        data: SocketAddr,
+        command: Option<SocketAddr>,
+    },
 }
 
+/// The marker set a NatNet replay sends.
+pub const NATNET_SET: &str = "replay";
+
 impl Target {
-    /// The target of a URL (`osc://` or `vmc://`).
+    /// The target of a URL (`osc://`, `vmc://`, `vrpn://` or `natnet://`).
     pub fn from_url(u: &InputUrl) -> Result<Self, String> {
         match u {
             InputUrl::Osc(a) => Ok(Target::Osc(*a)),
             InputUrl::Vmc(a) => Ok(Target::Vmc(*a)),
-            InputUrl::NatNet(..) => Err("replay to natnet:// is not supported yet".into()),
+            InputUrl::NatNet(data, _, command) => Ok(Target::NatNet {
+                data: *data,
+                command: *command,
+            }),
             InputUrl::Glove(_) => Err(
                 "a recording holds markers, not glove readings: it cannot replay to glove://"
                     .into(),
@@ -247,6 +262,25 @@ impl VrpnClient {
     }
 }
 
+/// One frame as a NatNet 3.0 frame of mocap data: one marker set, missing samples as
+/// NaN; `file_t_s` is the timestamp.
+fn encode_natnet(
+    n: usize,
+    file_t_s: f64,
+    markers: &[(&str, DVec3)],
+) -> Result<Vec<u8>, crate::protocol::natnet::NatNetError> {
+    use crate::protocol::natnet::{encode_frame, MocapFrame};
+    encode_frame(&MocapFrame {
+        frame: n as i32,
+        marker_sets: vec![(
+            NATNET_SET.to_owned(),
+            markers.iter().map(|(_, p)| p.as_vec3()).collect(),
+        )],
+        timestamp_s: file_t_s,
+        ..MocapFrame::default()
+    })
+}
+
 /// Where the bytes go.
 enum Sink {
     Udp(UdpSocket, SocketAddr),
@@ -260,16 +294,63 @@ enum Sink {
         clients: Vec<VrpnClient>,
         greeting: Vec<u8>,
     },
+    /// A NatNet server: frames to `data`; the command socket answers connect and
+    /// model-definition requests.
+    NatNet {
+        sock: UdpSocket,
+        data: SocketAddr,
+        server_info: Vec<u8>,
+        model_def: Vec<u8>,
+    },
 }
 
 impl Sink {
-    fn open(target: &Target) -> std::io::Result<Self> {
+    /// Opens the sink; `labels` are the markers a frame carries, in order.
+    fn open(target: &Target, labels: &[&str]) -> std::io::Result<Self> {
         use crate::protocol::vrpn::{cookie, description_payload, encode_message, POS_QUAT};
         use crate::protocol::vrpn::{SENDER_DESCRIPTION, TYPE_DESCRIPTION};
         Ok(match target {
             Target::Osc(a) | Target::Vmc(a) => {
                 let sock = UdpSocket::bind(if a.is_ipv6() { "[::]:0" } else { "0.0.0.0:0" })?;
                 Sink::Udp(sock, *a)
+            }
+            Target::NatNet { data, command } => {
+                use crate::protocol::natnet::{
+                    encode_model_def, encode_server_info, Description, ServerInfo, Version,
+                };
+                let any = if data.is_ipv6() {
+                    "[::]:0"
+                } else {
+                    "0.0.0.0:0"
+                };
+                let sock = match command {
+                    Some(c) => UdpSocket::bind(c)?,
+                    None => UdpSocket::bind(any)?,
+                };
+                sock.set_nonblocking(true)?;
+                let multicast_group = match data.ip() {
+                    std::net::IpAddr::V4(g) if g.is_multicast() => Some(g),
+                    _ => None,
+                };
+                let server_info = encode_server_info(&ServerInfo {
+                    app: "rigless".into(),
+                    app_version: [0, 1, 0, 0],
+                    natnet: Version(3, 0),
+                    clock_hz: Some(1_000_000),
+                    data_port: Some(data.port()),
+                    multicast_group,
+                });
+                let model_def = encode_model_def(&[Description::MarkerSet {
+                    name: NATNET_SET.into(),
+                    markers: labels.iter().map(|l| (*l).to_owned()).collect(),
+                }])
+                .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+                Sink::NatNet {
+                    sock,
+                    data: *data,
+                    server_info,
+                    model_def,
+                }
             }
             Target::Vrpn { device, bind } => {
                 let listener = std::net::TcpListener::bind(bind)?;
@@ -309,6 +390,28 @@ impl Sink {
         use std::io::Write;
         match self {
             Sink::Udp(sock, dest) => sock.send_to(bytes, *dest),
+            Sink::NatNet {
+                sock,
+                data,
+                server_info,
+                model_def,
+            } => {
+                use crate::protocol::natnet::{NAT_CONNECT, NAT_REQUEST_MODELDEF};
+                let mut request = [0u8; 1024];
+                while let Ok((n, from)) = sock.recv_from(&mut request) {
+                    if n < 4 {
+                        continue;
+                    }
+                    let reply = match u16::from_le_bytes([request[0], request[1]]) {
+                        NAT_CONNECT => &server_info[..],
+                        NAT_REQUEST_MODELDEF => &model_def[..],
+                        // Keep-alives and anything else: nothing to answer.
+                        _ => continue,
+                    };
+                    let _ = sock.send_to(reply, from);
+                }
+                sock.send_to(bytes, *data)
+            }
             Sink::Vrpn {
                 listener,
                 udp,
@@ -386,7 +489,15 @@ pub fn replay(
     start_at_s: f64,
     stop: &AtomicBool,
 ) -> std::io::Result<ReplayStats> {
-    let mut sink = Sink::open(&target)?;
+    let chosen_labels: Vec<&str> = (0..rec.labels.len())
+        .filter(|k| {
+            opts.markers
+                .as_ref()
+                .is_none_or(|m| m.iter().any(|n| n == &rec.labels[*k]))
+        })
+        .map(|k| rec.labels[k].as_str())
+        .collect();
+    let mut sink = Sink::open(&target, &chosen_labels)?;
     let period = 1.0 / rec.rate_hz;
     let first = ((opts.start_s * rec.rate_hz).ceil().max(0.0) as usize).min(rec.frames.len());
     let last = opts.end_s.map_or(rec.frames.len(), |e| {
@@ -434,6 +545,8 @@ pub fn replay(
             Target::Osc(_) => encode_native(n as i64, ntp(clock.unix_s(scheduled)), &markers),
             Target::Vmc(_) => encode_vmc(i as f64 * period, &markers),
             Target::Vrpn { .. } => encode_vrpn(clock.unix_s(scheduled), &markers),
+            Target::NatNet { .. } => encode_natnet(n, i as f64 * period, &markers)
+                .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?,
         };
         let sent_at = clock.now_s();
         match sink.send(&bytes) {
