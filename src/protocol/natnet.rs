@@ -588,13 +588,14 @@ mod tests {
         let b = encode_server_info(&info);
         assert_eq!(b.len(), 283, "Motive's own length");
         assert_eq!(decode(&b, Version(3, 0)), Ok(Message::ServerInfo(info)));
+        // 6,000 × 12 bytes of positions and 78 bytes of counts, stamps and tags.
         let huge = MocapFrame {
             unlabeled: vec![Vec3::ZERO; 6000],
             ..MocapFrame::default()
         };
         assert_eq!(
             encode_frame(&huge),
-            Err(NatNetError::TooLarge { bytes: 72_072 })
+            Err(NatNetError::TooLarge { bytes: 72_078 })
         );
     }
 
