@@ -114,11 +114,9 @@ fn hand_markers() -> Vec<(String, [f64; 3])> {
         .collect()
 }
 
-#[test]
-fn listen_receives_every_packet_from_a_real_sender() {
-    if !python_osc() {
-        return;
-    }
+/// Starts `rigless listen osc://127.0.0.1:PORT --json` on a free port for `packets`
+/// packets (30 s at most) and waits until it listens; returns the port and the child.
+fn start_listen(packets: usize) -> (u16, std::process::Child) {
     // Pick a free port, then let rigless bind it.
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
@@ -131,7 +129,7 @@ fn listen_receives_every_packet_from_a_real_sender() {
             &format!("osc://127.0.0.1:{port}"),
             "--json",
             "--packets",
-            "240",
+            &packets.to_string(),
             "--seconds",
             "30",
         ])
@@ -139,11 +137,20 @@ fn listen_receives_every_packet_from_a_real_sender() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Wait for "listening on" on stderr before sending.
+    // Wait for "listening on" on stderr before anything is sent.
     let mut err = BufReader::new(listen.stderr.take().unwrap());
     let mut first = String::new();
     err.read_line(&mut first).unwrap();
     assert!(first.starts_with("listening on"), "{first}");
+    (port, listen)
+}
+
+#[test]
+fn listen_receives_every_packet_from_a_real_sender() {
+    if !python_osc() {
+        return;
+    }
+    let (port, listen) = start_listen(240);
     // The target: 50 markers a frame at 240 Hz (the hand's 8 and 42 more).
     let mut markers = hand_markers();
     for k in 0..42 {
@@ -223,11 +230,6 @@ fn listen_decodes_what_liblo_oscsend_sends() {
         have,
         "liblo's oscsend is missing: apt-get install liblo-tools (.ci/run does)"
     );
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
     let sends: Vec<(String, [f32; 3])> = (0..20)
         .map(|i| {
             let name = if i % 2 == 0 {
@@ -239,24 +241,7 @@ fn listen_decodes_what_liblo_oscsend_sends() {
             (name.to_owned(), [0.125 * f, -1.5 + f, 1e-3 * f])
         })
         .collect();
-    let mut listen = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args([
-            "listen",
-            &format!("osc://127.0.0.1:{port}"),
-            "--json",
-            "--packets",
-            &sends.len().to_string(),
-            "--seconds",
-            "30",
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(listen.stderr.take().unwrap());
-    let mut first = String::new();
-    err.read_line(&mut first).unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
+    let (port, listen) = start_listen(sends.len());
     for (addr, p) in &sends {
         let out = Command::new("oscsend")
             .args(["127.0.0.1", &port.to_string(), addr, "fff"])

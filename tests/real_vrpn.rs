@@ -120,12 +120,35 @@ fn client_to_server_session() {
     assert_eq!(names.sender(1), Some("Spin0"));
 }
 
+/// Runs the client (in `mode`) against `addr` until it has as many Spin0 reports as
+/// `expected` (10 s at most), checks they are `expected` bit for bit, and returns its
+/// counters.
+fn read_spin0(
+    mode: rigless::input::vrpn::VrpnMode,
+    addr: std::net::SocketAddr,
+    expected: &[rigless::protocol::vrpn::PosQuat],
+) -> rigless::input::vrpn::VrpnStats {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let stop = AtomicBool::new(false);
+    let stats = rigless::input::vrpn::VrpnStats::default();
+    let mut got = Vec::new();
+    let started = std::time::Instant::now();
+    rigless::input::vrpn::run_mode(mode, addr, "Spin0", &stop, &stats, &mut |_, _, r| {
+        got.push(*r);
+        if got.len() == expected.len() {
+            stop.store(true, Ordering::Relaxed);
+        }
+    });
+    assert!(started.elapsed() < std::time::Duration::from_secs(10));
+    assert_eq!(got, expected, "every Spin0 report, in order, bit for bit");
+    stats
+}
+
 #[test]
 fn the_tcp_client_reads_a_replayed_real_session() {
-    use rigless::input::vrpn::{run, VrpnStats};
+    use rigless::input::vrpn::VrpnMode;
     use std::io::{Read, Write};
-    use std::sync::atomic::{AtomicBool, Ordering};
-    use std::sync::Arc;
+    use std::sync::atomic::Ordering;
     let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
         return;
     };
@@ -150,22 +173,7 @@ fn the_tcp_client_reads_a_replayed_real_session() {
         let _ = s.read_to_end(&mut rest);
         (hello, rest)
     });
-    let stop = Arc::new(AtomicBool::new(false));
-    let stats = VrpnStats::default();
-    let mut got = Vec::new();
-    let started = std::time::Instant::now();
-    {
-        let stop2 = Arc::clone(&stop);
-        let n = expected.len();
-        run(addr, "Spin0", &stop, &stats, &mut |_, _, r| {
-            got.push(*r);
-            if got.len() == n {
-                stop2.store(true, Ordering::Relaxed);
-            }
-        });
-    }
-    assert!(started.elapsed() < std::time::Duration::from_secs(10));
-    assert_eq!(got, expected, "every Spin0 report, in order, bit for bit");
+    let stats = read_spin0(VrpnMode::Tcp, addr, &expected);
     assert_eq!(stats.connections.load(Ordering::Relaxed), 1);
     // The client spoke first with a VRPN 07.38 cookie and its descriptions.
     let (hello, rest) = server.join().unwrap();
@@ -186,13 +194,12 @@ fn the_tcp_client_reads_a_replayed_real_session() {
 /// datagrams of whole messages to the UDP port the client described).
 #[test]
 fn the_udp_mode_client_reads_a_real_session_sent_as_datagrams() {
-    use rigless::input::vrpn::{run_udp, VrpnStats};
+    use rigless::input::vrpn::VrpnMode;
     use rigless::protocol::vrpn::{
         datagrams, parse_connection_request, parse_udp_description, UDP_DESCRIPTION,
     };
     use std::io::{Read, Write};
-    use std::sync::atomic::{AtomicBool, Ordering};
-    use std::sync::Arc;
+    use std::sync::atomic::Ordering;
     let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
         return;
     };
@@ -258,22 +265,7 @@ fn the_udp_mode_client_reads_a_real_session_sent_as_datagrams() {
         let _ = s.read_to_end(&mut rest);
         parts.len()
     });
-    let stop = Arc::new(AtomicBool::new(false));
-    let stats = VrpnStats::default();
-    let mut got = Vec::new();
-    let started = std::time::Instant::now();
-    {
-        let stop2 = Arc::clone(&stop);
-        let n = expected.len();
-        run_udp(addr, "Spin0", &stop, &stats, &mut |_, _, r| {
-            got.push(*r);
-            if got.len() == n {
-                stop2.store(true, Ordering::Relaxed);
-            }
-        });
-    }
-    assert!(started.elapsed() < std::time::Duration::from_secs(10));
-    assert_eq!(got, expected, "every Spin0 report, in order, bit for bit");
+    let stats = read_spin0(VrpnMode::Udp, addr, &expected);
     let sent = server.join().unwrap();
     assert_eq!(stats.datagrams.load(Ordering::Relaxed), sent as u64);
     assert_eq!(stats.bad_datagrams.load(Ordering::Relaxed), 0);
