@@ -4,5 +4,6 @@
 pub mod arap;
 pub mod factor;
 pub mod frame;
+pub mod harmonic;
 pub mod ik;
 pub mod polar;
