@@ -69,6 +69,12 @@ pub struct CharacterConfig {
 #[derive(Clone, Debug, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolverConfig {
+    /// Deformation method: `"arap"` (volumetric ARAP and Green coordinates, the default)
+    /// or `"harmonic"` (harmonic rotation fields and a Poisson rebuild, de Aguiar et al.).
+    pub method: SolverMethod,
+    /// Harmonic method: share of each bone's length, at each end, left free of
+    /// correspondences (larger: softer bends).
+    pub harmonic_margin: f64,
     /// Frames per second of the solver thread, Hz.
     pub rate_hz: f64,
     /// ARAP iteration cap per frame.
@@ -86,9 +92,34 @@ pub struct SolverConfig {
     pub prev_prior: f64,
 }
 
+/// `solver.method`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SolverMethod {
+    #[default]
+    Arap,
+    Harmonic,
+}
+
+impl SolverConfig {
+    /// The solver's method with its settings.
+    pub fn method(&self) -> crate::solve::frame::Method {
+        match self.method {
+            SolverMethod::Arap => crate::solve::frame::Method::Arap,
+            SolverMethod::Harmonic => {
+                crate::solve::frame::Method::Harmonic(crate::solve::harmonic::HarmonicParams {
+                    margin: self.harmonic_margin,
+                })
+            }
+        }
+    }
+}
+
 impl Default for SolverConfig {
     fn default() -> Self {
         Self {
+            method: SolverMethod::Arap,
+            harmonic_margin: crate::solve::harmonic::HarmonicParams::default().margin,
             rate_hz: 120.0,
             max_iterations: 30,
             tolerance: 1e-3,
@@ -558,6 +589,12 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
             ));
         }
     }
+    if !(solver.harmonic_margin.is_finite() && (0.0..0.5).contains(&solver.harmonic_margin)) {
+        problems.push(lines.at(
+            "solver.harmonic_margin",
+            format!("must be in [0, 0.5), got {}", solver.harmonic_margin),
+        ));
+    }
     if !(16..=1 << 24).contains(&solver.channel_capacity) {
         problems.push(lines.at(
             "solver.channel_capacity",
@@ -908,6 +945,28 @@ on = true
         .to_string();
         assert!(err.contains("is not a glove:// URL"), "{err}");
         assert!(err.contains("\"thumbs\" is not a finger"), "{err}");
+    }
+
+    #[test]
+    fn the_solver_method_is_chosen_in_the_stage() {
+        let stage = "[character]\nprocedural = \"hand\"\n[solver]\nmethod = \"harmonic\"\nharmonic_margin = 0.1\n[[inputs]]\ntype = \"synthetic\"\n";
+        let cfg = parse_stage(stage, "s.toml").unwrap();
+        assert_eq!(
+            cfg.solver.method(),
+            crate::solve::frame::Method::Harmonic(crate::solve::harmonic::HarmonicParams {
+                margin: 0.1
+            })
+        );
+        let bad = stage.replace("0.1", "0.7");
+        let err = parse_stage(&bad, "s.toml").unwrap_err().to_string();
+        assert!(
+            err.contains("line 5: solver.harmonic_margin: must be in [0, 0.5)"),
+            "{err}"
+        );
+        let err = parse_stage(&stage.replace("harmonic\"", "laplace\""), "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("laplace"), "{err}");
     }
 
     #[test]

@@ -111,9 +111,10 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
 
     let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
     let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
-    let solver = Solver::new(
+    let solver = Solver::try_new(
         Arc::clone(&rig),
         SolverParams {
+            method: cfg.solver.method(),
             max_iterations: cfg.solver.max_iterations,
             tolerance: cfg.solver.tolerance,
             ik: IkParams {
@@ -122,7 +123,8 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                 ..IkParams::default()
             },
         },
-    );
+    )
+    .with_context(|| format!("setting up the {:?} solver for {name}", cfg.solver.method))?;
     let mut pipeline = Pipeline::new(solver, buffer, rx, vec![slot]);
     let clock = Arc::new(SystemClock::new());
     let record_path = opts

@@ -683,7 +683,8 @@ fn bench_characters(json: bool) -> Result<()> {
         Motion,
     };
     use rigless::character::body::BodyMotion;
-    use rigless::solve::frame::SolverParams;
+    use rigless::solve::frame::{Method, SolverParams};
+    use rigless::solve::harmonic::HarmonicParams;
     let run = CharacterRun {
         seconds: 10.0,
         rate_hz: 120.0,
@@ -692,24 +693,38 @@ fn bench_characters(json: bool) -> Result<()> {
     };
     let hand = demo_hand();
     let body = demo_body();
+    // The body at about 50,000 triangles (25,000 vertices): the harmonic method's second
+    // target.
+    let body50k = rigless::character::body::body(0.006, 50_000);
+    // Frame p99 targets (ms) of the two methods; the harmonic method's is the body's.
     let cases = [
-        (&hand, hand_bind_params(), Motion::FingerPlay, 1.0),
+        (&hand, hand_bind_params(), Motion::FingerPlay, 1.0, None),
         (
             &body,
             body_bind_params(),
             Motion::Body(BodyMotion::Walk),
             4.0,
+            Some(3.0),
         ),
         (
             &body,
             body_bind_params(),
             Motion::Body(BodyMotion::Reach),
             4.0,
+            Some(3.0),
+        ),
+        (
+            &body50k,
+            body_bind_params(),
+            Motion::Body(BodyMotion::Walk),
+            f64::NAN,
+            Some(15.0),
         ),
     ];
     if !json {
         println!(
-            "{:<6} {:<12} {:>6} {:>5} {:>9} {:>9} {:>6} {:>8} {:>8} {:>8} {:>7} {:>7} {:>5} {:>8}",
+            "{:<9} {:<6} {:<12} {:>6} {:>5} {:>9} {:>9} {:>6} {:>8} {:>8} {:>8} {:>7} {:>7} {:>5} {:>8}",
+            "method",
             "char",
             "motion",
             "verts",
@@ -726,28 +741,45 @@ fn bench_characters(json: bool) -> Result<()> {
             "target"
         );
     }
-    for (ch, bind, motion, target_ms) in cases {
-        let rec = run_character(ch, &bind, SolverParams::default(), motion, run, |_, _| {})
-            .with_context(|| format!("binding the procedural {}", ch.name))?;
-        if json {
-            println!("{}", serde_json::to_string(&rec)?);
-        } else {
+    for (ch, bind, motion, arap_target_ms, harmonic_target_ms) in cases {
+        for (method, target_ms) in [
+            (Method::Arap, Some(arap_target_ms).filter(|t| t.is_finite())),
+            (
+                Method::Harmonic(HarmonicParams::default()),
+                harmonic_target_ms,
+            ),
+        ] {
+            let params = SolverParams {
+                method,
+                ..SolverParams::default()
+            };
+            let rec = run_character(ch, &bind, params, motion, run, |_, _| {})
+                .with_context(|| format!("running the procedural {}", ch.name))?;
+            if json {
+                println!("{}", serde_json::to_string(&rec)?);
+                continue;
+            }
+            // The harmonic method has no control mesh: no iterations, no sampled bones
+            // (the posture's are rigid), no tets.
+            let arap = rec.method == "arap";
+            let na = |v: String| if arap { v } else { "-".into() };
             println!(
-                "{:<6} {:<12} {:>6} {:>5} {:>9.3} {:>9.3} {:>6.2} {:>8.4} {:>8.3} {:>8.2} {:>7.3} {:>7.2} {:>5} {:>8}",
+                "{:<9} {:<6} {:<12} {:>6} {:>5} {:>9.3} {:>9.3} {:>6} {:>8} {:>8.3} {:>8.2} {:>7.3} {:>7.2} {:>5} {:>8}",
+                rec.method,
                 rec.character,
                 rec.motion,
                 rec.mesh_vertices,
-                rec.n,
+                na(rec.n.to_string()),
                 rec.frame_ms_p50,
                 rec.frame_ms_p99,
-                rec.iterations_mean,
-                rec.bone_length_error_mean,
+                na(format!("{:.2}", rec.iterations_mean)),
+                na(format!("{:.4}", rec.bone_length_error_mean)),
                 rec.joint_limit_violation_deg_max,
                 rec.marker_residual_mm_rms,
                 rec.volume_error_mean,
                 rec.gt_vertex_error_mean * 100.0,
-                rec.inverted_tets_max,
-                format!("p99≤{target_ms}")
+                na(rec.inverted_tets_max.to_string()),
+                target_ms.map_or("-".into(), |t| format!("p99≤{t}"))
             );
         }
     }

@@ -40,3 +40,36 @@ fn the_body_walks_and_reaches_within_the_quality_targets() {
         assert!(rec.gt_vertex_error_mean <= 0.02, "{rec:?}");
     }
 }
+
+/// The second method (harmonic rotation fields, de Aguiar et al.) on the same motions:
+/// the same ground-truth and volume targets (the skeleton figures are the posture fit's,
+/// rigid by construction).
+#[test]
+fn the_harmonic_method_follows_the_body_within_the_quality_targets() {
+    use rigless::solve::frame::Method;
+    use rigless::solve::harmonic::HarmonicParams;
+    let body = demo_body();
+    for motion in [BodyMotion::Walk, BodyMotion::Reach] {
+        let rec = run_character(
+            &body,
+            &body_bind_params(),
+            SolverParams {
+                method: Method::Harmonic(HarmonicParams::default()),
+                ..SolverParams::default()
+            },
+            Motion::Body(motion),
+            CharacterRun {
+                seconds: 1.8,
+                rate_hz: 120.0,
+                noise_m: 0.0,
+                frame_budget_s: 10.0,
+            },
+            |_, _| {},
+        )
+        .expect("body binds and ties");
+        assert_eq!(rec.method, "harmonic");
+        assert!(rec.marker_residual_mm_rms <= 2.0, "{rec:?}");
+        assert!(rec.volume_error_mean <= 0.02, "{rec:?}");
+        assert!(rec.gt_vertex_error_mean <= 0.02, "{rec:?}");
+    }
+}

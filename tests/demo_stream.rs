@@ -164,3 +164,28 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
     assert!(s.samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
     assert!(s.samples.len() >= 8 * 120);
 }
+
+/// `solver.method = "harmonic"` in a stage: the daemon streams the body deformed by the
+/// second method.
+#[test]
+fn a_stage_runs_the_harmonic_method() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"body\"\n\n[solver]\nmethod = \"harmonic\"\nrate_hz = 60\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"walk\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+    )
+    .unwrap();
+    let run = Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "3"]);
+    let s = &client_summary(&run.addr, &["--frames", "30"]);
+    assert_eq!(s["frames"], 30);
+    assert_eq!(s["all_finite"], true);
+    // Walking, the body stays about 1.75 m tall on y = 0 (the mesh follows the posture).
+    let (ylo, yhi) = (
+        s["bbox_min"][1].as_f64().unwrap(),
+        s["bbox_max"][1].as_f64().unwrap(),
+    );
+    assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
+    let (ok, lines) = run.finish();
+    assert!(ok, "{lines:?}");
+}

@@ -10,7 +10,17 @@ pub use crate::character::demo::{
 use crate::character::procedural::{mesh_volume, skin_pose, Character};
 use crate::markers::MarkerFrame;
 use crate::rig::bind::{BindError, BindParams, Rig};
-use crate::solve::frame::{SolveReport, Solver, SolverParams};
+use crate::solve::frame::{Method, SolveReport, Solver, SolverParams};
+use crate::solve::harmonic::HarmonicError;
+
+/// Why a character could not be run.
+#[derive(Debug, thiserror::Error)]
+pub enum CharacterRunError {
+    #[error(transparent)]
+    Bind(#[from] BindError),
+    #[error(transparent)]
+    Harmonic(#[from] HarmonicError),
+}
 use glam::DVec3;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -19,6 +29,8 @@ use std::time::{Duration, Instant};
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct CharacterRecord {
     pub suite: &'static str,
+    /// `"arap"` or `"harmonic"`.
+    pub method: &'static str,
     pub character: String,
     pub motion: String,
     pub frames: usize,
@@ -73,7 +85,7 @@ pub fn run_character(
     motion: Motion,
     run: CharacterRun,
     mut on_frame: impl FnMut(usize, &SolveReport),
-) -> Result<CharacterRecord, BindError> {
+) -> Result<CharacterRecord, CharacterRunError> {
     let CharacterRun {
         seconds,
         rate_hz,
@@ -83,7 +95,7 @@ pub fn run_character(
     let t0 = Instant::now();
     let rig = Arc::new(Rig::bind(ch, bind)?);
     let bind_s = t0.elapsed().as_secs_f64();
-    let mut solver = Solver::new(Arc::clone(&rig), solver_params);
+    let mut solver = Solver::try_new(Arc::clone(&rig), solver_params)?;
     let frames = (seconds * rate_hz).round() as usize;
     let nv = ch.vertices.len();
     let mut truth = vec![DVec3::ZERO; nv];
@@ -96,6 +108,10 @@ pub fn run_character(
     let mut ik_t = Vec::with_capacity(frames);
     let mut rec = CharacterRecord {
         suite: "characters",
+        method: match solver_params.method {
+            Method::Arap => "arap",
+            Method::Harmonic(_) => "harmonic",
+        },
         character: ch.name.clone(),
         motion: motion.name().into(),
         frames,

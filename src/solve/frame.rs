@@ -14,6 +14,7 @@
 //! Then the full mesh follows the control mesh. Allocation-free per frame.
 
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
+use super::harmonic::{HarmonicError, HarmonicParams, HarmonicRig, HarmonicState};
 use super::ik::{IkParams, IkReport, IkState};
 use super::polar::extract_rotation;
 use crate::character::skeleton::clamp_to_limits;
@@ -24,9 +25,21 @@ use glam::{DMat3, DQuat, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
 
+/// Which deformation follows the skeleton step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Method {
+    /// Volumetric ARAP on the control mesh, then Green coordinates (Le Naour et al.).
+    Arap,
+    /// Harmonic rotation fields and a Poisson rebuild on the full mesh (de Aguiar et al.,
+    /// [`super::harmonic`]), driven by the fitted posture's joint rotations.
+    Harmonic(HarmonicParams),
+}
+
 /// Solver settings.
 #[derive(Clone, Copy, Debug)]
 pub struct SolverParams {
+    /// The deformation method.
+    pub method: Method,
     /// Iteration cap per frame.
     pub max_iterations: usize,
     /// Relative change of `0.5·rrms + 0.5·bone_length_error` below which a frame is done.
@@ -38,6 +51,7 @@ pub struct SolverParams {
 impl Default for SolverParams {
     fn default() -> Self {
         Self {
+            method: Method::Arap,
             max_iterations: 30,
             tolerance: 1e-3,
             ik: IkParams::default(),
@@ -95,9 +109,36 @@ pub struct Solver {
     /// NaN: free; see [`Self::set_pins`]).
     pins: Vec<f64>,
     any_pin: bool,
+    /// The harmonic method's set-up and memory (`Method::Harmonic`).
+    harmonic: Option<(HarmonicRig, HarmonicState)>,
 }
 
 impl Solver {
+    /// A solver for `params.method`; the harmonic method's set-up (Laplacian,
+    /// correspondences, factor) happens here and can fail on meshes it cannot tie.
+    pub fn try_new(rig: Arc<Rig>, params: SolverParams) -> Result<Self, HarmonicError> {
+        let harmonic = match params.method {
+            Method::Arap => None,
+            Method::Harmonic(h) => {
+                let hr = HarmonicRig::new(&rig.mesh_rest, &rig.triangles, &rig.skeleton, &h)?;
+                let st = hr.new_state();
+                Some((hr, st))
+            }
+        };
+        let mut s = Self::new(
+            rig,
+            SolverParams {
+                method: Method::Arap,
+                ..params
+            },
+        );
+        s.params.method = params.method;
+        s.harmonic = harmonic;
+        Ok(s)
+    }
+
+    /// An ARAP solver (`params.method` is taken as [`Method::Arap`]; see
+    /// [`Self::try_new`] for the harmonic method).
     pub fn new(rig: Arc<Rig>, params: SolverParams) -> Self {
         let st = rig.system.new_state();
         let ik = rig.ik.new_state();
@@ -121,6 +162,7 @@ impl Solver {
             held_local,
             pins: vec![f64::NAN; rig_params],
             any_pin: false,
+            harmonic: None,
         }
     }
 
@@ -198,6 +240,35 @@ impl Solver {
             rig.ik.pin(&mut self.ik, &self.pins);
         }
         let t_ik = Instant::now();
+        if let Some((hr, hst)) = &mut self.harmonic {
+            // The second method: the posture's joints drive the full mesh directly.
+            hr.deform(hst, &self.ik.world_rot, &self.ik.world_pos, vertices_out);
+            let t1 = Instant::now();
+            let (mut sum2, mut max2) = (0.0f64, 0.0f64);
+            for k in 0..nm {
+                if self.ik_targets[k].is_finite() {
+                    let d2 = (self.ik.predicted[k] - self.ik_targets[k]).length_squared();
+                    sum2 += d2;
+                    max2 = max2.max(d2);
+                }
+            }
+            return SolveReport {
+                iterations: 0,
+                ik_iterations: ik_rep.iterations,
+                ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
+                ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
+                stop: StopReason::Converged,
+                // No control mesh: the skeleton is the posture's own (rigid segments,
+                // limits held by the fit).
+                rrms: 0.0,
+                bone_length_error: 0.0,
+                joint_limit_violation_deg: 0.0,
+                marker_residual_rms_mm: (sum2 / present.max(1) as f64).sqrt() * 1e3,
+                marker_residual_max_mm: max2.sqrt() * 1e3,
+                solve_ms: (t1 - t0).as_secs_f64() * 1e3,
+                gc_ms: 0.0,
+            };
+        }
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
             let o = rig.sample_owner[s];

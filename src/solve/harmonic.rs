@@ -251,7 +251,11 @@ impl HarmonicRig {
             }
             fc_start.push(fc.len() as u32);
         }
-        let root = sk.joints.iter().position(|j| j.parent.is_none()).unwrap_or(0);
+        let root = sk
+            .joints
+            .iter()
+            .position(|j| j.parent.is_none())
+            .unwrap_or(0);
         Ok(Self {
             rest: vertices.to_vec(),
             triangles: triangles.to_vec(),
@@ -301,10 +305,7 @@ impl HarmonicRig {
     fn harmonic3(&self, c: impl Fn(usize) -> DVec3, rhs: &mut [DVec3], work: &mut [DVec3]) {
         for (r, out) in rhs.iter_mut().enumerate() {
             let (a, b) = (self.fc_start[r] as usize, self.fc_start[r + 1] as usize);
-            *out = self.fc[a..b]
-                .iter()
-                .map(|&(k, w)| -c(k as usize) * w)
-                .sum();
+            *out = self.fc[a..b].iter().map(|&(k, w)| -c(k as usize) * w).sum();
         }
         self.factor.solve3(rhs, work);
     }
@@ -366,7 +367,12 @@ impl HarmonicRig {
             }
         };
         for (r, &v) in self.free_vertex.iter().enumerate() {
-            let q = DQuat::from_xyzw(st.rhs_xyz[r].x, st.rhs_xyz[r].y, st.rhs_xyz[r].z, st.rhs_w[r].x);
+            let q = DQuat::from_xyzw(
+                st.rhs_xyz[r].x,
+                st.rhs_xyz[r].y,
+                st.rhs_xyz[r].z,
+                st.rhs_w[r].x,
+            );
             let v = v as usize;
             st.vertex_rot[v] = compose(q, st.vertex_rot[v]);
         }
@@ -419,7 +425,11 @@ impl HarmonicRig {
 }
 
 /// Fails when a connected part of the mesh has no tied vertex.
-fn check_components(n: usize, edges: &[(u32, u32, f64)], owner: &[u32]) -> Result<(), HarmonicError> {
+fn check_components(
+    n: usize,
+    edges: &[(u32, u32, f64)],
+    owner: &[u32],
+) -> Result<(), HarmonicError> {
     let mut parent: Vec<u32> = (0..n as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
@@ -435,8 +445,8 @@ fn check_components(n: usize, edges: &[(u32, u32, f64)], owner: &[u32]) -> Resul
         }
     }
     let mut tied_root = vec![false; n];
-    for v in 0..n {
-        if owner[v] != u32::MAX {
+    for (v, o) in owner.iter().enumerate() {
+        if *o != u32::MAX {
             let r = find(&mut parent, v as u32) as usize;
             tied_root[r] = true;
         }
@@ -462,8 +472,13 @@ mod tests {
 
     fn setup() -> (crate::character::Character, HarmonicRig) {
         let ch = demo_hand();
-        let rig = HarmonicRig::new(&ch.vertices, &ch.triangles, &ch.skeleton, &HarmonicParams::default())
-            .unwrap();
+        let rig = HarmonicRig::new(
+            &ch.vertices,
+            &ch.triangles,
+            &ch.skeleton,
+            &HarmonicParams::default(),
+        )
+        .unwrap();
         (ch, rig)
     }
 
@@ -483,12 +498,19 @@ mod tests {
                     + w[2] * (f(a) - f(b)).powi(2);
                 let n = (b - a).cross(c - a);
                 // Degenerate triangles are out of the Laplacian (zero weights).
-                let area = if w == &[0.0; 3] { 0.0 } else { 0.5 * n.length() };
+                let area = if w == &[0.0; 3] {
+                    0.0
+                } else {
+                    0.5 * n.length()
+                };
                 let unit = n.normalize_or_zero();
                 let g = axis - unit * axis.dot(unit);
                 integral += area * g.length_squared();
             }
-            assert!((energy - integral).abs() <= 1e-9 * integral, "{energy} vs {integral}");
+            assert!(
+                (energy - integral).abs() <= 1e-9 * integral,
+                "{energy} vs {integral}"
+            );
         }
         let (tied, all) = rig.tied_count();
         assert!(tied > all / 4 && tied < all, "{tied} of {all} tied");
@@ -541,11 +563,17 @@ mod tests {
         let mut st = rig.new_state();
         let k = rig.tied.len();
         let values: Vec<f64> = (0..k).map(|i| ((i * 37) % 101) as f64 / 100.0).collect();
-        let (lo, hi) = values.iter().fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+        let (lo, hi) = values
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
         rig.harmonic3(|i| DVec3::splat(values[i]), &mut st.rhs_xyz, &mut st.work);
         let span = hi - lo;
         for v in &st.rhs_xyz {
-            assert!(v.x >= lo - 0.01 * span && v.x <= hi + 0.01 * span, "{} outside [{lo}, {hi}]", v.x);
+            assert!(
+                v.x >= lo - 0.01 * span && v.x <= hi + 0.01 * span,
+                "{} outside [{lo}, {hi}]",
+                v.x
+            );
         }
         let _ = ch;
     }
@@ -555,7 +583,11 @@ mod tests {
         let (ch, rig) = setup();
         let mut st = rig.new_state();
         let sk = &ch.skeleton;
-        let j = sk.joints.iter().position(|jt| jt.name == "index_2").unwrap();
+        let j = sk
+            .joints
+            .iter()
+            .position(|jt| jt.name == "index_2")
+            .unwrap();
         let mut local = vec![DQuat::IDENTITY; sk.len()];
         local[j] = DQuat::from_axis_angle(sk.joints[j].bend_axis, 1.2);
         let (mut rot, mut pos) = (vec![DQuat::IDENTITY; sk.len()], vec![DVec3::ZERO; sk.len()]);
