@@ -317,6 +317,27 @@ impl Default for SyntheticInputConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct OutputsConfig {
     pub stream: StreamOutputConfig,
+    pub rerun: RerunOutputConfig,
+}
+
+/// `[outputs.rerun]`: the Rerun recording (`src/output/rerun_sink.rs`).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RerunOutputConfig {
+    /// `"off"`, `"spawn"` (start a viewer), `"connect=HOST:PORT"` (a running viewer's
+    /// gRPC port) or `"save=PATH.rrd"` (relative to the stage config's folder).
+    pub target: String,
+    /// Log the mesh every this many frames (1: every frame).
+    pub mesh_every: u64,
+}
+
+impl Default for RerunOutputConfig {
+    fn default() -> Self {
+        Self {
+            target: "off".into(),
+            mesh_every: 1,
+        }
+    }
 }
 
 /// `[outputs.stream]`: the vertex stream (protocols/vertex-stream.md).
@@ -335,6 +356,18 @@ impl Default for StreamOutputConfig {
         Self {
             tcp: Some(SocketAddr::from(([127, 0, 0, 1], 7878))),
             websocket: None,
+        }
+    }
+}
+
+impl RerunOutputConfig {
+    /// The target, with a relative save path taken from `base_dir`.
+    pub fn target(&self, base_dir: &std::path::Path) -> crate::output::rerun_sink::RerunTarget {
+        use crate::output::rerun_sink::RerunTarget;
+        match self.target.parse() {
+            Ok(RerunTarget::Save(p)) => RerunTarget::Save(base_dir.join(p)),
+            Ok(t) => t,
+            Err(_) => RerunTarget::Off,
         }
     }
 }
@@ -603,6 +636,16 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
                 solver.channel_capacity
             ),
         ));
+    }
+    if let Err(e) = outputs
+        .rerun
+        .target
+        .parse::<crate::output::rerun_sink::RerunTarget>()
+    {
+        problems.push(lines.at("outputs.rerun.target", e));
+    }
+    if outputs.rerun.mesh_every == 0 {
+        problems.push(lines.at("outputs.rerun.mesh_every", "must be at least 1"));
     }
     for p in buffer.problems() {
         let key = p.split(' ').next().unwrap_or("buffer").to_owned();

@@ -23,6 +23,9 @@ use rigless::input::SourceCounters;
 use rigless::input::{parse_url, InputUrl};
 use rigless::markers::buffer::MarkerBuffer;
 use rigless::markers::MarkerSample;
+use rigless::output::rerun_sink::{
+    start as start_rerun, RerunOptions, RerunScene, RerunStats, RerunTarget,
+};
 use rigless::output::stream::{StreamServer, StreamStats};
 use rigless::protocol::osc::OscMapping;
 use rigless::replay::bundled::bundled;
@@ -45,6 +48,29 @@ pub struct RunOptions {
     pub json: bool,
     /// Record every incoming sample here (overrides `[recorder] path`).
     pub record: Option<std::path::PathBuf>,
+    /// Where the Rerun recording goes (overrides `[outputs.rerun] target`).
+    pub rerun: Option<RerunTarget>,
+}
+
+/// A Rerun target that can be honoured here: `spawn` needs the `rerun` viewer on PATH;
+/// without it the recording is saved to `fallback` and the command that opens it is
+/// printed.
+fn usable_rerun_target(t: RerunTarget, fallback: &std::path::Path) -> RerunTarget {
+    let on_path = |exe: &str| {
+        std::env::var_os("PATH")
+            .is_some_and(|paths| std::env::split_paths(&paths).any(|d| d.join(exe).is_file()))
+    };
+    match t {
+        RerunTarget::Spawn if !on_path("rerun") => {
+            println!(
+                "no Rerun viewer on PATH: saving to {} instead; open it with: rerun {}",
+                fallback.display(),
+                fallback.display()
+            );
+            RerunTarget::Save(fallback.to_path_buf())
+        }
+        t => t,
+    }
 }
 
 /// `YYYYmmdd-HHMMSS` (UTC) of a Unix time, for `{time}` in recorder paths.
@@ -125,7 +151,39 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
         },
     )
     .with_context(|| format!("setting up the {:?} solver for {name}", cfg.solver.method))?;
-    let mut pipeline = Pipeline::new(solver, buffer, rx, vec![slot]);
+    let rerun_target = usable_rerun_target(
+        opts.rerun
+            .clone()
+            .unwrap_or_else(|| cfg.outputs.rerun.target(base_dir)),
+        &base_dir.join(format!("rigless-{name}.rrd")),
+    );
+    let rerun_slot = Arc::new(LatestSlot::new());
+    let rerun_stop = Arc::new(AtomicBool::new(false));
+    let rerun_stats = Arc::new(RerunStats::default());
+    let rerun_thread = start_rerun(
+        &RerunOptions {
+            target: rerun_target.clone(),
+            mesh_every: cfg.outputs.rerun.mesh_every,
+        },
+        RerunScene {
+            character: name.clone(),
+            triangles: rig.triangles.clone(),
+            marker_names: rig.marker_names.clone(),
+            joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
+        },
+        Arc::clone(&rerun_slot),
+        Arc::clone(&rerun_stop),
+        Arc::clone(&rerun_stats),
+    )
+    .context("starting the Rerun recording")?;
+    let mut slots = vec![slot];
+    if rerun_thread.is_some() {
+        if !opts.json {
+            println!("rerun: {rerun_target:?}");
+        }
+        slots.push(Arc::clone(&rerun_slot));
+    }
+    let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
     let clock = Arc::new(SystemClock::new());
     let record_path = opts
         .record
@@ -566,6 +624,18 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     };
     if let Some(s) = server {
         s.shutdown(reason);
+    }
+    rerun_stop.store(true, Ordering::Relaxed);
+    if let Some(h) = rerun_thread {
+        h.join()
+            .map_err(|_| anyhow::anyhow!("the Rerun thread panicked"))?;
+        if !opts.json {
+            println!(
+                "rerun: {} frames logged, {} skipped (the sink fell behind)",
+                rerun_stats.frames_logged.load(Ordering::Relaxed),
+                rerun_slot.dropped()
+            );
+        }
     }
     if tty {
         println!();

@@ -39,6 +39,11 @@ enum Command {
         /// `{time}` becomes the start time).
         #[arg(long)]
         record: Option<PathBuf>,
+        /// Rerun: off, spawn (a viewer; without one on PATH, save rigless-CHARACTER.rrd
+        /// and print how to open it), connect=HOST:PORT (a running viewer, gRPC port 9876
+        /// by default) or save=PATH.rrd. Overrides the stage's [outputs.rerun].
+        #[arg(long, value_name = "off|spawn|connect=ADDR|save=PATH")]
+        rerun: Option<rigless::output::rerun_sink::RerunTarget>,
         /// Print the status and the summary as JSON lines instead of text.
         #[arg(long)]
         json: bool,
@@ -74,6 +79,11 @@ enum Command {
         /// Also serve the vertex stream over WebSocket here (e.g. 127.0.0.1:7879).
         #[arg(long)]
         websocket: Option<std::net::SocketAddr>,
+        /// Rerun: off, spawn (a viewer; without one on PATH, save rigless-CHARACTER.rrd
+        /// and print how to open it), connect=HOST:PORT (a running viewer, gRPC port 9876
+        /// by default) or save=PATH.rrd. Overrides the stage's [outputs.rerun].
+        #[arg(long, value_name = "off|spawn|connect=ADDR|save=PATH")]
+        rerun: Option<rigless::output::rerun_sink::RerunTarget>,
         /// Print the status and the summary as JSON lines instead of text.
         #[arg(long)]
         json: bool,
@@ -283,6 +293,7 @@ fn real_main() -> Result<()> {
             seconds,
             check,
             record,
+            rerun,
             json,
         } => {
             check_seconds(seconds)?;
@@ -299,6 +310,7 @@ fn real_main() -> Result<()> {
                     seconds,
                     json,
                     record,
+                    rerun,
                 },
             )
         }
@@ -310,6 +322,7 @@ fn real_main() -> Result<()> {
             speed,
             stream,
             websocket,
+            rerun,
             json,
         } => {
             check_seconds(seconds)?;
@@ -331,6 +344,7 @@ fn real_main() -> Result<()> {
                     seconds,
                     json,
                     record: None,
+                    rerun,
                 },
             )
         }

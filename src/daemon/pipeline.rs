@@ -212,6 +212,12 @@ impl Pipeline {
             for (o, p) in f.vertices_m.iter_mut().zip(&self.vertices) {
                 *o = p.as_vec3();
             }
+            let (_, joints) = self.solver.joint_world();
+            // Sized once per pooled frame; no allocation after.
+            f.joints_m.resize(joints.len(), glam::Vec3::ZERO);
+            for (o, p) in f.joints_m.iter_mut().zip(joints) {
+                *o = p.as_vec3();
+            }
         }
         for slot in &self.slots {
             slot.publish(Arc::clone(&frame));

@@ -1,3 +1,4 @@
-//! Sinks that read published frames: the vertex stream server.
+//! Sinks that read published frames: the vertex stream server and the Rerun recording.
 
+pub mod rerun_sink;
 pub mod stream;

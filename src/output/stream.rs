@@ -173,7 +173,10 @@ impl Conn {
         let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
         let _ = match self {
             Conn::Tcp(s) => tokio::time::timeout(limit, s.shutdown()).await.map(|_| ()),
-            Conn::Ws(w) => tokio::time::timeout(limit, w.close(None)).await.map(|_| ()),
+            // The WebSocket close handshake (the stream's own `close`, not `SinkExt::close`).
+            Conn::Ws(w) => tokio::time::timeout(limit, WebSocketStream::close(&mut **w, None))
+                .await
+                .map(|_| ()),
         };
     }
 }

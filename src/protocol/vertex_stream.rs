@@ -97,6 +97,9 @@ pub struct DeformedFrame {
     pub markers_m: Vec<Vec3>,
     /// Full-resolution vertices, metres, world frame.
     pub vertices_m: Vec<Vec3>,
+    /// The fitted skeleton's joint positions, metres (for in-process sinks such as Rerun;
+    /// not on the wire, empty when decoded).
+    pub joints_m: Vec<Vec3>,
 }
 
 impl DeformedFrame {
@@ -120,6 +123,7 @@ impl DeformedFrame {
             marker_states: vec![FillState::Held; markers],
             markers_m: vec![Vec3::ZERO; markers],
             vertices_m: vec![Vec3::ZERO; vertices],
+            joints_m: Vec::new(),
         }
     }
 }
@@ -464,6 +468,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
     let vertices_m = r.vec3s(nv)?;
     r.end()?;
     Ok(DeformedFrame {
+        joints_m: Vec::new(),
         frame,
         source_time_s,
         publish_time_s,
