@@ -12,11 +12,13 @@ const READER: &str = r#"
 import json, sys
 import rerun as rr
 from rerun.experimental import RrdReader
-rows, timelines, markers, iterations = {}, set(), 0, []
+rows, timelines, markers, iterations, conv_timelines = {}, set(), 0, [], set()
 for chunk in RrdReader(sys.argv[1]).stream():
     path = str(chunk.entity_path)
     rows[path] = rows.get(path, 0) + chunk.num_rows
     timelines.update(chunk.timeline_names)
+    if path == "/solver/convergence":
+        conv_timelines.update(chunk.timeline_names)
     batch = chunk.to_record_batch()
     for name in batch.schema.names:
         if path == "/character/markers" and name.endswith("Points3D:positions"):
@@ -26,7 +28,8 @@ for chunk in RrdReader(sys.argv[1]).stream():
             col = batch.column(name).to_pylist()
             iterations += [v[0] for v in col if v]
 print(json.dumps({"version": rr.__version__, "rows": rows, "timelines": sorted(timelines),
-                  "markers": markers, "iterations": iterations}))
+                  "markers": markers, "iterations": iterations,
+                  "convergence_timelines": sorted(conv_timelines)}))
 "#;
 
 fn rerun_sdk() -> bool {
@@ -101,10 +104,16 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
     ] {
         assert_eq!(rows(path), logged, "{path}: {v}");
     }
-    // Ours, and the SDK's own log_time.
+    // Ours, the convergence's `iteration`, and the SDK's own log_time.
     assert_eq!(
         v["timelines"],
-        serde_json::json!(["frame", "log_time", "time"]),
+        serde_json::json!(["frame", "iteration", "log_time", "time"]),
+        "{v}"
+    );
+    // Only the convergence trace is on the iteration timeline.
+    assert_eq!(
+        v["convergence_timelines"],
+        serde_json::json!(["frame", "iteration", "log_time", "time"]),
         "{v}"
     );
     // The hand's 8 markers (all present at some frame of the bundled session).

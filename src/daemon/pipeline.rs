@@ -218,6 +218,10 @@ impl Pipeline {
             for (o, p) in f.joints_m.iter_mut().zip(joints) {
                 *o = p.as_vec3();
             }
+            // Within the capacity reserved at creation: no allocation.
+            f.convergence.clear();
+            f.convergence
+                .extend_from_slice(&solve.trace[..solve.trace_len]);
         }
         for slot in &self.slots {
             slot.publish(Arc::clone(&frame));

@@ -13,6 +13,8 @@
 //! - `solver/*`: time series (`Scalars`): iterations, solve_ms, gc_ms, rrms,
 //!   bone_length_error, joint_limit_violation_deg, marker_residual_rms_mm; and
 //!   `markers/*`: how many markers are in each fill state.
+//! - `solver/convergence`: the convergence criterion after each iteration of a frame, on
+//!   an `iteration` timeline as well, so a frame's convergence reads directly.
 //!
 //! World frame: metres, Y up (`ViewCoordinates::RIGHT_HAND_Y_UP` on `character`).
 
@@ -237,6 +239,16 @@ impl Logger {
         ] {
             let _ = rec.log(name, &::rerun::Scalars::single(v));
         }
+        // The criterion per iteration of this frame, on the `iteration` timeline (with
+        // the frame's own `frame` and `time`).
+        for (i, c) in f.convergence.iter().enumerate() {
+            rec.set_time_sequence("iteration", i as i64);
+            let _ = rec.log(
+                "solver/convergence",
+                &::rerun::Scalars::single(f64::from(*c)),
+            );
+        }
+        rec.disable_timeline("iteration");
         let mut counts = [0u32; 4];
         for st in &f.marker_states {
             counts[*st as usize] += 1;

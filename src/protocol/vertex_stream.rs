@@ -100,6 +100,9 @@ pub struct DeformedFrame {
     /// The fitted skeleton's joint positions, metres (for in-process sinks such as Rerun;
     /// not on the wire, empty when decoded).
     pub joints_m: Vec<Vec3>,
+    /// The solver's convergence criterion after each iteration of this frame (in-process
+    /// only, like `joints_m`).
+    pub convergence: Vec<f32>,
 }
 
 impl DeformedFrame {
@@ -124,6 +127,7 @@ impl DeformedFrame {
             markers_m: vec![Vec3::ZERO; markers],
             vertices_m: vec![Vec3::ZERO; vertices],
             joints_m: Vec::new(),
+            convergence: Vec::with_capacity(crate::solve::frame::TRACE_LEN),
         }
     }
 }
@@ -469,6 +473,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
     r.end()?;
     Ok(DeformedFrame {
         joints_m: Vec::new(),
+        convergence: Vec::new(),
         frame,
         source_time_s,
         publish_time_s,

@@ -59,9 +59,16 @@ impl Default for SolverParams {
     }
 }
 
+/// Iterations whose convergence criterion a report keeps.
+pub const TRACE_LEN: usize = 32;
+
 /// What one frame's solve did and how good it is (names as in DESIGN.md).
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct SolveReport {
+    /// The convergence criterion `0.5·rrms + 0.5·bone_length_error` after each local
+    /// step, first `trace_len` entries (at most [`TRACE_LEN`]): how the frame converged.
+    pub trace: [f32; TRACE_LEN],
+    pub trace_len: usize,
     /// ARAP iterations (local, global) this frame.
     pub iterations: usize,
     /// Levenberg–Marquardt iterations of the skeleton step's posture fit.
@@ -253,6 +260,8 @@ impl Solver {
                 }
             }
             return SolveReport {
+                trace: [0.0; TRACE_LEN],
+                trace_len: 0,
                 iterations: 0,
                 ik_iterations: ik_rep.iterations,
                 ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
@@ -303,10 +312,15 @@ impl Solver {
         let mut iterations = 0;
         let mut stop = StopReason::IterationCap;
         let (mut rrms, mut ble);
+        let (mut trace, mut trace_len) = ([0f32; TRACE_LEN], 0);
         loop {
             rrms = sys.rrms(sys.local_step(&mut self.st));
             ble = self.bone_length_error();
             let crit = 0.5 * rrms + 0.5 * ble;
+            if trace_len < TRACE_LEN {
+                trace[trace_len] = crit as f32;
+                trace_len += 1;
+            }
             if let Some(p) = prev {
                 if (crit - p).abs() <= self.params.tolerance * p + CONVERGENCE_ABS_FLOOR {
                     stop = StopReason::Converged;
@@ -335,6 +349,8 @@ impl Solver {
         self.write_mesh(vertices_out);
         let t2 = Instant::now();
         SolveReport {
+            trace,
+            trace_len,
             iterations,
             ik_iterations: ik_rep.iterations,
             ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
