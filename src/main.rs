@@ -1060,7 +1060,7 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
     let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).context("binding the hand")?);
     if !json {
         println!(
-            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}",
+            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {}",
             "char",
             "rate",
             "clients",
@@ -1073,11 +1073,20 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
             "lat p99",
             "over p50",
             "over p99",
-            "rss MiB"
+            "rss MiB",
+            "rerun logged/skipped"
         );
     }
-    // (rate, readers besides the measuring client, silent clients)
-    for (rate, readers, silent) in [(120.0, 0, 0), (240.0, 0, 0), (120.0, 48, 1)] {
+    let rrd_dir = tempfile_dir()?;
+    let rrd = rrd_dir.join("bench-live.rrd");
+    // (rate, readers besides the measuring client, silent clients, a Rerun sink saving
+    // every frame: the same case with and without it shows what logging costs the solver)
+    for (rate, readers, silent, rerun) in [
+        (120.0, 0, 0, false),
+        (120.0, 0, 0, true),
+        (240.0, 0, 0, false),
+        (120.0, 48, 1, false),
+    ] {
         let r = run_live(
             Arc::clone(&rig),
             Arc::clone(&ch),
@@ -1086,19 +1095,29 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
             seconds,
             readers,
             silent,
+            rerun.then_some(rrd.as_path()),
         )?;
         if json {
             println!("{}", serde_json::to_string(&r)?);
         } else {
             println!(
-                "{:<6} {:>6.0} {:>8} {:>7} {:>8} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>5.0}->{:<5.0}",
+                "{:<6} {:>6.0} {:>8} {:>7} {:>8} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>5.0}->{:<5.0} {}",
                 r.character, r.rate_hz, r.clients, r.frames, r.overruns, r.solve_ms_p50, r.solve_ms_p99,
                 r.wait_ms_p99, r.latency_ms_p50, r.latency_ms_p99, r.overhead_ms_p50, r.overhead_ms_p99,
-                r.rss_start_mib, r.rss_end_mib
+                r.rss_start_mib, r.rss_end_mib,
+                if r.rerun { format!("{}/{}", r.rerun_frames_logged, r.rerun_frames_skipped) } else { "-".into() }
             );
         }
     }
+    let _ = std::fs::remove_dir_all(&rrd_dir);
     Ok(())
+}
+
+/// A fresh folder under the system's temporary directory, for benchmark outputs.
+fn tempfile_dir() -> Result<std::path::PathBuf> {
+    let dir = std::env::temp_dir().join(format!("rigless-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    Ok(dir)
 }
 
 fn listen(

@@ -11,6 +11,9 @@ use crate::daemon::slot::LatestSlot;
 use crate::input::synthetic::{play, SyntheticParams, SyntheticSession};
 use crate::input::SourceCounters;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
+use crate::output::rerun_sink::{
+    start as start_rerun, RerunOptions, RerunScene, RerunStats, RerunTarget,
+};
 use crate::output::stream::StreamServer;
 use crate::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
 use crate::rig::bind::Rig;
@@ -60,6 +63,11 @@ pub struct LiveRecord {
     /// Resident memory of the process after the clients connected and at the end, MiB.
     pub rss_start_mib: f64,
     pub rss_end_mib: f64,
+    /// A Rerun sink saved the run to a file: frames it logged, and skipped (it fell
+    /// behind the loop).
+    pub rerun: bool,
+    pub rerun_frames_logged: u64,
+    pub rerun_frames_skipped: u64,
 }
 
 fn unix_now() -> f64 {
@@ -118,6 +126,7 @@ pub fn run_live(
     seconds: f64,
     readers: usize,
     silent: usize,
+    rerun_file: Option<&std::path::Path>,
 ) -> std::io::Result<LiveRecord> {
     let name = ch.name.clone();
     let session = SyntheticSession::new(
@@ -134,7 +143,33 @@ pub fn run_live(
     let slot = Arc::new(LatestSlot::new());
     let buffer = MarkerBuffer::new(BufferConfig::default(), &rig.marker_rest, &rig.marker_joint);
     let solver = Solver::new(Arc::clone(&rig), SolverParams::default());
-    let mut pipeline = Pipeline::new(solver, buffer, rx, vec![Arc::clone(&slot)]);
+    let mut slots = vec![Arc::clone(&slot)];
+    let rerun_slot = Arc::new(LatestSlot::new());
+    let rerun_stop = Arc::new(AtomicBool::new(false));
+    let rerun_stats = Arc::new(RerunStats::default());
+    let rerun_thread = match rerun_file {
+        Some(path) => {
+            slots.push(Arc::clone(&rerun_slot));
+            start_rerun(
+                &RerunOptions {
+                    target: RerunTarget::Save(path.to_path_buf()),
+                    mesh_every: 1,
+                },
+                RerunScene {
+                    character: name.clone(),
+                    triangles: rig.triangles.clone(),
+                    marker_names: rig.marker_names.clone(),
+                    joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
+                },
+                Arc::clone(&rerun_slot),
+                Arc::clone(&rerun_stop),
+                Arc::clone(&rerun_stats),
+            )
+            .map_err(std::io::Error::other)?
+        }
+        None => None,
+    };
+    let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
     let server = StreamServer::start(
         Some("127.0.0.1:0".parse().expect("loopback address")),
         None,
@@ -210,6 +245,10 @@ pub fn run_live(
     );
     stop.store(true, Ordering::Relaxed);
     let _ = source.join();
+    rerun_stop.store(true, Ordering::Relaxed);
+    if let Some(h) = rerun_thread {
+        let _ = h.join();
+    }
     let rss_end_mib = rss_mib();
     let frames_skipped = server.stats().frames_skipped.load(Ordering::Relaxed);
     server.shutdown("benchmark over");
@@ -260,5 +299,8 @@ pub fn run_live(
         overhead_ms_p99: pct(&mut over, 0.99),
         rss_start_mib,
         rss_end_mib,
+        rerun: rerun_file.is_some(),
+        rerun_frames_logged: rerun_stats.frames_logged.load(Ordering::Relaxed),
+        rerun_frames_skipped: rerun_slot.dropped(),
     })
 }
