@@ -1052,7 +1052,7 @@ fn check_seconds(seconds: Option<f64>) -> Result<()> {
 }
 
 fn bench_live(seconds: f64, json: bool) -> Result<()> {
-    use rigless::bench::live::run_live;
+    use rigless::bench::live::{run_live, LiveCase};
     use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
     use rigless::rig::bind::Rig;
     use std::sync::Arc;
@@ -1060,7 +1060,7 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
     let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).context("binding the hand")?);
     if !json {
         println!(
-            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {}",
+            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} rerun logged/skipped",
             "char",
             "rate",
             "clients",
@@ -1073,8 +1073,7 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
             "lat p99",
             "over p50",
             "over p99",
-            "rss MiB",
-            "rerun logged/skipped"
+            "rss MiB"
         );
     }
     let rrd_dir = tempfile_dir()?;
@@ -1091,11 +1090,13 @@ fn bench_live(seconds: f64, json: bool) -> Result<()> {
             Arc::clone(&rig),
             Arc::clone(&ch),
             Motion::FingerPlay,
-            rate,
-            seconds,
-            readers,
-            silent,
-            rerun.then_some(rrd.as_path()),
+            &LiveCase {
+                rate_hz: rate,
+                seconds,
+                readers,
+                silent,
+                rerun_file: rerun.then(|| rrd.clone()),
+            },
         )?;
         if json {
             println!("{}", serde_json::to_string(&r)?);

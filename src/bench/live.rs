@@ -118,16 +118,32 @@ fn read_one(s: &mut TcpStream, buf: &mut Vec<u8>) -> Option<Message> {
 
 /// Runs the pipeline for `seconds` at `rate_hz` with one measuring client, `readers`
 /// more clients that read and discard, and `silent` clients that never read.
+/// One case of the suite: rate, length, clients, and whether a Rerun sink saves the run.
+#[derive(Clone, Debug)]
+pub struct LiveCase {
+    pub rate_hz: f64,
+    pub seconds: f64,
+    /// Reading clients besides the measuring one.
+    pub readers: usize,
+    /// Clients that connect and never read.
+    pub silent: usize,
+    /// Save every frame to this `.rrd` file with a Rerun sink.
+    pub rerun_file: Option<std::path::PathBuf>,
+}
+
 pub fn run_live(
     rig: Arc<Rig>,
     ch: Arc<Character>,
     motion: Motion,
-    rate_hz: f64,
-    seconds: f64,
-    readers: usize,
-    silent: usize,
-    rerun_file: Option<&std::path::Path>,
+    case: &LiveCase,
 ) -> std::io::Result<LiveRecord> {
+    let LiveCase {
+        rate_hz,
+        seconds,
+        readers,
+        silent,
+        ref rerun_file,
+    } = *case;
     let name = ch.name.clone();
     let session = SyntheticSession::new(
         ch,
@@ -152,7 +168,7 @@ pub fn run_live(
             slots.push(Arc::clone(&rerun_slot));
             start_rerun(
                 &RerunOptions {
-                    target: RerunTarget::Save(path.to_path_buf()),
+                    target: RerunTarget::Save(path.clone()),
                     mesh_every: 1,
                 },
                 RerunScene {
