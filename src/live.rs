@@ -165,12 +165,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             target: rerun_target.clone(),
             mesh_every: cfg.outputs.rerun.mesh_every,
         },
-        RerunScene {
-            character: name.clone(),
-            triangles: rig.triangles.clone(),
-            marker_names: rig.marker_names.clone(),
-            joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
-        },
+        RerunScene::of_rig(&rig, &name),
         Arc::clone(&rerun_slot),
         Arc::clone(&rerun_stop),
         Arc::clone(&rerun_stats),

@@ -64,16 +64,34 @@ fn python_client_reads_topology_frames_and_goodbye() {
     assert_eq!(last + 1, solved, "{done}");
 }
 
-#[test]
-fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
+/// Writes a stage config of the procedural body with a looping synthetic `motion`, the
+/// given `[solver]` lines and a stream on a free port, and starts `rigless run` on it for
+/// `seconds`.
+fn start_body_stage(
+    solver: &str,
+    motion: &str,
+    seconds: &str,
+) -> (tempfile::TempDir, std::path::PathBuf, Daemon) {
     let dir = tempfile::tempdir().unwrap();
     let stage = dir.path().join("stage.toml");
     std::fs::write(
         &stage,
-        "[character]\nprocedural = \"body\"\n\n[solver]\nrate_hz = 60\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"reach\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+        format!("[character]\nprocedural = \"body\"\n\n[solver]\n{solver}\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"{motion}\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n"),
     )
     .unwrap();
-    let run = Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "4"]);
+    let run = Daemon::start(&[
+        "run",
+        "--config",
+        stage.to_str().unwrap(),
+        "--seconds",
+        seconds,
+    ]);
+    (dir, stage, run)
+}
+
+#[test]
+fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
+    let (_dir, stage, run) = start_body_stage("rate_hz = 60", "reach", "4");
     let addr = run.addr.clone();
     // Read 30 frames (half a second at 60 Hz), then hang up: the server must carry on.
     let s = &client_summary(&addr, &["--frames", "30"]);
@@ -169,14 +187,7 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
 /// second method.
 #[test]
 fn a_stage_runs_the_harmonic_method() {
-    let dir = tempfile::tempdir().unwrap();
-    let stage = dir.path().join("stage.toml");
-    std::fs::write(
-        &stage,
-        "[character]\nprocedural = \"body\"\n\n[solver]\nmethod = \"harmonic\"\nrate_hz = 60\n\n[[inputs]]\ntype = \"synthetic\"\nmotion = \"walk\"\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
-    )
-    .unwrap();
-    let run = Daemon::start(&["run", "--config", stage.to_str().unwrap(), "--seconds", "3"]);
+    let (_dir, _stage, run) = start_body_stage("method = \"harmonic\"\nrate_hz = 60", "walk", "3");
     let s = &client_summary(&run.addr, &["--frames", "30"]);
     assert_eq!(s["frames"], 30);
     assert_eq!(s["all_finite"], true);

@@ -171,12 +171,7 @@ pub fn run_live(
                     target: RerunTarget::Save(path.clone()),
                     mesh_every: 1,
                 },
-                RerunScene {
-                    character: name.clone(),
-                    triangles: rig.triangles.clone(),
-                    marker_names: rig.marker_names.clone(),
-                    joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
-                },
+                RerunScene::of_rig(&rig, &name),
                 Arc::clone(&rerun_slot),
                 Arc::clone(&rerun_stop),
                 Arc::clone(&rerun_stats),

@@ -73,6 +73,18 @@ pub struct RerunScene {
     pub joint_parents: Vec<Option<usize>>,
 }
 
+impl RerunScene {
+    /// The scene of a bound character.
+    pub fn of_rig(rig: &crate::rig::bind::Rig, character: &str) -> Self {
+        Self {
+            character: character.to_owned(),
+            triangles: rig.triangles.clone(),
+            marker_names: rig.marker_names.clone(),
+            joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum RerunError {
     #[error("cannot start the Rerun recording: {0}")]
