@@ -100,6 +100,7 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
         "/character/skeleton",
         "/solver/iterations",
         "/solver/solve_ms",
+        "/solver/volume_error",
         "/markers/measured",
     ] {
         assert_eq!(rows(path), logged, "{path}: {v}");

@@ -11,7 +11,8 @@
 //!   red.
 //! - `character/skeleton`: the fitted skeleton, one line strip per bone (`LineStrips3D`).
 //! - `solver/*`: time series (`Scalars`): iterations, solve_ms, gc_ms, rrms,
-//!   bone_length_error, joint_limit_violation_deg, marker_residual_rms_mm; and
+//!   bone_length_error, joint_limit_violation_deg, marker_residual_rms_mm, volume_error
+//!   (relative change of the mesh's enclosed volume, computed on this thread); and
 //!   `markers/*`: how many markers are in each fill state.
 //! - `solver/convergence`: the convergence criterion after each iteration of a frame, on
 //!   an `iteration` timeline as well, so a frame's convergence reads directly.
@@ -71,6 +72,9 @@ pub struct RerunScene {
     pub marker_names: Vec<String>,
     /// Parent of each joint (`None`: root).
     pub joint_parents: Vec<Option<usize>>,
+    /// Volume enclosed by the mesh at rest, m³ (for the volume error series; 0: not
+    /// logged).
+    pub rest_volume_m3: f64,
 }
 
 impl RerunScene {
@@ -81,6 +85,10 @@ impl RerunScene {
             triangles: rig.triangles.clone(),
             marker_names: rig.marker_names.clone(),
             joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
+            rest_volume_m3: crate::character::procedural::mesh_volume(
+                &rig.mesh_rest,
+                &rig.triangles,
+            ),
         }
     }
 }
@@ -232,6 +240,20 @@ impl Logger {
                     },
                 ]),
             );
+        }
+        if self.scene.rest_volume_m3 != 0.0 {
+            // Relative change of the enclosed volume (signed tetrahedra from the origin).
+            let v: f64 = self
+                .scene
+                .triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| f.vertices_m[i as usize].as_dvec3());
+                    a.dot(b.cross(c)) / 6.0
+                })
+                .sum();
+            let err = (v - self.scene.rest_volume_m3).abs() / self.scene.rest_volume_m3.abs();
+            let _ = rec.log("solver/volume_error", &::rerun::Scalars::single(err));
         }
         let s = &f.status;
         for (name, v) in [
