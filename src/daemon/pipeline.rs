@@ -218,6 +218,11 @@ impl Pipeline {
             for (o, p) in f.joints_m.iter_mut().zip(joints) {
                 *o = p.as_vec3();
             }
+            let excess = self.solver.joint_limit_excess();
+            f.joint_limit_excess_deg.resize(excess.len(), 0.0);
+            for (o, e) in f.joint_limit_excess_deg.iter_mut().zip(excess) {
+                *o = e.to_degrees() as f32;
+            }
             // Within the capacity reserved at creation: no allocation.
             f.convergence.clear();
             f.convergence

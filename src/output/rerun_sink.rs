@@ -9,7 +9,8 @@
 //! - `character/markers`: the markers as the solver used them (`Points3D`), named, and
 //!   coloured by fill state: measured green, predicted yellow, rigid-filled blue, held
 //!   red.
-//! - `character/skeleton`: the fitted skeleton, one line strip per bone (`LineStrips3D`).
+//! - `character/skeleton`: the fitted skeleton, one line strip per bone (`LineStrips3D`),
+//!   red where the bone's joint exceeds its limits by more than 0.5° on the solved mesh.
 //! - `solver/*`: time series (`Scalars`): iterations, solve_ms, gc_ms, rrms,
 //!   bone_length_error, joint_limit_violation_deg, marker_residual_rms_mm, volume_error
 //!   (relative change of the mesh's enclosed volume, computed on this thread); and
@@ -176,6 +177,7 @@ struct Logger {
     first_time_s: Option<f64>,
     indices: Vec<::rerun::components::TriangleIndices>,
     strips: Vec<Vec<[f32; 3]>>,
+    strip_colors: Vec<::rerun::Color>,
 }
 
 impl Logger {
@@ -193,6 +195,7 @@ impl Logger {
             first_time_s: None,
             indices,
             strips: Vec::new(),
+            strip_colors: Vec::new(),
         }
     }
 
@@ -222,23 +225,26 @@ impl Logger {
                 .with_radii([0.006f32]),
         );
         if !f.joints_m.is_empty() {
+            // One strip per bone, red where its parent joint exceeds its limits by more
+            // than 0.5° (the quality target) on the solved mesh.
             self.strips.clear();
+            self.strip_colors.clear();
             for (j, parent) in self.scene.joint_parents.iter().enumerate() {
-                if let Some((a, b)) =
-                    parent.and_then(|p| Some((f.joints_m.get(p)?, f.joints_m.get(j)?)))
-                {
+                let Some(p) = *parent else { continue };
+                if let (Some(a), Some(b)) = (f.joints_m.get(p), f.joints_m.get(j)) {
                     self.strips.push(vec![a.to_array(), b.to_array()]);
+                    let over = f.joint_limit_excess_deg.get(p).is_some_and(|e| *e > 0.5);
+                    self.strip_colors.push(if over {
+                        ::rerun::Color::from_rgb(230, 60, 60)
+                    } else {
+                        ::rerun::Color::from_rgb(200, 200, 200)
+                    });
                 }
             }
             let _ = rec.log(
                 "character/skeleton",
-                &::rerun::LineStrips3D::new(self.strips.iter().cloned()).with_colors([
-                    if f.status.joint_limit_violation_deg > 0.5 {
-                        ::rerun::Color::from_rgb(230, 60, 60)
-                    } else {
-                        ::rerun::Color::from_rgb(200, 200, 200)
-                    },
-                ]),
+                &::rerun::LineStrips3D::new(self.strips.iter().cloned())
+                    .with_colors(self.strip_colors.iter().copied()),
             );
         }
         if self.scene.rest_volume_m3 != 0.0 {

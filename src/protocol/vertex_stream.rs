@@ -103,6 +103,8 @@ pub struct DeformedFrame {
     /// The solver's convergence criterion after each iteration of this frame (in-process
     /// only, like `joints_m`).
     pub convergence: Vec<f32>,
+    /// Per joint, the excess over its limits on the solved mesh, degrees (in-process only).
+    pub joint_limit_excess_deg: Vec<f32>,
 }
 
 impl DeformedFrame {
@@ -128,6 +130,7 @@ impl DeformedFrame {
             vertices_m: vec![Vec3::ZERO; vertices],
             joints_m: Vec::new(),
             convergence: Vec::with_capacity(crate::solve::frame::TRACE_LEN),
+            joint_limit_excess_deg: Vec::new(),
         }
     }
 }
@@ -474,6 +477,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
     Ok(DeformedFrame {
         joints_m: Vec::new(),
         convergence: Vec::new(),
+        joint_limit_excess_deg: Vec::new(),
         frame,
         source_time_s,
         publish_time_s,

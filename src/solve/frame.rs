@@ -107,6 +107,9 @@ pub struct Solver {
     sample_pos: Vec<DVec3>,
     /// Joint world rotations read off the control mesh (joint limit measurement).
     measured_rot: Vec<DQuat>,
+    /// Per joint, how far the posture the control mesh shows exceeds its limits, radians
+    /// (0 inside; last measured by the frame's quality figures).
+    limit_excess: Vec<f64>,
     green_scratch: GreenScratch,
     /// Marker targets handed to the posture fit (NaN where held).
     ik_targets: Vec<DVec3>,
@@ -164,6 +167,7 @@ impl Solver {
             ik,
             sample_pos: vec![DVec3::ZERO; ns],
             measured_rot: vec![DQuat::IDENTITY; nj],
+            limit_excess: vec![0.0; nj],
             green_scratch,
             ik_targets: vec![DVec3::ZERO; nm],
             held_local,
@@ -196,6 +200,12 @@ impl Solver {
         let n = pins.len().min(self.pins.len());
         self.pins[..n].copy_from_slice(&pins[..n]);
         self.any_pin = self.pins.iter().any(|v| v.is_finite());
+    }
+
+    /// Per joint, the last frame's excess over its limits on the solved mesh, radians
+    /// (all 0 with the harmonic method, whose posture holds the limits by construction).
+    pub fn joint_limit_excess(&self) -> &[f64] {
+        &self.limit_excess
     }
 
     /// Forgets the previous frame (cold start at the rest pose).
@@ -440,6 +450,7 @@ impl Solver {
                 let (_, excess) =
                     clamp_to_limits(local_meas, rig.twist_axis[j], sk.joints[j].bend_axis, lim);
                 worst = worst.max(excess);
+                self.limit_excess[j] = excess;
             }
         }
         worst
