@@ -89,6 +89,17 @@ fn start_body_stage(
     (dir, stage, run)
 }
 
+/// A client summary of 30 finite frames of the body, about 1.75 m tall on y = 0.
+fn assert_body_frames(s: &serde_json::Value) {
+    assert_eq!(s["frames"], 30);
+    assert_eq!(s["all_finite"], true);
+    let (ylo, yhi) = (
+        s["bbox_min"][1].as_f64().unwrap(),
+        s["bbox_max"][1].as_f64().unwrap(),
+    );
+    assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
+}
+
 #[test]
 fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
     let (_dir, stage, run) = start_body_stage("rate_hz = 60", "reach", "4");
@@ -98,14 +109,7 @@ fn run_serves_a_stage_config_and_reports_config_errors_with_lines() {
     assert_eq!(s["topology"]["character"], "body");
     assert_eq!(s["topology"]["rate_hz"], 60.0);
     assert_eq!(s["topology"]["marker_names"].as_array().unwrap().len(), 36);
-    assert_eq!(s["frames"], 30);
-    assert_eq!(s["all_finite"], true);
-    // The body is about 1.75 m tall, standing on y = 0.
-    let (ylo, yhi) = (
-        s["bbox_min"][1].as_f64().unwrap(),
-        s["bbox_max"][1].as_f64().unwrap(),
-    );
-    assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
+    assert_body_frames(s);
     let (ok, lines) = run.finish();
     assert!(ok, "{lines:?}");
     assert!(
@@ -189,14 +193,8 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
 fn a_stage_runs_the_harmonic_method() {
     let (_dir, _stage, run) = start_body_stage("method = \"harmonic\"\nrate_hz = 60", "walk", "3");
     let s = &client_summary(&run.addr, &["--frames", "30"]);
-    assert_eq!(s["frames"], 30);
-    assert_eq!(s["all_finite"], true);
-    // Walking, the body stays about 1.75 m tall on y = 0 (the mesh follows the posture).
-    let (ylo, yhi) = (
-        s["bbox_min"][1].as_f64().unwrap(),
-        s["bbox_max"][1].as_f64().unwrap(),
-    );
-    assert!(ylo > -0.2 && (1.5..2.2).contains(&yhi), "y {ylo}..{yhi}");
+    // Walking, too: the mesh follows the posture.
+    assert_body_frames(s);
     let (ok, lines) = run.finish();
     assert!(ok, "{lines:?}");
 }

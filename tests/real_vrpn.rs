@@ -120,6 +120,19 @@ fn client_to_server_session() {
     assert_eq!(names.sender(1), Some("Spin0"));
 }
 
+/// The server's side of the real session and its Spin0 reports, in order (`None`, with
+/// the reason printed, when the shared data is absent).
+fn spin0_server_bytes() -> Option<(Vec<u8>, Vec<rigless::protocol::vrpn::PosQuat>)> {
+    let capture = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin")?;
+    let expected = walk(&capture)
+        .reports
+        .into_iter()
+        .filter(|(s, _)| s == "Spin0")
+        .map(|(_, r)| r)
+        .collect();
+    Some((capture, expected))
+}
+
 /// Runs the client (in `mode`) against `addr` until it has as many Spin0 reports as
 /// `expected` (10 s at most), checks they are `expected` bit for bit, and returns its
 /// counters.
@@ -149,15 +162,9 @@ fn the_tcp_client_reads_a_replayed_real_session() {
     use rigless::input::vrpn::VrpnMode;
     use std::io::{Read, Write};
     use std::sync::atomic::Ordering;
-    let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
+    let Some((capture, expected)) = spin0_server_bytes() else {
         return;
     };
-    let expected: Vec<rigless::protocol::vrpn::PosQuat> = walk(&capture)
-        .reports
-        .into_iter()
-        .filter(|(s, _)| s == "Spin0")
-        .map(|(_, r)| r)
-        .collect();
     // A loopback server that replays the captured bytes, then reads what the client says.
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
@@ -200,15 +207,9 @@ fn the_udp_mode_client_reads_a_real_session_sent_as_datagrams() {
     };
     use std::io::{Read, Write};
     use std::sync::atomic::Ordering;
-    let Some(capture) = common::shared_file("vrpn/spin0_tcp_session.server_to_client.bin") else {
+    let Some((capture, expected)) = spin0_server_bytes() else {
         return;
     };
-    let expected: Vec<rigless::protocol::vrpn::PosQuat> = walk(&capture)
-        .reports
-        .into_iter()
-        .filter(|(s, _)| s == "Spin0")
-        .map(|(_, r)| r)
-        .collect();
     // Split the capture: descriptions (negative types) for TCP, the rest for UDP.
     let (mut tcp_part, mut udp_part) = (capture[..24].to_vec(), Vec::new());
     let mut at = 24;

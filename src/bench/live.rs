@@ -9,7 +9,7 @@ use crate::daemon::clock::{Clock, SystemClock};
 use crate::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
 use crate::daemon::slot::LatestSlot;
 use crate::input::synthetic::{play, SyntheticParams, SyntheticSession};
-use crate::input::SourceCounters;
+use crate::input::{unix_now, SourceCounters};
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::output::rerun_sink::{
     start as start_rerun, RerunOptions, RerunScene, RerunStats, RerunTarget,
@@ -22,7 +22,7 @@ use std::io::Read;
 use std::net::TcpStream;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 /// The loop ticks this long after the source sends each frame (both run at the same
 /// rate on the same clock), seconds: a stage sets its phase the same way.
@@ -68,12 +68,6 @@ pub struct LiveRecord {
     pub rerun: bool,
     pub rerun_frames_logged: u64,
     pub rerun_frames_skipped: u64,
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Resident set size of this process, MiB (Linux; 0 elsewhere).

@@ -6,7 +6,7 @@
 //! joints as control inputs"). The wrist itself comes from optical markers when the stage
 //! has them, otherwise it stays where it is.
 
-use super::{is_wait, PacketStats};
+use super::{is_wait, unix_now, PacketStats};
 use crate::character::skeleton::{compose, Skeleton, SwingTwist};
 use crate::protocol::glove::{decode_line, GloveFormat, GloveReading, LineFramer, FINGERS};
 use glam::{DQuat, DVec3};
@@ -151,7 +151,7 @@ impl HandMap {
                 (2.0 * f64::from(v) / f64::from(self.max_value.max(1)) - 1.0).clamp(-1.0, 1.0)
             });
             for (k, d) in joints.iter().enumerate() {
-                let Some(raw) = r.joint_curl[f][k].or(r.curl[f]) else {
+                let Some(raw) = r.joint_raw(f, k) else {
                     continue;
                 };
                 let curl = self.calibration[f].fraction(raw);
@@ -240,12 +240,6 @@ pub struct GlovePort {
     pub format: GloveFormat,
     /// Full-scale reading.
     pub max_value: u32,
-}
-
-fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Reads the glove on `port` until `stop` is set, calling `on_reading(receive_unix_s,

@@ -23,6 +23,14 @@ pub struct SourceCounters {
     pub finished: AtomicBool,
 }
 
+/// Seconds since the Unix epoch now (0 if the clock is before it): the receive time
+/// every input stamps on what it reads.
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
 /// How often a blocked UDP receive wakes to check its stop flag.
 pub const UDP_POLL: std::time::Duration = std::time::Duration::from_millis(100);
 
@@ -123,10 +131,7 @@ pub fn udp_loop(
     while !stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
             Ok((n, _)) => {
-                let now = std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map_or(0.0, |d| d.as_secs_f64());
-                on_packet(now, &buf[..n]);
+                on_packet(unix_now(), &buf[..n]);
             }
             Err(e) if is_wait(&e) => {}
             Err(e) => {

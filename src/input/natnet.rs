@@ -13,6 +13,7 @@
 //! gives its labelled markers. A member is occluded when a labelled marker at its very
 //! position is flagged occluded (Motive repeats the member's position there).
 
+use super::unix_now;
 use crate::protocol::natnet::{
     decode, encode_connect, encode_keepalive, encode_request_modeldef, Description, Message,
     MocapFrame, ServerInfo, Version,
@@ -212,12 +213,6 @@ impl CommandClient {
     pub fn reset(&mut self) {
         *self = Self::new(self.version, self.unicast);
     }
-}
-
-fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Seconds without any packet from the server after which the command client connects

@@ -70,12 +70,10 @@ pub struct GloveReading {
 }
 
 impl GloveReading {
-    /// Curl of joint `k` (0..3) of finger `f` as a fraction of `max`: the joint's own
-    /// reading when sent, otherwise the whole finger's.
-    pub fn joint_fraction(&self, f: usize, k: usize, max: u32) -> Option<f64> {
-        self.joint_curl[f][k]
-            .or(self.curl[f])
-            .map(|v| v as f64 / max as f64)
+    /// Raw curl of joint `k` (0..3) of finger `f`: the joint's own reading when sent,
+    /// otherwise the whole finger's.
+    pub fn joint_raw(&self, f: usize, k: usize) -> Option<u32> {
+        self.joint_curl[f][k].or(self.curl[f])
     }
 }
 
@@ -431,8 +429,8 @@ mod tests {
         assert_eq!(r.trigger, Some(1024));
         assert_eq!(r.buttons, buttons::JOYSTICK | buttons::A | buttons::PINCH);
         // Joint 1 of the index has its own reading; joint 2 falls back to the finger's.
-        assert_eq!(r.joint_fraction(1, 1, 4000), Some(0.75));
-        assert_eq!(r.joint_fraction(1, 2, 4096), Some(0.5));
+        assert_eq!(r.joint_raw(1, 1), Some(3000));
+        assert_eq!(r.joint_raw(1, 2), Some(2048));
     }
 
     #[test]

@@ -135,14 +135,8 @@ impl Solver {
                 Some((hr, st))
             }
         };
-        let mut s = Self::new(
-            rig,
-            SolverParams {
-                method: Method::Arap,
-                ..params
-            },
-        );
-        s.params.method = params.method;
+        let mut s = Self::new(rig, params);
+        s.params = params;
         s.harmonic = harmonic;
         Ok(s)
     }
@@ -159,10 +153,13 @@ impl Solver {
         let held_local = rig.ik.marker_offsets().to_vec();
         let rig_params = rig.ik.n_params();
         Self {
+            params: SolverParams {
+                method: Method::Arap,
+                ..params
+            },
             prev_rot: ik.world_rot.clone(),
             prev_pos: ik.world_pos.clone(),
             rig,
-            params,
             st,
             ik,
             sample_pos: vec![DVec3::ZERO; ns],

@@ -79,8 +79,6 @@ pub struct HarmonicRig {
     /// Per triangle, `½ cot` of the angle at each corner: the weight of the opposite edge
     /// `[w_bc, w_ca, w_ab]`.
     tri_w: Vec<[f64; 3]>,
-    /// Per vertex: its row in the free system, or `u32::MAX` when tied.
-    free_row: Vec<u32>,
     /// Free rows to vertices.
     free_vertex: Vec<u32>,
     /// Tied vertices: (vertex, owner joint).
@@ -260,8 +258,7 @@ impl HarmonicRig {
             rest: vertices.to_vec(),
             triangles: triangles.to_vec(),
             tri_w,
-            free_row,
-            free_vertex: free_vertex.clone(),
+            free_vertex,
             tied,
             fc_start,
             fc,
@@ -274,16 +271,6 @@ impl HarmonicRig {
     /// Vertices tied to a joint (the correspondences) and all vertices.
     pub fn tied_count(&self) -> (usize, usize) {
         (self.tied.len(), self.rest.len())
-    }
-
-    /// The joint each vertex is tied to (`None`: free).
-    pub fn vertex_owner(&self, v: usize) -> Option<usize> {
-        (self.free_row[v] == u32::MAX).then(|| {
-            self.tied
-                .iter()
-                .find(|(tv, _)| *tv as usize == v)
-                .map_or(0, |(_, j)| *j as usize)
-        })
     }
 
     pub fn new_state(&self) -> HarmonicState {
