@@ -329,6 +329,8 @@ pub struct RerunOutputConfig {
     pub target: String,
     /// Log the mesh every this many frames (1: every frame).
     pub mesh_every: u64,
+    /// Also log the control mesh as a wireframe, on the mesh's frames (ARAP only).
+    pub control_mesh: bool,
 }
 
 impl Default for RerunOutputConfig {
@@ -336,6 +338,7 @@ impl Default for RerunOutputConfig {
         Self {
             target: "off".into(),
             mesh_every: 1,
+            control_mesh: false,
         }
     }
 }

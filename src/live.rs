@@ -24,7 +24,7 @@ use rigless::input::{parse_url, InputUrl};
 use rigless::markers::buffer::MarkerBuffer;
 use rigless::markers::MarkerSample;
 use rigless::output::rerun_sink::{
-    start as start_rerun, RerunOptions, RerunScene, RerunStats, RerunTarget,
+    start as start_rerun, InputSeries, RerunOptions, RerunScene, RerunStats, RerunTarget,
 };
 use rigless::output::stream::{StreamServer, StreamStats};
 use rigless::protocol::osc::OscMapping;
@@ -157,28 +157,19 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             .unwrap_or_else(|| cfg.outputs.rerun.target(base_dir)),
         &base_dir.join(format!("rigless-{name}.rrd")),
     );
+    // The Rerun thread starts once the inputs it plots exist; its slot is in from the
+    // start.
     let rerun_slot = Arc::new(LatestSlot::new());
     let rerun_stop = Arc::new(AtomicBool::new(false));
     let rerun_stats = Arc::new(RerunStats::default());
-    let rerun_thread = start_rerun(
-        &RerunOptions {
-            target: rerun_target.clone(),
-            mesh_every: cfg.outputs.rerun.mesh_every,
-        },
-        RerunScene::of_rig(&rig, &name),
-        Arc::clone(&rerun_slot),
-        Arc::clone(&rerun_stop),
-        Arc::clone(&rerun_stats),
-    )
-    .context("starting the Rerun recording")?;
     let mut slots = vec![slot];
-    if rerun_thread.is_some() {
-        if !opts.json {
-            println!("rerun: {rerun_target:?}");
-        }
+    if rerun_target != RerunTarget::Off {
         slots.push(Arc::clone(&rerun_slot));
     }
     let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
+    if rerun_target != RerunTarget::Off && cfg.outputs.rerun.control_mesh {
+        pipeline = pipeline.with_control_mesh();
+    }
     let clock = Arc::new(SystemClock::new());
     let record_path = opts
         .record
@@ -227,7 +218,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     let stop = Arc::new(AtomicBool::new(false));
     let status = Arc::new(LatestSlot::<LoopStatus>::new());
     let mut sources = Vec::new();
-    let mut source_counters = Vec::new();
+    let mut source_counters: Vec<Arc<SourceCounters>> = Vec::new();
     let mut inputs_end_s: Option<f64> = Some(START_S);
     // Joint angles from the gloves, shared by all of them (each writes its own joints).
     let pin_slot = Arc::new(PinSlot::new(rig.ik.n_params()));
@@ -276,7 +267,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                         let first = |j: usize| rig.ik.angle_params(j);
                         run_glove(&port, &stop, &stats, &mut |_, r| {
                             slot.write(|pins| map.write_pins(r, &first, pins));
-                            counters.frames.fetch_add(1, Ordering::Relaxed);
+                            counters.count_frame(rigless::input::unix_now());
                         });
                     },
                 )?);
@@ -321,7 +312,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                                         stop.store(true, Ordering::Relaxed);
                                     }
                                 }
-                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                                counters.count_frame(clock.now_s());
                             });
                         })?,
                 );
@@ -369,7 +360,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                                 if !send_samples(&batch, &tx, &counters) {
                                     stop.store(true, Ordering::Relaxed);
                                 }
-                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                                counters.count_frame(t);
                             },
                         );
                         if let Err(e) = run {
@@ -434,7 +425,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                                 if !send_samples(&batch, &tx, &counters) {
                                     stop.store(true, Ordering::Relaxed);
                                 }
-                                counters.frames.fetch_add(1, Ordering::Relaxed);
+                                counters.count_frame(t);
                             });
                         })?,
                 );
@@ -540,6 +531,30 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
         }
     }
     drop(tx);
+    let rerun_thread = start_rerun(
+        &RerunOptions {
+            target: rerun_target.clone(),
+            mesh_every: cfg.outputs.rerun.mesh_every,
+            control_mesh: cfg.outputs.rerun.control_mesh,
+        },
+        RerunScene::of_rig(&rig, &name),
+        cfg.inputs
+            .iter()
+            .zip(&source_counters)
+            .enumerate()
+            .map(|(k, (i, c))| InputSeries {
+                name: format!("{k}_{}", input_kind(i)),
+                counters: Arc::clone(c),
+            })
+            .collect(),
+        Arc::clone(&rerun_slot),
+        Arc::clone(&rerun_stop),
+        Arc::clone(&rerun_stats),
+    )
+    .context("starting the Rerun recording")?;
+    if rerun_thread.is_some() && !opts.json {
+        println!("rerun: {rerun_target:?}");
+    }
     let end_s = match opts.seconds {
         Some(s) => Some(START_S + s),
         None => inputs_end_s,
@@ -686,6 +701,18 @@ impl MarkerIndex {
 }
 
 /// How a session file names an input.
+/// An input's scheme, as its Rerun series are named.
+fn input_kind(i: &InputConfig) -> &'static str {
+    match i {
+        InputConfig::Osc(_) => "osc",
+        InputConfig::NatNet(_) => "natnet",
+        InputConfig::Vrpn(_) => "vrpn",
+        InputConfig::Glove(_) => "glove",
+        InputConfig::Synthetic(_) => "synthetic",
+        InputConfig::Replay(_) => "replay",
+    }
+}
+
 fn describe_input(i: &InputConfig) -> String {
     match i {
         InputConfig::Osc(o) => o.url.clone(),

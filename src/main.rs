@@ -140,7 +140,8 @@ enum Command {
         #[arg(long)]
         z_up: bool,
     },
-    /// Send a recording as live OSC, VMC, VRPN or NatNet traffic.
+    /// Send a recording as live OSC, VMC, VRPN or NatNet traffic, or solve a character
+    /// from it.
     ///
     /// Send a recording (C3D, TSV, BVH or session) as live traffic with its original
     /// timing: to an OSC receiver in the native schema (osc://HOST:PORT), to a VMC
@@ -151,32 +152,55 @@ enum Command {
     /// ?server=IP:PORT binds a command port that answers connect and model-definition
     /// requests, naming the markers replay:LABEL).
     /// Prints the send-time jitter against the file's clock at the end.
+    ///
+    /// With --solve instead of --to, the recording drives a character through the whole
+    /// live pipeline in real time (as `rigless run` with a replay input): markers are
+    /// matched to the character's by label, the solver runs at 120 Hz, the vertex stream
+    /// is served (--stream) and --rerun records or shows it.
     Replay {
         /// The recording.
         file: PathBuf,
         /// Where to send, e.g. osc://127.0.0.1:9000.
-        #[arg(long)]
-        to: String,
+        #[arg(long, required_unless_present = "solve", conflicts_with = "solve")]
+        to: Option<String>,
+        /// Solve this character from the recording: `hand`, `body` (the procedural ones)
+        /// or a character file (TOML).
+        #[arg(long, value_name = "hand|body|CHARACTER.toml")]
+        solve: Option<String>,
+        /// With --solve: the deformation method.
+        #[arg(long, value_enum, default_value_t = Method::Arap, requires = "solve")]
+        method: Method,
+        /// With --solve: where the vertex stream listens (TCP; port 0 picks a free port).
+        #[arg(long, default_value = "127.0.0.1:7878", requires = "solve")]
+        stream: std::net::SocketAddr,
+        /// With --solve: Rerun: off, spawn, connect=HOST:PORT or save=PATH.rrd (as on
+        /// `rigless run`).
+        #[arg(
+            long,
+            value_name = "off|spawn|connect=ADDR|save=PATH",
+            requires = "solve"
+        )]
+        rerun: Option<rigless::output::rerun_sink::RerunTarget>,
         /// Playback speed (1 = the file's timing).
         #[arg(long, default_value_t = 1.0)]
         speed: f64,
         /// Start again at the end (until Ctrl-C).
         #[arg(long = "loop")]
         looping: bool,
-        /// Start this many seconds into the file.
+        /// Start this many seconds into the file (with --to).
         #[arg(long, default_value_t = 0.0)]
         start: f64,
-        /// Stop this many seconds into the file.
+        /// Stop this many seconds into the file (with --to or --solve).
         #[arg(long)]
         end: Option<f64>,
-        /// Only these markers (comma-separated labels).
-        #[arg(long)]
+        /// Only these markers (comma-separated labels; with --to).
+        #[arg(long, conflicts_with = "solve")]
         markers: Option<String>,
-        /// Drop this share of samples at random (sent as occluded), percent.
-        #[arg(long, default_value_t = 0.0)]
+        /// Drop this share of samples at random (sent as occluded), percent (with --to).
+        #[arg(long, default_value_t = 0.0, conflicts_with = "solve")]
         dropout_percent: f64,
-        /// Add uniform noise of this amplitude per axis, millimetres.
-        #[arg(long, default_value_t = 0.0)]
+        /// Add uniform noise of this amplitude per axis, millimetres (with --to).
+        #[arg(long, default_value_t = 0.0, conflicts_with = "solve")]
         noise_mm: f64,
         /// Seed of the dropouts and the noise.
         #[arg(long, default_value_t = 1)]
@@ -258,6 +282,14 @@ enum DemoMotion {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum Method {
+    /// Volumetric ARAP with skeleton constraints and Green coordinates.
+    Arap,
+    /// Harmonic rotation fields and a Poisson rebuild (de Aguiar et al.).
+    Harmonic,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum Suite {
     Capsules,
     Characters,
@@ -265,6 +297,53 @@ enum Suite {
     Live,
     Codecs,
     Replay,
+}
+
+/// The stage `rigless replay FILE --solve CHARACTER` runs: the recording as a replay
+/// input, validated like a stage file.
+fn solve_stage(
+    file: &std::path::Path,
+    character: &str,
+    method: Method,
+    stream: std::net::SocketAddr,
+    speed: f64,
+    looping: bool,
+    bvh_scale: f64,
+) -> Result<rigless::config::StageConfig> {
+    use toml::{Table, Value};
+    let abs = |p: &std::path::Path| -> Result<Value> {
+        let p = std::fs::canonicalize(p).with_context(|| format!("{}", p.display()))?;
+        Ok(Value::String(p.to_string_lossy().into_owned()))
+    };
+    let mut ch = Table::new();
+    match character {
+        "hand" | "body" => ch.insert("procedural".into(), Value::String(character.into())),
+        path => ch.insert("path".into(), abs(std::path::Path::new(path))?),
+    };
+    let mut input = Table::new();
+    input.insert("type".into(), Value::String("replay".into()));
+    input.insert("path".into(), abs(file)?);
+    input.insert("speed".into(), Value::Float(speed));
+    input.insert("loop".into(), Value::Boolean(looping));
+    input.insert("bvh_scale".into(), Value::Float(bvh_scale));
+    let method = match method {
+        Method::Arap => "arap",
+        Method::Harmonic => "harmonic",
+    };
+    let text = toml::to_string(&toml::toml! {
+        [solver]
+        method = method
+
+        [outputs.stream]
+        tcp = (stream.to_string())
+    })?;
+    let mut stage: Table = toml::from_str(&text)?;
+    stage.insert("character".into(), Value::Table(ch));
+    stage.insert("inputs".into(), Value::Array(vec![Value::Table(input)]));
+    Ok(rigless::config::parse_stage(
+        &toml::to_string(&stage)?,
+        "replay --solve flags",
+    )?)
 }
 
 fn main() -> std::process::ExitCode {
@@ -362,6 +441,10 @@ fn real_main() -> Result<()> {
         Command::Replay {
             file,
             to,
+            solve,
+            method,
+            stream,
+            rerun,
             speed,
             looping,
             start,
@@ -395,6 +478,28 @@ fn real_main() -> Result<()> {
             if !(bvh_scale.is_finite() && bvh_scale > 0.0) {
                 problems.push(format!("--bvh-scale must be positive, got {bvh_scale}"));
             }
+            if let Some(character) = solve {
+                if start != 0.0 {
+                    problems.push("--start shapes what --to sends; with --solve the recording plays from its first frame (--end stops it early)".into());
+                }
+                if !problems.is_empty() {
+                    bail!("{}", problems.join("\n"));
+                }
+                let cfg =
+                    solve_stage(&file, &character, method, stream, speed, looping, bvh_scale)?;
+                return live::run(
+                    &cfg,
+                    std::path::Path::new("."),
+                    &live::RunOptions {
+                        // The recording's seconds at this speed.
+                        seconds: end.map(|e| e / speed),
+                        json,
+                        record: None,
+                        rerun,
+                    },
+                );
+            }
+            let to = to.expect("clap requires --to without --solve");
             let target = rigless::input::parse_url(&to)
                 .and_then(|u| Target::from_url(&u))
                 .map_err(|e| problems.push(e))

@@ -204,3 +204,50 @@ fn bad_files_are_clear_errors() {
     );
     assert!(e.contains("has no bone"), "{e}");
 }
+
+/// `[[correspondences]]` give the harmonic method a joint's triangles: they load by joint
+/// name, write back, and reach the solver's rig; a bad one names its joint and problem.
+#[test]
+fn correspondences_load_write_back_and_bad_ones_are_named() {
+    use rigless::character::Correspondence;
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    text.push_str("\n[[correspondences]]\njoint = \"index_1\"\ntriangles = [0, 1, 2]\n");
+    std::fs::write(&path, &text).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let ch = &loaded.character;
+    let j = ch
+        .skeleton
+        .joints
+        .iter()
+        .position(|x| x.name == "index_1")
+        .unwrap();
+    let want = vec![Correspondence {
+        joint: j,
+        triangles: vec![0, 1, 2],
+    }];
+    assert_eq!(ch.correspondences, want);
+    // Written out again, it reads back the same.
+    let again = write_character_files(ch, Some(&loaded.bind), &dir.path().join("again")).unwrap();
+    assert_eq!(
+        load_character(&again).unwrap().character.correspondences,
+        want
+    );
+    // Unknown joint, a triangle past the end and an empty list, all at once.
+    let e = broken(
+        |t| {
+            format!(
+                "{t}\n[[correspondences]]\njoint = \"index_9\"\ntriangles = [1]\n\n[[correspondences]]\njoint = \"wrist\"\ntriangles = [99999999]\n\n[[correspondences]]\njoint = \"thumb_1\"\ntriangles = []\n"
+            )
+        },
+        same,
+    );
+    for want in [
+        "correspondences[0] (joint \"index_9\"): no joint is named \"index_9\"",
+        "correspondences[1] (joint \"wrist\"): triangle 99999999 is out of range",
+        "correspondences[2] (joint \"thumb_1\"): no triangles",
+    ] {
+        assert!(e.contains(want), "missing {want:?} in:\n{e}");
+    }
+}

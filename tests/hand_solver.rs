@@ -199,3 +199,75 @@ fn a_rigid_rotation_of_all_markers_rotates_the_mesh_exactly_from_a_cold_start() 
     assert!(rep.rrms < 1e-6 && rep.bone_length_error < 1e-9, "{rep:?}");
     assert!(rep.iterations <= 2, "{rep:?}");
 }
+
+/// The harmonic method takes a segment's rotation from its marker cluster (de Aguiar et
+/// al.: a segment is a group of three or more markers): the hand's back markers turned
+/// 12° about their centroid, the fingertips left at rest. The vertices tied to that
+/// segment follow the cluster's rigid motion to round-off, although the posture fit
+/// (which balances all markers against its priors) turns the segment differently.
+#[test]
+fn harmonic_segments_with_a_marker_cluster_turn_with_their_markers() {
+    use glam::DQuat;
+    use rigless::solve::frame::Method;
+    use rigless::solve::harmonic::HarmonicParams;
+    use rigless::solve::polar::rotation_angle_between;
+    let (ch, rig) = setup();
+    let mut solver = Solver::try_new(
+        Arc::clone(&rig),
+        SolverParams {
+            method: Method::Harmonic(HarmonicParams::default()),
+            ..tight()
+        },
+    )
+    .unwrap();
+    let joints: Vec<usize> = solver.segment_clusters().joints().collect();
+    assert_eq!(
+        joints.len(),
+        1,
+        "the hand's back is its one cluster: {joints:?}"
+    );
+    let j = joints[0];
+    let cluster: Vec<usize> = (0..rig.n_markers)
+        .filter(|&k| rig.marker_joint[k] == j)
+        .collect();
+    let c = cluster.iter().map(|&k| rig.marker_rest[k]).sum::<DVec3>() / cluster.len() as f64;
+    let q = DQuat::from_axis_angle(DVec3::new(1.0, 0.4, 0.2).normalize(), 12f64.to_radians());
+    let t = DVec3::new(0.004, -0.002, 0.003);
+    let moved = |p: DVec3| c + q * (p - c) + t;
+    let frame = MarkerFrame::all_present(
+        0.0,
+        (0..rig.n_markers)
+            .map(|k| {
+                let r = rig.marker_rest[k];
+                if cluster.contains(&k) {
+                    moved(r)
+                } else {
+                    r
+                }
+            })
+            .collect(),
+    );
+    let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+    solver.solve(&frame, far_deadline(), &mut out);
+    let tied: Vec<usize> = solver.harmonic_tied_to(j).collect();
+    assert!(
+        tied.len() > 50,
+        "{} vertices tied to the hand's back",
+        tied.len()
+    );
+    let worst = tied
+        .iter()
+        .map(|&v| (out[v] - moved(ch.vertices[v])).length())
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-9 * rig.height_m,
+        "tied vertices off the cluster's motion by {worst} m"
+    );
+    // The posture fit alone would have turned it otherwise (so the test can fail).
+    let (posture_rot, _) = solver.joint_world();
+    let off_deg = rotation_angle_between(posture_rot[j], q).to_degrees();
+    assert!(
+        off_deg > 0.5,
+        "the posture fit agrees with the cluster to {off_deg}°"
+    );
+}

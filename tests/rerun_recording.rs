@@ -7,13 +7,17 @@ use std::process::Command;
 mod common;
 
 /// Reads an `.rrd` with rerun-sdk's `RrdReader` and prints, as JSON: rows per entity
-/// path, the timelines, the largest marker count in one row, and the iterations logged.
+/// path, the timelines, the largest marker count in one row, the iterations logged, the
+/// scalars of the input series, the edge count of each control-mesh row, and the names of
+/// the blueprint's views.
 const READER: &str = r#"
 import json, sys
 import rerun as rr
 from rerun.experimental import RrdReader
+reader = RrdReader(sys.argv[1])
 rows, timelines, markers, iterations, conv_timelines = {}, set(), 0, [], set()
-for chunk in RrdReader(sys.argv[1]).stream():
+inputs, control_edges = {}, []
+for chunk in reader.stream():
     path = str(chunk.entity_path)
     rows[path] = rows.get(path, 0) + chunk.num_rows
     timelines.update(chunk.timeline_names)
@@ -21,16 +25,69 @@ for chunk in RrdReader(sys.argv[1]).stream():
         conv_timelines.update(chunk.timeline_names)
     batch = chunk.to_record_batch()
     for name in batch.schema.names:
+        col = None
         if path == "/character/markers" and name.endswith("Points3D:positions"):
             col = batch.column(name).to_pylist()
             markers = max([markers] + [len(v or []) for v in col])
         if path == "/solver/iterations" and name.endswith("Scalars:scalars"):
-            col = batch.column(name).to_pylist()
-            iterations += [v[0] for v in col if v]
+            iterations += [v[0] for v in batch.column(name).to_pylist() if v]
+        if path.startswith("/inputs/") and name.endswith("Scalars:scalars"):
+            inputs.setdefault(path, []).extend(
+                v[0] for v in batch.column(name).to_pylist() if v)
+        if path == "/character/control_mesh" and name.endswith("LineStrips3D:strips"):
+            control_edges += [len(v or []) for v in batch.column(name).to_pylist()]
+views = []
+for store in reader.blueprints():
+    for chunk in reader.stream(store=store):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if name.endswith("ViewBlueprint:display_name"):
+                views += [v[0] for v in batch.column(name).to_pylist() if v]
 print(json.dumps({"version": rr.__version__, "rows": rows, "timelines": sorted(timelines),
                   "markers": markers, "iterations": iterations,
-                  "convergence_timelines": sorted(conv_timelines)}))
+                  "convergence_timelines": sorted(conv_timelines), "inputs": inputs,
+                  "control_edges": control_edges, "views": sorted(views)}))
 "#;
+
+/// Runs `rigless ARGS` to completion and returns its stdout and the number of frames its
+/// summary says went to Rerun.
+fn run_rigless(args: &[&str]) -> (String, u64) {
+    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(args)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let logged: u64 = stdout
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("rerun: ")?
+                .split(" frames logged")
+                .next()?
+                .parse()
+                .ok()
+        })
+        .unwrap_or_else(|| panic!("no rerun summary in {stdout}"));
+    (stdout, logged)
+}
+
+/// What [`READER`] says about `rrd`.
+fn read_back(rrd: &std::path::Path) -> serde_json::Value {
+    let read = Command::new("python3")
+        .args(["-c", READER, rrd.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        read.status.success(),
+        "{}",
+        String::from_utf8_lossy(&read.stderr)
+    );
+    serde_json::from_slice(&read.stdout).unwrap()
+}
 
 fn rerun_sdk() -> bool {
     let ok = Command::new("python3")
@@ -51,51 +108,23 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
     }
     let dir = tempfile::tempdir().unwrap();
     let rrd = dir.path().join("demo.rrd");
-    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
-        .args([
-            "demo",
-            "--seconds",
-            "2",
-            "--stream",
-            "127.0.0.1:0",
-            "--rerun",
-            &format!("save={}", rrd.display()),
-        ])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    // The summary says how many frames went to Rerun.
-    let logged: u64 = stdout
-        .lines()
-        .find_map(|l| {
-            l.strip_prefix("rerun: ")?
-                .split(" frames logged")
-                .next()?
-                .parse()
-                .ok()
-        })
-        .unwrap_or_else(|| panic!("no rerun summary in {stdout}"));
+    let (_, logged) = run_rigless(&[
+        "demo",
+        "--seconds",
+        "2",
+        "--stream",
+        "127.0.0.1:0",
+        "--rerun",
+        &format!("save={}", rrd.display()),
+    ]);
     // 2 s at 120 Hz; the sink may skip frames it could not keep up with (counted).
     assert!(logged >= 60, "{logged} frames logged");
-    let read = Command::new("python3")
-        .args(["-c", READER, rrd.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        read.status.success(),
-        "{}",
-        String::from_utf8_lossy(&read.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&read.stdout).unwrap();
+    let v = read_back(&rrd);
     let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
-    // Every logged frame has its mesh (mesh_every = 1), markers, skeleton and series.
+    // Every logged frame has its mesh (mesh_every = 1; its triangles once more, static),
+    // markers, skeleton and series.
+    assert_eq!(rows("/character/mesh"), logged + 1, "{v}");
     for path in [
-        "/character/mesh",
         "/character/markers",
         "/character/skeleton",
         "/solver/iterations",
@@ -127,4 +156,110 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
             .all(|i| i.fract() == 0.0 && (0.0..=30.0).contains(i)),
         "{its:?}"
     );
+    // The default blueprint: the 3D view and the plots.
+    assert_eq!(
+        v["views"],
+        serde_json::json!([
+            "character",
+            "convergence",
+            "inputs",
+            "markers",
+            "quality",
+            "timing"
+        ]),
+        "{v}"
+    );
+    // No control mesh unless asked for.
+    assert_eq!(rows("/character/control_mesh"), 0, "{v}");
+}
+
+/// A stage asking for the control mesh every 4th frame, fed by the bundled session
+/// (120 Hz): the wireframe comes with the mesh, with the same edges each time, and the
+/// input's packet rate and gaps are plotted.
+#[test]
+fn stage_logs_the_control_mesh_and_the_input_series() {
+    if !rerun_sdk() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"hand\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n\n[outputs.rerun]\ntarget = \"save=stage.rrd\"\nmesh_every = 4\ncontrol_mesh = true\n",
+    )
+    .unwrap();
+    let (_, logged) = run_rigless(&["run", "--config", stage.to_str().unwrap(), "--seconds", "2"]);
+    assert!(logged >= 60, "{logged} frames logged");
+    let v = read_back(&dir.path().join("stage.rrd"));
+    let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
+    // Frames 0, 4, 8...: at most a quarter of the logged frames (rounded up), and at
+    // least a quarter of them less what the sink may have skipped.
+    let meshes = rows("/character/mesh") - 1;
+    assert!(
+        meshes <= logged.div_ceil(4)
+            && meshes >= (240 / 4u64).saturating_sub(240 - logged.min(240)),
+        "{meshes} of {logged}"
+    );
+    assert_eq!(rows("/character/control_mesh"), meshes, "{v}");
+    let edges: Vec<u64> = serde_json::from_value(v["control_edges"].clone()).unwrap();
+    // The hand's control mesh has thousands of edges, the same ones every time.
+    assert!(
+        edges[0] > 1000 && edges.iter().all(|e| *e == edges[0]),
+        "{edges:?}"
+    );
+    // A point every quarter second over 2 s: 7 or 8 of each.
+    let rate: Vec<f64> =
+        serde_json::from_value(v["inputs"]["/inputs/0_replay/packet_rate_hz"].clone()).unwrap();
+    let gap: Vec<f64> =
+        serde_json::from_value(v["inputs"]["/inputs/0_replay/gap_ms"].clone()).unwrap();
+    assert!(
+        (6..=8).contains(&rate.len()) && gap.len() == rate.len(),
+        "{v}"
+    );
+    // The session is sent at 120 Hz. One window's count can be a frame or two off at
+    // each end (the sender late under load and catching up, the window's ends on solver
+    // ticks): ±15 Hz over a quarter second; the mean over all windows within 3 Hz.
+    assert!(rate.iter().all(|r| (r - 120.0).abs() <= 15.0), "{rate:?}");
+    let mean = rate.iter().sum::<f64>() / rate.len() as f64;
+    assert!((mean - 120.0).abs() <= 3.0, "{rate:?}");
+    // Frames 1/120 s apart on the sender's schedule; the sink sees the count change at
+    // solver ticks, so a gap reads one to a few ticks (8.3 ms each). A stall would read
+    // longer; none is expected here (under 35 ms: four ticks).
+    assert!(gap.iter().all(|g| (8.0..35.0).contains(g)), "{gap:?}");
+}
+
+/// `rigless replay FILE --solve hand --end 1.5 --rerun save=...` solves a recording
+/// file through the pipeline and records it.
+#[test]
+fn replay_solves_a_recording_into_rerun() {
+    if !rerun_sdk() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(["make-sessions", dir.path().to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let rrd = dir.path().join("replay.rrd");
+    let (stdout, logged) = run_rigless(&[
+        "replay",
+        dir.path().join("hand_finger_play.c3d").to_str().unwrap(),
+        "--solve",
+        "hand",
+        "--stream",
+        "127.0.0.1:0",
+        "--end",
+        "1.5",
+        "--rerun",
+        &format!("save={}", rrd.display()),
+    ]);
+    // 1.5 s at 120 Hz: 180 frames (the summary says so), each logged or skipped.
+    assert!(stdout.contains("done (time limit reached): 18"), "{stdout}");
+    assert!(logged >= 45, "{logged} frames logged");
+    let v = read_back(&rrd);
+    let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
+    assert_eq!(rows("/character/markers"), logged, "{v}");
+    assert_eq!(v["markers"], 8, "{v}");
+    assert!(rows("/inputs/0_replay/packet_rate_hz") >= 5, "{v}");
 }

@@ -12,7 +12,7 @@ use crate::input::synthetic::{play, SyntheticParams, SyntheticSession};
 use crate::input::{unix_now, SourceCounters};
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::output::rerun_sink::{
-    start as start_rerun, RerunOptions, RerunScene, RerunStats, RerunTarget,
+    start as start_rerun, InputSeries, RerunOptions, RerunScene, RerunStats, RerunTarget,
 };
 use crate::output::stream::StreamServer;
 use crate::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
@@ -157,6 +157,7 @@ pub fn run_live(
     let rerun_slot = Arc::new(LatestSlot::new());
     let rerun_stop = Arc::new(AtomicBool::new(false));
     let rerun_stats = Arc::new(RerunStats::default());
+    let counters = Arc::new(SourceCounters::default());
     let rerun_thread = match rerun_file {
         Some(path) => {
             slots.push(Arc::clone(&rerun_slot));
@@ -164,8 +165,13 @@ pub fn run_live(
                 &RerunOptions {
                     target: RerunTarget::Save(path.clone()),
                     mesh_every: 1,
+                    control_mesh: false,
                 },
                 RerunScene::of_rig(&rig, &name),
+                vec![InputSeries {
+                    name: "0_synthetic".into(),
+                    counters: Arc::clone(&counters),
+                }],
                 Arc::clone(&rerun_slot),
                 Arc::clone(&rerun_stop),
                 Arc::clone(&rerun_stats),
@@ -225,7 +231,6 @@ pub fn run_live(
     }
     let rss_start_mib = rss_mib();
 
-    let counters = Arc::new(SourceCounters::default());
     let source = {
         let (clock, stop, counters) =
             (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&counters));

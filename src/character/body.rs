@@ -391,6 +391,7 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         skeleton,
         markers,
         skin: Some(skin),
+        correspondences: Vec::new(),
     }
 }
 

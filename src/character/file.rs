@@ -21,6 +21,10 @@
 //! name = "index_nail"
 //! bone = "index-finger-phalanx-distal"
 //! offset_m = [0.0, -0.012, -0.008]
+//!
+//! [[correspondences]]         # harmonic method only; optional
+//! joint = "wrist"             # these triangles follow the wrist's segment
+//! triangles = [120, 121, 122] # indices in the mesh file's face order, from 0
 //! ```
 //!
 //! Output vertex order: the mesh file's own (glTF: primitives in document order; OBJ:
@@ -30,7 +34,7 @@
 
 use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
 use super::skeleton::{Joint, JointLimits, Skeleton};
-use super::{Character, MarkerDef};
+use super::{Character, Correspondence, MarkerDef};
 use crate::rig::bind::BindParams;
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
@@ -54,6 +58,23 @@ pub struct CharacterFile {
     /// Binding settings (defaults scale with the character's height).
     #[serde(default)]
     pub bind: BindSpec,
+    /// The harmonic method's correspondences for some joints (the others are chosen
+    /// automatically along their bones).
+    #[serde(default)]
+    pub correspondences: Vec<CorrespondenceSpec>,
+}
+
+/// `[[correspondences]]`: triangles that follow one joint's segment rigidly in the
+/// harmonic method (`solver.method = "harmonic"`), instead of the ones picked along its
+/// bone.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CorrespondenceSpec {
+    /// The joint whose segment the triangles follow.
+    pub joint: String,
+    /// Triangle indices in the mesh file's order (its faces as read, from 0; OBJ polygons
+    /// count as one triangle per fan triangle).
+    pub triangles: Vec<usize>,
 }
 
 /// Length unit of a mesh file.
@@ -638,6 +659,35 @@ pub fn build(
             params.cell_size_m
         ));
     }
+    // Correspondences.
+    let mut correspondences = Vec::new();
+    for (k, c) in spec.correspondences.iter().enumerate() {
+        let at = format!("correspondences[{k}] (joint {:?})", c.joint);
+        if spec.correspondences[..k].iter().any(|o| o.joint == c.joint) {
+            problems.push(format!("{at}: the joint is listed twice"));
+        }
+        let joint = skeleton
+            .as_ref()
+            .and_then(|s| s.joints.iter().position(|j| j.name == c.joint));
+        if skeleton.is_some() && joint.is_none() {
+            problems.push(format!("{at}: no joint is named {:?}", c.joint));
+        }
+        if c.triangles.is_empty() {
+            problems.push(format!("{at}: no triangles"));
+        }
+        let n = mesh.triangles.len();
+        if let Some(&t) = c.triangles.iter().find(|&&t| t >= n) {
+            problems.push(format!(
+                "{at}: triangle {t} is out of range (the mesh has {n} triangles)"
+            ));
+        }
+        if let Some(joint) = joint {
+            correspondences.push(Correspondence {
+                joint,
+                triangles: c.triangles.iter().map(|&t| t as u32).collect(),
+            });
+        }
+    }
     match (problems.is_empty(), skeleton) {
         (true, Some(skeleton)) => Ok((
             Character {
@@ -647,6 +697,7 @@ pub fn build(
                 skeleton,
                 markers,
                 skin: None,
+                correspondences,
             },
             params,
         )),
@@ -734,6 +785,13 @@ pub fn write_character_files(
                 );
             }
         }
+    }
+    for c in &ch.correspondences {
+        let _ = writeln!(
+            toml,
+            "[[correspondences]]\njoint = {:?}\ntriangles = {:?}\n",
+            sk.joints[c.joint].name, c.triangles
+        );
     }
     let path = dir.join(format!("{}.toml", ch.name));
     std::fs::write(&path, toml)?;

@@ -40,4 +40,18 @@ pub struct Character {
     pub markers: Vec<MarkerDef>,
     /// Skin used to produce ground truth (procedural characters).
     pub skin: Option<Skin>,
+    /// Correspondences for the harmonic method given by the character file (empty: all
+    /// automatic).
+    pub correspondences: Vec<Correspondence>,
+}
+
+/// Triangles of the mesh that follow one joint's segment rigidly in the harmonic method
+/// (de Aguiar et al.'s correspondences), as a character file gives them; they replace
+/// the automatic ones of that joint.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Correspondence {
+    /// The joint (skeleton index).
+    pub joint: usize,
+    /// Triangle indices into the character's triangles.
+    pub triangles: Vec<u32>,
 }

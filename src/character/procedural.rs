@@ -339,6 +339,7 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
         skeleton,
         markers,
         skin: Some(skin),
+        correspondences: Vec::new(),
     }
 }
 

@@ -93,6 +93,8 @@ pub struct Pipeline {
     pin_slot: Option<Arc<PinSlot>>,
     pin_version: u64,
     pins: Vec<f64>,
+    /// Copy the control mesh into published frames ([`Self::with_control_mesh`]).
+    control_mesh: bool,
 }
 
 impl Pipeline {
@@ -125,6 +127,7 @@ impl Pipeline {
             pin_slot: None,
             pin_version: 0,
             pins: Vec::new(),
+            control_mesh: false,
         }
     }
 
@@ -144,6 +147,13 @@ impl Pipeline {
     pub fn with_pins(mut self, slot: Arc<PinSlot>) -> Self {
         self.pins = vec![f64::NAN; self.solver.rig().ik.n_params()];
         self.pin_slot = Some(slot);
+        self
+    }
+
+    /// Publishes the deformed control mesh with every frame (for a wireframe view; the
+    /// ARAP method only, the harmonic method has none).
+    pub fn with_control_mesh(mut self) -> Self {
+        self.control_mesh = self.solver.has_control_mesh();
         self
     }
 
@@ -222,6 +232,13 @@ impl Pipeline {
             f.joint_limit_excess_deg.resize(excess.len(), 0.0);
             for (o, e) in f.joint_limit_excess_deg.iter_mut().zip(excess) {
                 *o = e.to_degrees() as f32;
+            }
+            if self.control_mesh {
+                let c = self.solver.control_positions();
+                f.control_m.resize(c.len(), glam::Vec3::ZERO);
+                for (o, p) in f.control_m.iter_mut().zip(c) {
+                    *o = p.as_vec3();
+                }
             }
             // Within the capacity reserved at creation: no allocation.
             f.convergence.clear();

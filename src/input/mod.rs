@@ -21,6 +21,30 @@ pub struct SourceCounters {
     pub dropped: AtomicU64,
     /// Set when the session has ended (not looping).
     pub finished: AtomicBool,
+    /// When the newest frame arrived, seconds on the source's own clock (`f64` bits).
+    last_frame_s: AtomicU64,
+    /// The longest interval between consecutive frames since it was last taken, seconds
+    /// (`f64` bits; non-negative, so the bits order as the values do).
+    longest_interval_s: AtomicU64,
+}
+
+impl SourceCounters {
+    /// Counts a frame that arrived at `now_s` (seconds on any clock the source keeps
+    /// using: only differences are kept).
+    pub fn count_frame(&self, now_s: f64) {
+        let last = f64::from_bits(self.last_frame_s.swap(now_s.to_bits(), Ordering::Relaxed));
+        if self.frames.fetch_add(1, Ordering::Relaxed) > 0 {
+            let interval = (now_s - last).max(0.0);
+            self.longest_interval_s
+                .fetch_max(interval.to_bits(), Ordering::Relaxed);
+        }
+    }
+
+    /// The longest interval between consecutive frames since the last call, seconds (0
+    /// when fewer than two frames arrived).
+    pub fn take_longest_interval_s(&self) -> f64 {
+        f64::from_bits(self.longest_interval_s.swap(0, Ordering::Relaxed))
+    }
 }
 
 /// Seconds since the Unix epoch now (0 if the clock is before it): the receive time
@@ -171,7 +195,7 @@ pub fn play_paced(
         if !send_samples(&batch, tx, counters) {
             break;
         }
-        counters.frames.fetch_add(1, Ordering::Relaxed);
+        counters.count_frame(t);
         n += 1;
     }
     counters.finished.store(true, Ordering::Relaxed);

@@ -17,10 +17,18 @@
 //!   `markers/*`: how many markers are in each fill state.
 //! - `solver/convergence`: the convergence criterion after each iteration of a frame, on
 //!   an `iteration` timeline as well, so a frame's convergence reads directly.
+//! - `character/control_mesh`: the deformed control mesh's tet edges (`LineStrips3D`), on
+//!   the mesh's frames, when asked for (off by default; the ARAP method only).
+//! - `inputs/K_KIND/packet_rate_hz` and `inputs/K_KIND/gap_ms` for each input (`K` its
+//!   place in the stage, `KIND` its scheme), every quarter second: frames per second, and
+//!   the longest wait for a frame (between two frames, or since the last one).
+//!
+//! A default blueprint lays out the 3D view beside the plots (see [`blueprint`]).
 //!
 //! World frame: metres, Y up (`ViewCoordinates::RIGHT_HAND_Y_UP` on `character`).
 
 use crate::daemon::slot::LatestSlot;
+use crate::input::SourceCounters;
 use crate::markers::FillState;
 use crate::protocol::vertex_stream::DeformedFrame;
 use std::path::PathBuf;
@@ -63,7 +71,20 @@ pub struct RerunOptions {
     pub target: RerunTarget,
     /// Log the mesh every this many frames (1: all).
     pub mesh_every: u64,
+    /// Log the control mesh as a wireframe (on the mesh's frames).
+    pub control_mesh: bool,
 }
+
+/// An input whose packet rate and gaps are plotted.
+#[derive(Clone, Debug)]
+pub struct InputSeries {
+    /// Entity name under `inputs/` (one path part: letters, digits, `_`).
+    pub name: String,
+    pub counters: Arc<SourceCounters>,
+}
+
+/// Seconds between points of the input series.
+const INPUT_WINDOW_S: f64 = 0.25;
 
 /// The parts of a character that do not change per frame.
 #[derive(Clone, Debug)]
@@ -76,6 +97,8 @@ pub struct RerunScene {
     /// Volume enclosed by the mesh at rest, m³ (for the volume error series; 0: not
     /// logged).
     pub rest_volume_m3: f64,
+    /// The control mesh's edges (vertex pairs, each once), for its wireframe.
+    pub control_edges: Vec<[u32; 2]>,
 }
 
 impl RerunScene {
@@ -90,14 +113,74 @@ impl RerunScene {
                 &rig.mesh_rest,
                 &rig.triangles,
             ),
+            control_edges: tet_edges(&rig.control.tets),
         }
     }
+}
+
+/// The edges of tets, each once, as sorted vertex pairs in ascending order.
+pub fn tet_edges(tets: &[[u32; 4]]) -> Vec<[u32; 2]> {
+    let mut edges: Vec<[u32; 2]> = tets
+        .iter()
+        .flat_map(|t| {
+            [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)].map(|(i, j)| {
+                let (a, b) = (t[i], t[j]);
+                [a.min(b), a.max(b)]
+            })
+        })
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    edges
+}
+
+/// The default layout: the 3D view (mesh, markers, skeleton) on the left; on the right,
+/// tabs of plots: the solver's figures, the convergence of each frame (on the
+/// `iteration` timeline), markers by fill state, and the inputs.
+pub fn blueprint() -> ::rerun::blueprint::Blueprint {
+    use ::rerun::blueprint::{
+        Blueprint, Horizontal, Spatial3DView, Tabs, TimeSeriesView, Vertical,
+    };
+    let plots = |name: &str, origin: &str| TimeSeriesView::new(name).with_origin(origin).into();
+    Blueprint::new(Horizontal::new([
+        Spatial3DView::new("character")
+            .with_origin("character")
+            .into(),
+        Vertical::new([
+            Tabs::new([
+                TimeSeriesView::new("timing")
+                    .with_origin("solver")
+                    .with_contents(["solver/solve_ms", "solver/gc_ms", "solver/iterations"])
+                    .into(),
+                TimeSeriesView::new("quality")
+                    .with_origin("solver")
+                    .with_contents([
+                        "solver/rrms",
+                        "solver/bone_length_error",
+                        "solver/joint_limit_violation_deg",
+                        "solver/marker_residual_rms_mm",
+                        "solver/volume_error",
+                    ])
+                    .into(),
+            ])
+            .into(),
+            Tabs::new([
+                plots("convergence", "solver/convergence"),
+                plots("markers", "markers"),
+                plots("inputs", "inputs"),
+            ])
+            .into(),
+        ])
+        .into(),
+    ]))
 }
 
 #[derive(Debug, thiserror::Error)]
 pub enum RerunError {
     #[error("cannot start the Rerun recording: {0}")]
     Start(#[from] ::rerun::RecordingStreamError),
+    #[error("the Rerun thread ended before opening the recording")]
+    ThreadEnded,
 }
 
 /// What the sink has done (the slot counts what it dropped).
@@ -117,8 +200,11 @@ fn fill_color(s: FillState) -> [u8; 4] {
 
 /// Opens the recording for `target` (not [`RerunTarget::Off`]).
 fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStream, RerunError> {
-    // The application id must be static; the character names the recording.
-    let b = ::rerun::RecordingStreamBuilder::new("rigless").recording_name(character);
+    // The application id must be static; the character names the recording. The
+    // blueprint is the default: a layout the user changed in the viewer stays.
+    let b = ::rerun::RecordingStreamBuilder::new("rigless")
+        .recording_name(character)
+        .with_default_blueprint(blueprint());
     Ok(match target {
         RerunTarget::Off | RerunTarget::Spawn => b.spawn()?,
         RerunTarget::Connect(a) => {
@@ -138,6 +224,7 @@ fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStrea
 pub fn start(
     opts: &RerunOptions,
     scene: RerunScene,
+    inputs: Vec<InputSeries>,
     slot: Arc<LatestSlot<DeformedFrame>>,
     stop: Arc<AtomicBool>,
     stats: Arc<RerunStats>,
@@ -145,12 +232,29 @@ pub fn start(
     if opts.target == RerunTarget::Off {
         return Ok(None);
     }
-    let rec = open(&opts.target, &scene.character)?;
-    let mesh_every = opts.mesh_every.max(1);
+    let opts = RerunOptions {
+        mesh_every: opts.mesh_every.max(1),
+        ..opts.clone()
+    };
+    // The recording is opened on the sink's thread, after it has lowered its priority,
+    // so the SDK's own threads (batcher, file or network sink) inherit the lower
+    // priority too; the open's outcome comes back here.
+    let (opened_tx, opened_rx) = std::sync::mpsc::sync_channel(1);
     let handle = std::thread::Builder::new()
         .name("rerun".into())
         .spawn(move || {
-            let mut logger = Logger::new(rec, scene, mesh_every);
+            lower_thread_priority();
+            let rec = match open(&opts.target, &scene.character) {
+                Ok(rec) => {
+                    let _ = opened_tx.send(Ok(()));
+                    rec
+                }
+                Err(e) => {
+                    let _ = opened_tx.send(Err(e));
+                    return;
+                }
+            };
+            let mut logger = Logger::new(rec, scene, &opts, inputs);
             loop {
                 let stopping = stop.load(Ordering::Relaxed);
                 match slot.take() {
@@ -165,7 +269,27 @@ pub fn start(
             logger.finish();
         })
         .expect("spawning the rerun thread");
-    Ok(Some(handle))
+    match opened_rx.recv() {
+        Ok(Ok(())) => Ok(Some(handle)),
+        Ok(Err(e)) => Err(e),
+        Err(_) => Err(RerunError::ThreadEnded),
+    }
+}
+
+/// Nice value of the sink's threads: below the solver's (0), so that on a machine with
+/// few cores the scheduler lets the solver run first when both are ready.
+const SINK_NICE: i32 = 10;
+
+/// Lowers the calling thread's scheduling priority to [`SINK_NICE`] (Linux: the nice
+/// value is per thread and new threads inherit it). Elsewhere, or if refused, nothing
+/// changes; logging still works.
+fn lower_thread_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: setpriority on the calling thread's id has no memory effects.
+    unsafe {
+        let tid = libc::gettid();
+        let _ = libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, SINK_NICE);
+    }
 }
 
 /// Turns frames into Rerun log calls. Logging errors are the SDK's to report (it logs
@@ -174,26 +298,95 @@ struct Logger {
     rec: ::rerun::RecordingStream,
     scene: RerunScene,
     mesh_every: u64,
+    control_mesh: bool,
+    inputs: Vec<InputWindow>,
     first_time_s: Option<f64>,
-    indices: Vec<::rerun::components::TriangleIndices>,
     strips: Vec<Vec<[f32; 3]>>,
     strip_colors: Vec<::rerun::Color>,
 }
 
+/// An input's series state: the window being measured.
+struct InputWindow {
+    series: InputSeries,
+    /// Start of the window (publish time, s) and the frame count then.
+    start_s: Option<f64>,
+    start_frames: u64,
+    /// Frame count at the previous logged frame, and when it last changed (publish time).
+    seen_frames: u64,
+    changed_s: f64,
+}
+
+impl InputWindow {
+    /// Logs the window's rate and longest gap once it spans [`INPUT_WINDOW_S`].
+    fn log(&mut self, rec: &::rerun::RecordingStream, t_s: f64) {
+        let c = &self.series.counters;
+        let n = c.frames.load(Ordering::Relaxed);
+        let start_s = *self.start_s.get_or_insert_with(|| {
+            self.start_frames = n;
+            self.seen_frames = n;
+            self.changed_s = t_s;
+            t_s
+        });
+        if n != self.seen_frames {
+            self.seen_frames = n;
+            self.changed_s = t_s;
+        }
+        let span_s = t_s - start_s;
+        if span_s < INPUT_WINDOW_S {
+            return;
+        }
+        let rate_hz = (n - self.start_frames) as f64 / span_s;
+        // Between two frames (the source's own clock), or since the last frame (this
+        // thread's view, to a solver tick) when the source has gone quiet.
+        let gap_s = c.take_longest_interval_s().max(t_s - self.changed_s);
+        let base = format!("inputs/{}", self.series.name);
+        let _ = rec.log(
+            format!("{base}/packet_rate_hz"),
+            &::rerun::Scalars::single(rate_hz),
+        );
+        let _ = rec.log(
+            format!("{base}/gap_ms"),
+            &::rerun::Scalars::single(gap_s * 1e3),
+        );
+        self.start_s = Some(t_s);
+        self.start_frames = n;
+    }
+}
+
 impl Logger {
-    fn new(rec: ::rerun::RecordingStream, scene: RerunScene, mesh_every: u64) -> Self {
+    fn new(
+        rec: ::rerun::RecordingStream,
+        scene: RerunScene,
+        opts: &RerunOptions,
+        inputs: Vec<InputSeries>,
+    ) -> Self {
         let _ = rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP());
-        let indices = scene
-            .triangles
-            .iter()
-            .map(|t| ::rerun::components::TriangleIndices::from(*t))
-            .collect();
+        // The triangles never change: logged once, static; frames carry positions only.
+        let _ = rec.log_static(
+            "character/mesh",
+            &::rerun::Mesh3D::update_fields().with_triangle_indices(
+                scene
+                    .triangles
+                    .iter()
+                    .map(|t| ::rerun::components::TriangleIndices::from(*t)),
+            ),
+        );
         Self {
             rec,
             scene,
-            mesh_every,
+            mesh_every: opts.mesh_every,
+            control_mesh: opts.control_mesh,
+            inputs: inputs
+                .into_iter()
+                .map(|series| InputWindow {
+                    series,
+                    start_s: None,
+                    start_frames: 0,
+                    seen_frames: 0,
+                    changed_s: 0.0,
+                })
+                .collect(),
             first_time_s: None,
-            indices,
             strips: Vec::new(),
             strip_colors: Vec::new(),
         }
@@ -207,9 +400,26 @@ impl Logger {
         if f.frame.is_multiple_of(self.mesh_every) {
             let _ = rec.log(
                 "character/mesh",
-                &::rerun::Mesh3D::new(f.vertices_m.iter().map(|v| v.to_array()))
-                    .with_triangle_indices(self.indices.iter().copied()),
+                &::rerun::Mesh3D::update_fields()
+                    .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array())),
             );
+            if self.control_mesh && !f.control_m.is_empty() {
+                let p = &f.control_m;
+                let _ = rec.log(
+                    "character/control_mesh",
+                    &::rerun::LineStrips3D::new(
+                        self.scene
+                            .control_edges
+                            .iter()
+                            .map(|&[a, b]| [p[a as usize].to_array(), p[b as usize].to_array()]),
+                    )
+                    .with_radii([::rerun::Radius::new_ui_points(0.5)])
+                    .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
+                );
+            }
+        }
+        for w in &mut self.inputs {
+            w.log(rec, f.publish_time_s);
         }
         let present: Vec<usize> = (0..f.markers_m.len())
             .filter(|&k| f.markers_m[k].is_finite())

@@ -105,6 +105,9 @@ pub struct DeformedFrame {
     pub convergence: Vec<f32>,
     /// Per joint, the excess over its limits on the solved mesh, degrees (in-process only).
     pub joint_limit_excess_deg: Vec<f32>,
+    /// The deformed control mesh's vertices, metres (in-process only; empty unless the
+    /// pipeline was asked for them).
+    pub control_m: Vec<Vec3>,
 }
 
 impl DeformedFrame {
@@ -131,6 +134,7 @@ impl DeformedFrame {
             joints_m: Vec::new(),
             convergence: Vec::with_capacity(crate::solve::frame::TRACE_LEN),
             joint_limit_excess_deg: Vec::new(),
+            control_m: Vec::new(),
         }
     }
 }
@@ -478,6 +482,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
         joints_m: Vec::new(),
         convergence: Vec::new(),
         joint_limit_excess_deg: Vec::new(),
+        control_m: Vec::new(),
         frame,
         source_time_s,
         publish_time_s,

@@ -154,6 +154,8 @@ pub struct Rig {
     pub stats: BindStats,
     /// Character height (bounding box extent along Y), metres.
     pub height_m: f64,
+    /// The harmonic method's correspondences given by the character file.
+    pub correspondences: Vec<crate::character::Correspondence>,
 }
 
 /// Segments of a skeleton: `(owner joint, child joint)`, grouped by owner (ascending).
@@ -508,6 +510,7 @@ impl Rig {
             green,
             stats,
             height_m,
+            correspondences: ch.correspondences.clone(),
         })
     }
 }

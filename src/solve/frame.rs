@@ -14,7 +14,7 @@
 //! Then the full mesh follows the control mesh. Allocation-free per frame.
 
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
-use super::harmonic::{HarmonicError, HarmonicParams, HarmonicRig, HarmonicState};
+use super::harmonic::{HarmonicError, HarmonicParams, HarmonicRig, HarmonicState, SegmentClusters};
 use super::ik::{IkParams, IkReport, IkState};
 use super::polar::extract_rotation;
 use crate::character::skeleton::clamp_to_limits;
@@ -121,6 +121,11 @@ pub struct Solver {
     any_pin: bool,
     /// The harmonic method's set-up and memory (`Method::Harmonic`).
     harmonic: Option<(HarmonicRig, HarmonicState)>,
+    /// Harmonic method: the segments with marker clusters, and the joint rotations and
+    /// positions handed to the deformation (the posture's, with those segments' own).
+    clusters: SegmentClusters,
+    segment_rot: Vec<DQuat>,
+    segment_pos: Vec<DVec3>,
 }
 
 impl Solver {
@@ -130,7 +135,13 @@ impl Solver {
         let harmonic = match params.method {
             Method::Arap => None,
             Method::Harmonic(h) => {
-                let hr = HarmonicRig::new(&rig.mesh_rest, &rig.triangles, &rig.skeleton, &h)?;
+                let hr = HarmonicRig::new(
+                    &rig.mesh_rest,
+                    &rig.triangles,
+                    &rig.skeleton,
+                    &h,
+                    &rig.correspondences,
+                )?;
                 let st = hr.new_state();
                 Some((hr, st))
             }
@@ -152,6 +163,7 @@ impl Solver {
         let nm = rig.n_markers;
         let held_local = rig.ik.marker_offsets().to_vec();
         let rig_params = rig.ik.n_params();
+        let clusters = SegmentClusters::new(&rig.marker_joint, &rig.skeleton);
         Self {
             params: SolverParams {
                 method: Method::Arap,
@@ -171,11 +183,30 @@ impl Solver {
             pins: vec![f64::NAN; rig_params],
             any_pin: false,
             harmonic: None,
+            clusters,
+            segment_rot: vec![DQuat::IDENTITY; nj],
+            segment_pos: vec![DVec3::ZERO; nj],
         }
     }
 
     pub fn rig(&self) -> &Arc<Rig> {
         &self.rig
+    }
+
+    /// Whether this solver deforms the control mesh (ARAP does; the harmonic method works
+    /// on the full mesh alone).
+    pub fn has_control_mesh(&self) -> bool {
+        self.harmonic.is_none()
+    }
+
+    /// The segments whose rotation the harmonic method takes from their marker clusters.
+    pub fn segment_clusters(&self) -> &SegmentClusters {
+        &self.clusters
+    }
+
+    /// Harmonic method: the vertices tied to joint `j`'s segment (none with ARAP).
+    pub fn harmonic_tied_to(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
+        self.harmonic.iter().flat_map(move |(hr, _)| hr.tied_to(j))
     }
 
     /// Current control-mesh positions.
@@ -255,8 +286,17 @@ impl Solver {
         }
         let t_ik = Instant::now();
         if let Some((hr, hst)) = &mut self.harmonic {
-            // The second method: the posture's joints drive the full mesh directly.
-            hr.deform(hst, &self.ik.world_rot, &self.ik.world_pos, vertices_out);
+            // The second method: the segments drive the full mesh directly, each turned
+            // by its marker cluster where it has one in view, else by the posture.
+            self.segment_rot.copy_from_slice(&self.ik.world_rot);
+            self.segment_pos.copy_from_slice(&self.ik.world_pos);
+            self.clusters.fit(
+                &self.ik_targets,
+                &rig.marker_rest,
+                &mut self.segment_rot,
+                &mut self.segment_pos,
+            );
+            hr.deform(hst, &self.segment_rot, &self.segment_pos, vertices_out);
             let t1 = Instant::now();
             let (mut sum2, mut max2) = (0.0f64, 0.0f64);
             for k in 0..nm {

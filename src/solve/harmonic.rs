@@ -7,7 +7,8 @@
 //! `L·1 = 0`); the correspondences (each vertex whose nearest bone segment holds it at a
 //! distance from both joints of at least `margin` of the segment's length is tied to that
 //! segment's owner joint; the others are free, and the margin sets how far a bend spreads,
-//! as the paper's Figure 5 shows); and one sparse Cholesky factor of `L_ff`, the free
+//! as the paper's Figure 5 shows; a character file may give a joint's triangles instead,
+//! see [`Correspondence`]); and one sparse Cholesky factor of `L_ff`, the free
 //! vertices' block, shared by every solve below.
 //!
 //! Per frame ([`HarmonicRig::deform`]), given each joint's world rotation and position
@@ -34,6 +35,7 @@
 
 use super::factor::{FactorError, FactorKind, SparseCholesky};
 use crate::character::skeleton::Skeleton;
+use crate::character::Correspondence;
 use glam::{DMat3, DQuat, DVec3};
 
 /// Settings of the correspondence set-up.
@@ -60,6 +62,8 @@ pub enum HarmonicError {
     NoCorrespondences { margin: f64 },
     #[error("a part of the mesh ({vertices} vertices, e.g. vertex {example}) has no correspondence: every connected part needs one")]
     UntiedComponent { vertices: usize, example: usize },
+    #[error("correspondence of joint {joint}: triangle {triangle} or the joint is out of range")]
+    BadCorrespondence { joint: usize, triangle: usize },
     #[error(transparent)]
     Factor(#[from] FactorError),
 }
@@ -89,6 +93,102 @@ pub struct HarmonicRig {
     factor: SparseCholesky,
     joint_rest: Vec<DVec3>,
     root: usize,
+}
+
+/// The capture's segments (de Aguiar et al., Section 3: a group of three or more markers
+/// per segment): per joint, the markers its segment carries, when there are at least
+/// three. Each frame, such a segment's rotation is the best fit of its rest cluster onto
+/// the current one (Kabsch, through the polar rotation of the cross-covariance), instead
+/// of the posture fit's.
+#[derive(Clone, Debug)]
+pub struct SegmentClusters {
+    /// `(joint, its rest position, marker indices)`, for joints with three or more
+    /// markers.
+    clusters: Vec<(usize, DVec3, Vec<usize>)>,
+}
+
+/// A cluster whose present markers are nearly collinear cannot fix a rotation about
+/// their line: its cross-covariance's rank-2 part (the adjugate) must exceed this share
+/// of its size squared, else the posture fit's rotation stays.
+const CLUSTER_RANK_RATIO: f64 = 1e-6;
+
+impl SegmentClusters {
+    /// The clusters of markers carried by `marker_joint[k]` (one joint of `sk` per
+    /// marker).
+    pub fn new(marker_joint: &[usize], sk: &Skeleton) -> Self {
+        let mut per_joint = vec![Vec::new(); sk.len()];
+        for (k, &j) in marker_joint.iter().enumerate() {
+            if let Some(v) = per_joint.get_mut(j) {
+                v.push(k);
+            }
+        }
+        Self {
+            clusters: per_joint
+                .into_iter()
+                .enumerate()
+                .filter(|(_, m)| m.len() >= 3)
+                .map(|(j, m)| (j, sk.joints[j].rest, m))
+                .collect(),
+        }
+    }
+
+    /// Joints whose rotation comes from their cluster when it is seen.
+    pub fn joints(&self) -> impl Iterator<Item = usize> + '_ {
+        self.clusters.iter().map(|(j, _, _)| *j)
+    }
+
+    /// Replaces `rot[j]`, `pos[j]` (world rotation and position of joint `j`, as the
+    /// posture fit left them; also the warm start) by the rigid motion that best takes
+    /// the rest cluster `marker_rest` onto `targets` (NaN where a marker is not present),
+    /// for every cluster with three or more present markers that are not collinear.
+    /// Returns how many segments it set.
+    pub fn fit(
+        &self,
+        targets: &[DVec3],
+        marker_rest: &[DVec3],
+        rot: &mut [DQuat],
+        pos: &mut [DVec3],
+    ) -> usize {
+        let mut set = 0;
+        for (j, joint_rest, markers) in &self.clusters {
+            let j = *j;
+            let (mut n, mut c_rest, mut c_now) = (0usize, DVec3::ZERO, DVec3::ZERO);
+            for &k in markers {
+                if targets[k].is_finite() {
+                    n += 1;
+                    c_rest += marker_rest[k];
+                    c_now += targets[k];
+                }
+            }
+            if n < 3 {
+                continue;
+            }
+            c_rest /= n as f64;
+            c_now /= n as f64;
+            // A = Σ (x_k − c_now)(r_k − c_rest)ᵀ: R maximising tr(Rᵀ A) is the fit.
+            let mut a = DMat3::ZERO;
+            for &k in markers {
+                if targets[k].is_finite() {
+                    let (x, r) = (targets[k] - c_now, marker_rest[k] - c_rest);
+                    a += DMat3::from_cols(x * r.x, x * r.y, x * r.z);
+                }
+            }
+            let adjugate = a.x_axis.cross(a.y_axis).length_squared()
+                + a.y_axis.cross(a.z_axis).length_squared()
+                + a.z_axis.cross(a.x_axis).length_squared();
+            let size2 =
+                a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared();
+            if adjugate.sqrt() <= CLUSTER_RANK_RATIO * size2 {
+                continue;
+            }
+            let mut q = rot[j];
+            super::polar::extract_rotation(&a, &mut q);
+            rot[j] = q;
+            pos[j] = c_now - q * (c_rest - *joint_rest);
+            set += 1;
+        }
+        set
+    }
 }
 
 /// Per-solver memory.
@@ -144,12 +244,15 @@ fn segment_distance(p: DVec3, a: DVec3, b: DVec3) -> (f64, f64) {
 
 impl HarmonicRig {
     /// Sets up `vertices` / `triangles` (the full-resolution mesh at rest, metres) for the
-    /// skeleton `sk` (its rest pose matching the mesh).
+    /// skeleton `sk` (its rest pose matching the mesh). `given`: correspondences from the
+    /// character file; each replaces its joint's automatic ones, and its vertices follow
+    /// that joint whatever the automatic choice said.
     pub fn new(
         vertices: &[DVec3],
         triangles: &[[u32; 3]],
         sk: &Skeleton,
         params: &HarmonicParams,
+        given: &[Correspondence],
     ) -> Result<Self, HarmonicError> {
         let n = vertices.len();
         let segments: Vec<(usize, usize)> = sk
@@ -173,6 +276,30 @@ impl HarmonicRig {
             }
             if best.1 >= params.margin && best.1 <= 1.0 - params.margin {
                 owner[v] = best.2 as u32;
+            }
+        }
+        for c in given {
+            for o in owner.iter_mut().filter(|o| **o as usize == c.joint) {
+                *o = u32::MAX;
+            }
+        }
+        for c in given {
+            for &t in &c.triangles {
+                let Some(tri) = triangles.get(t as usize) else {
+                    return Err(HarmonicError::BadCorrespondence {
+                        joint: c.joint,
+                        triangle: t as usize,
+                    });
+                };
+                for &v in tri {
+                    owner[v as usize] = c.joint as u32;
+                }
+            }
+            if c.joint >= sk.len() {
+                return Err(HarmonicError::BadCorrespondence {
+                    joint: c.joint,
+                    triangle: 0,
+                });
             }
         }
         let tied: Vec<(u32, u32)> = owner
@@ -266,6 +393,14 @@ impl HarmonicRig {
             joint_rest: sk.joints.iter().map(|j| j.rest).collect(),
             root,
         })
+    }
+
+    /// The vertices tied to joint `j`'s segment.
+    pub fn tied_to(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
+        self.tied
+            .iter()
+            .filter(move |(_, o)| *o as usize == j)
+            .map(|(v, _)| *v as usize)
     }
 
     /// Vertices tied to a joint (the correspondences) and all vertices.
@@ -464,6 +599,7 @@ mod tests {
             &ch.triangles,
             &ch.skeleton,
             &HarmonicParams::default(),
+            &[],
         )
         .unwrap();
         (ch, rig)
@@ -594,5 +730,67 @@ mod tests {
         };
         assert!(moved("thumb_tip") < 1e-6, "{}", moved("thumb_tip"));
         assert!(moved("index_tip") > 0.01, "{}", moved("index_tip"));
+    }
+
+    #[test]
+    fn correspondences_from_the_file_replace_the_automatic_ones_of_their_joint() {
+        let ch = demo_hand();
+        let auto = HarmonicRig::new(
+            &ch.vertices,
+            &ch.triangles,
+            &ch.skeleton,
+            &HarmonicParams::default(),
+            &[],
+        )
+        .unwrap();
+        // The first 40 triangles, tied to the joint that owns the most automatic ties.
+        let j = (0..ch.skeleton.len())
+            .max_by_key(|&j| auto.tied_to(j).count())
+            .unwrap();
+        let given = Correspondence {
+            joint: j,
+            triangles: (0..40).collect(),
+        };
+        let rig = HarmonicRig::new(
+            &ch.vertices,
+            &ch.triangles,
+            &ch.skeleton,
+            &HarmonicParams::default(),
+            std::slice::from_ref(&given),
+        )
+        .unwrap();
+        let mut expected: Vec<usize> = ch.triangles[..40]
+            .iter()
+            .flatten()
+            .map(|&v| v as usize)
+            .collect();
+        expected.sort_unstable();
+        expected.dedup();
+        let mut got: Vec<usize> = rig.tied_to(j).collect();
+        got.sort_unstable();
+        assert_eq!(got, expected);
+        // Every other joint keeps its automatic ties, less the vertices now given to j.
+        for k in (0..ch.skeleton.len()).filter(|&k| k != j) {
+            let kept: Vec<usize> = auto
+                .tied_to(k)
+                .filter(|v| expected.binary_search(v).is_err())
+                .collect();
+            assert_eq!(rig.tied_to(k).collect::<Vec<_>>(), kept, "joint {k}");
+        }
+        // Out of range: an error, not a panic.
+        let bad = Correspondence {
+            joint: j,
+            triangles: vec![ch.triangles.len() as u32],
+        };
+        assert!(matches!(
+            HarmonicRig::new(
+                &ch.vertices,
+                &ch.triangles,
+                &ch.skeleton,
+                &HarmonicParams::default(),
+                &[bad],
+            ),
+            Err(HarmonicError::BadCorrespondence { .. })
+        ));
     }
 }
