@@ -331,6 +331,10 @@ pub struct RerunOutputConfig {
     pub mesh_every: u64,
     /// Also log the control mesh as a wireframe, on the mesh's frames (ARAP only).
     pub control_mesh: bool,
+    /// Also log the harmonic method's rotation field (the mesh coloured by each
+    /// vertex's angle from the root segment) and its correspondences, on the mesh's
+    /// frames (`solver.method = "harmonic"` only).
+    pub harmonic_field: bool,
 }
 
 impl Default for RerunOutputConfig {
@@ -339,6 +343,7 @@ impl Default for RerunOutputConfig {
             target: "off".into(),
             mesh_every: 1,
             control_mesh: false,
+            harmonic_field: false,
         }
     }
 }

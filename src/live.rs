@@ -166,9 +166,13 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
     if rerun_target != RerunTarget::Off {
         slots.push(Arc::clone(&rerun_slot));
     }
+    let harmonic_tied = solver.harmonic_tied().to_vec();
     let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
     if rerun_target != RerunTarget::Off && cfg.outputs.rerun.control_mesh {
         pipeline = pipeline.with_control_mesh();
+    }
+    if rerun_target != RerunTarget::Off && cfg.outputs.rerun.harmonic_field {
+        pipeline = pipeline.with_harmonic_field();
     }
     let clock = Arc::new(SystemClock::new());
     let record_path = opts
@@ -536,8 +540,9 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
             target: rerun_target.clone(),
             mesh_every: cfg.outputs.rerun.mesh_every,
             control_mesh: cfg.outputs.rerun.control_mesh,
+            harmonic_field: cfg.outputs.rerun.harmonic_field,
         },
-        RerunScene::of_rig(&rig, &name),
+        RerunScene::of_rig(&rig, &name).with_tied(&harmonic_tied),
         cfg.inputs
             .iter()
             .zip(&source_counters)

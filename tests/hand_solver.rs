@@ -263,6 +263,29 @@ fn harmonic_segments_with_a_marker_cluster_turn_with_their_markers() {
         worst < 1e-9 * rig.height_m,
         "tied vertices off the cluster's motion by {worst} m"
     );
+    // The field Rerun shows: a tied vertex reads its segment's angle from the root, so
+    // all the vertices of one segment read the same (f32 round-off: 1e-3°), and the
+    // root's own read 0.
+    let mut field = vec![0f32; ch.vertices.len()];
+    assert!(solver.harmonic_field_deg(&mut field));
+    let root = rig
+        .skeleton
+        .joints
+        .iter()
+        .position(|x| x.parent.is_none())
+        .unwrap();
+    for k in 0..rig.skeleton.len() {
+        let vals: Vec<f32> = solver.harmonic_tied_to(k).map(|v| field[v]).collect();
+        if let Some(first) = vals.first() {
+            assert!(
+                vals.iter().all(|a| (a - first).abs() < 1e-3),
+                "joint {k}: {vals:?}"
+            );
+            if k == root {
+                assert!(first.abs() < 1e-3, "root reads {first}°");
+            }
+        }
+    }
     // The posture fit alone would have turned it otherwise (so the test can fail).
     let (posture_rot, _) = solver.joint_world();
     let off_deg = rotation_angle_between(posture_rot[j], q).to_degrees();

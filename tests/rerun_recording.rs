@@ -16,7 +16,7 @@ import rerun as rr
 from rerun.experimental import RrdReader
 reader = RrdReader(sys.argv[1])
 rows, timelines, markers, iterations, conv_timelines = {}, set(), 0, [], set()
-inputs, control_edges = {}, []
+inputs, control_edges, mesh_colors, tied = {}, [], [], []
 for chunk in reader.stream():
     path = str(chunk.entity_path)
     rows[path] = rows.get(path, 0) + chunk.num_rows
@@ -36,6 +36,10 @@ for chunk in reader.stream():
                 v[0] for v in batch.column(name).to_pylist() if v)
         if path == "/character/control_mesh" and name.endswith("LineStrips3D:strips"):
             control_edges += [len(v or []) for v in batch.column(name).to_pylist()]
+        if path == "/character/mesh" and name.endswith("Mesh3D:vertex_colors"):
+            mesh_colors += [(len(v), len(set(v))) for v in batch.column(name).to_pylist() if v]
+        if path == "/character/correspondences" and name.endswith("Points3D:positions"):
+            tied += [len(v) for v in batch.column(name).to_pylist() if v]
 views = []
 for store in reader.blueprints():
     for chunk in reader.stream(store=store):
@@ -46,7 +50,8 @@ for store in reader.blueprints():
 print(json.dumps({"version": rr.__version__, "rows": rows, "timelines": sorted(timelines),
                   "markers": markers, "iterations": iterations,
                   "convergence_timelines": sorted(conv_timelines), "inputs": inputs,
-                  "control_edges": control_edges, "views": sorted(views)}))
+                  "control_edges": control_edges, "views": sorted(views),
+                  "mesh_colors": mesh_colors, "tied": tied}))
 "#;
 
 /// Runs `rigless ARGS` to completion and returns its stdout and the number of frames its
@@ -226,6 +231,51 @@ fn stage_logs_the_control_mesh_and_the_input_series() {
     // solver ticks, so a gap reads one to a few ticks (8.3 ms each). A stall would read
     // longer; none is expected here (under 35 ms: four ticks).
     assert!(gap.iter().all(|g| (8.0..35.0).contains(g)), "{gap:?}");
+}
+
+/// The harmonic method with `harmonic_field = true`: the mesh frames carry one colour
+/// per vertex (the field's angle), varied over the moving hand, and the correspondences
+/// come as points, the same number each time.
+#[test]
+fn harmonic_stage_logs_its_rotation_field() {
+    if !rerun_sdk() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"hand\"\n\n[solver]\nmethod = \"harmonic\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n\n[outputs.rerun]\ntarget = \"save=field.rrd\"\nmesh_every = 8\nharmonic_field = true\n",
+    )
+    .unwrap();
+    let (_, logged) = run_rigless(&[
+        "run",
+        "--config",
+        stage.to_str().unwrap(),
+        "--seconds",
+        "1.5",
+    ]);
+    assert!(logged >= 45, "{logged} frames logged");
+    let v = read_back(&dir.path().join("field.rrd"));
+    let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
+    let meshes = rows("/character/mesh") - 1;
+    assert!(meshes >= 3, "{v}");
+    // Positions per mesh frame, colours static once: one more row.
+    assert_eq!(rows("/character/correspondences"), meshes + 1, "{v}");
+    let colors: Vec<(u64, u64)> = serde_json::from_value(v["mesh_colors"].clone()).unwrap();
+    assert_eq!(colors.len() as u64, meshes, "{v}");
+    // The hand's 5,001 vertices each get a colour; a curling hand's field takes many.
+    assert!(
+        colors
+            .iter()
+            .all(|&(n, distinct)| n == 5001 && distinct > 50),
+        "{colors:?}"
+    );
+    let tied: Vec<u64> = serde_json::from_value(v["tied"].clone()).unwrap();
+    assert!(
+        tied.len() as u64 == meshes && tied.iter().all(|n| *n == tied[0] && *n > 500),
+        "{tied:?}"
+    );
 }
 
 /// `rigless replay FILE --solve hand --end 1.5 --rerun save=...` solves a recording

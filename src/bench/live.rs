@@ -166,6 +166,7 @@ pub fn run_live(
                     target: RerunTarget::Save(path.clone()),
                     mesh_every: 1,
                     control_mesh: false,
+                    harmonic_field: false,
                 },
                 RerunScene::of_rig(&rig, &name),
                 vec![InputSeries {

@@ -95,6 +95,8 @@ pub struct Pipeline {
     pins: Vec<f64>,
     /// Copy the control mesh into published frames ([`Self::with_control_mesh`]).
     control_mesh: bool,
+    /// Publish the harmonic rotation field ([`Self::with_harmonic_field`]).
+    harmonic_field: bool,
 }
 
 impl Pipeline {
@@ -128,6 +130,7 @@ impl Pipeline {
             pin_version: 0,
             pins: Vec::new(),
             control_mesh: false,
+            harmonic_field: false,
         }
     }
 
@@ -154,6 +157,13 @@ impl Pipeline {
     /// ARAP method only, the harmonic method has none).
     pub fn with_control_mesh(mut self) -> Self {
         self.control_mesh = self.solver.has_control_mesh();
+        self
+    }
+
+    /// Publishes the harmonic method's rotation field with every frame (per vertex, its
+    /// angle from the root segment; nothing with ARAP).
+    pub fn with_harmonic_field(mut self) -> Self {
+        self.harmonic_field = !self.solver.has_control_mesh();
         self
     }
 
@@ -239,6 +249,10 @@ impl Pipeline {
                 for (o, p) in f.control_m.iter_mut().zip(c) {
                     *o = p.as_vec3();
                 }
+            }
+            if self.harmonic_field {
+                f.field_deg.resize(self.vertices.len(), 0.0);
+                self.solver.harmonic_field_deg(&mut f.field_deg);
             }
             // Within the capacity reserved at creation: no allocation.
             f.convergence.clear();

@@ -19,6 +19,10 @@
 //!   an `iteration` timeline as well, so a frame's convergence reads directly.
 //! - `character/control_mesh`: the deformed control mesh's tet edges (`LineStrips3D`), on
 //!   the mesh's frames, when asked for (off by default; the ARAP method only).
+//! - The harmonic method's rotation field, when asked for, on the mesh's frames: the
+//!   mesh's vertices coloured by their field angle from the root segment (blue 0°, green
+//!   45°, red 90° and more), and `character/correspondences`, the tied vertices as
+//!   points coloured by their joint.
 //! - `inputs/K_KIND/packet_rate_hz` and `inputs/K_KIND/gap_ms` for each input (`K` its
 //!   place in the stage, `KIND` its scheme), every quarter second: frames per second, and
 //!   the longest wait for a frame (between two frames, or since the last one).
@@ -73,6 +77,8 @@ pub struct RerunOptions {
     pub mesh_every: u64,
     /// Log the control mesh as a wireframe (on the mesh's frames).
     pub control_mesh: bool,
+    /// Log the harmonic rotation field and correspondences (on the mesh's frames).
+    pub harmonic_field: bool,
 }
 
 /// An input whose packet rate and gaps are plotted.
@@ -99,6 +105,8 @@ pub struct RerunScene {
     pub rest_volume_m3: f64,
     /// The control mesh's edges (vertex pairs, each once), for its wireframe.
     pub control_edges: Vec<[u32; 2]>,
+    /// The harmonic method's correspondences, `(vertex, joint)` (empty with ARAP).
+    pub tied: Vec<(u32, u32)>,
 }
 
 impl RerunScene {
@@ -114,8 +122,45 @@ impl RerunScene {
                 &rig.triangles,
             ),
             control_edges: tet_edges(&rig.control.tets),
+            tied: Vec::new(),
         }
     }
+
+    /// The same, with the harmonic method's correspondences (`Solver::harmonic_tied`).
+    pub fn with_tied(mut self, tied: &[(u32, u32)]) -> Self {
+        self.tied = tied.to_vec();
+        self
+    }
+}
+
+/// Colour of a rotation-field angle: blue at 0°, green at 45°, red from 90°.
+fn field_color(angle_deg: f32) -> ::rerun::Color {
+    let t = (angle_deg / 90.0).clamp(0.0, 1.0);
+    let (r, g, b) = if t < 0.5 {
+        let u = t * 2.0;
+        (0.0, u, 1.0 - u)
+    } else {
+        let u = (t - 0.5) * 2.0;
+        (u, 1.0 - u, 0.0)
+    };
+    let c = |x: f32| (40.0 + 200.0 * x) as u8;
+    ::rerun::Color::from_rgb(c(r), c(g), c(b))
+}
+
+/// A distinct colour per joint (golden-angle hues).
+fn joint_color(j: u32) -> ::rerun::Color {
+    let h = (j as f32 * 0.618_034).fract() * 6.0;
+    let x = 1.0 - (h % 2.0 - 1.0).abs();
+    let (r, g, b) = match h as u32 {
+        0 => (1.0, x, 0.0),
+        1 => (x, 1.0, 0.0),
+        2 => (0.0, 1.0, x),
+        3 => (0.0, x, 1.0),
+        4 => (x, 0.0, 1.0),
+        _ => (1.0, 0.0, x),
+    };
+    let c = |v: f32| (50.0 + 200.0 * v) as u8;
+    ::rerun::Color::from_rgb(c(r), c(g), c(b))
 }
 
 /// The edges of tets, each once, as sorted vertex pairs in ascending order.
@@ -299,6 +344,7 @@ struct Logger {
     scene: RerunScene,
     mesh_every: u64,
     control_mesh: bool,
+    harmonic_field: bool,
     inputs: Vec<InputWindow>,
     first_time_s: Option<f64>,
     strips: Vec<Vec<[f32; 3]>>,
@@ -371,11 +417,21 @@ impl Logger {
                     .map(|t| ::rerun::components::TriangleIndices::from(*t)),
             ),
         );
+        if opts.harmonic_field && !scene.tied.is_empty() {
+            let _ = rec.log_static(
+                "character/correspondences",
+                &::rerun::Points3D::update_fields()
+                    .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
+                    .with_radii([::rerun::Radius::new_ui_points(2.0)]),
+            );
+        }
+        let harmonic_field = opts.harmonic_field && !scene.tied.is_empty();
         Self {
             rec,
             scene,
             mesh_every: opts.mesh_every,
             control_mesh: opts.control_mesh,
+            harmonic_field,
             inputs: inputs
                 .into_iter()
                 .map(|series| InputWindow {
@@ -398,11 +454,26 @@ impl Logger {
         let t0 = *self.first_time_s.get_or_insert(f.publish_time_s);
         rec.set_duration_secs("time", (f.publish_time_s - t0).max(0.0));
         if f.frame.is_multiple_of(self.mesh_every) {
-            let _ = rec.log(
-                "character/mesh",
-                &::rerun::Mesh3D::update_fields()
-                    .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array())),
-            );
+            let mut mesh = ::rerun::Mesh3D::update_fields()
+                .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array()));
+            // The harmonic method's field as the vertices' colours.
+            let field = self.harmonic_field && f.field_deg.len() == f.vertices_m.len();
+            if field {
+                mesh = mesh.with_vertex_colors(f.field_deg.iter().map(|a| field_color(*a)));
+            }
+            let _ = rec.log("character/mesh", &mesh);
+            if field {
+                let _ = rec.log(
+                    "character/correspondences",
+                    &::rerun::Points3D::update_fields().with_positions(
+                        self.scene
+                            .tied
+                            .iter()
+                            .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
+                            .map(|p| p.to_array()),
+                    ),
+                );
+            }
             if self.control_mesh && !f.control_m.is_empty() {
                 let p = &f.control_m;
                 let _ = rec.log(

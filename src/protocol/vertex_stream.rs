@@ -108,6 +108,9 @@ pub struct DeformedFrame {
     /// The deformed control mesh's vertices, metres (in-process only; empty unless the
     /// pipeline was asked for them).
     pub control_m: Vec<Vec3>,
+    /// Harmonic method: per vertex, the rotation field's angle from the root segment,
+    /// degrees (in-process only; empty unless the pipeline was asked for it).
+    pub field_deg: Vec<f32>,
 }
 
 impl DeformedFrame {
@@ -135,6 +138,7 @@ impl DeformedFrame {
             convergence: Vec::with_capacity(crate::solve::frame::TRACE_LEN),
             joint_limit_excess_deg: Vec::new(),
             control_m: Vec::new(),
+            field_deg: Vec::new(),
         }
     }
 }
@@ -483,6 +487,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
         convergence: Vec::new(),
         joint_limit_excess_deg: Vec::new(),
         control_m: Vec::new(),
+        field_deg: Vec::new(),
         frame,
         source_time_s,
         publish_time_s,

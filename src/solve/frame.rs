@@ -16,7 +16,7 @@
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
 use super::harmonic::{HarmonicError, HarmonicParams, HarmonicRig, HarmonicState, SegmentClusters};
 use super::ik::{IkParams, IkReport, IkState};
-use super::polar::extract_rotation;
+use super::polar::{extract_rotation, rotation_angle_between};
 use crate::character::skeleton::clamp_to_limits;
 use crate::markers::MarkerFrame;
 use crate::rig::bind::Rig;
@@ -207,6 +207,34 @@ impl Solver {
     /// Harmonic method: the vertices tied to joint `j`'s segment (none with ARAP).
     pub fn harmonic_tied_to(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
         self.harmonic.iter().flat_map(move |(hr, _)| hr.tied_to(j))
+    }
+
+    /// Harmonic method: the correspondences, `(vertex, joint)` per tied vertex (empty
+    /// with ARAP).
+    pub fn harmonic_tied(&self) -> &[(u32, u32)] {
+        self.harmonic.as_ref().map_or(&[], |(hr, _)| hr.tied())
+    }
+
+    /// Harmonic method: writes, per vertex, the angle in degrees of the last frame's
+    /// rotation field relative to the root segment's rotation (0 where the mesh turns
+    /// with the root; a tied vertex reads its segment's angle). Returns false (and writes
+    /// nothing) with ARAP. `out.len()` must be the vertex count.
+    pub fn harmonic_field_deg(&self, out: &mut [f32]) -> bool {
+        let Some((_, st)) = &self.harmonic else {
+            return false;
+        };
+        let root = self
+            .rig
+            .skeleton
+            .joints
+            .iter()
+            .position(|j| j.parent.is_none())
+            .unwrap_or(0);
+        let reference = self.segment_rot[root];
+        for (o, q) in out.iter_mut().zip(st.vertex_rotations()) {
+            *o = rotation_angle_between(reference, *q).to_degrees() as f32;
+        }
+        true
     }
 
     /// Current control-mesh positions.

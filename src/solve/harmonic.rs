@@ -191,6 +191,14 @@ impl SegmentClusters {
     }
 }
 
+impl HarmonicState {
+    /// Each vertex's world rotation from the last deformation (the normalized rotation
+    /// field, composed with the frame's reference).
+    pub fn vertex_rotations(&self) -> &[DQuat] {
+        &self.vertex_rot
+    }
+}
+
 /// Per-solver memory.
 pub struct HarmonicState {
     /// Per vertex rotation of the previous frame (world).
@@ -393,6 +401,11 @@ impl HarmonicRig {
             joint_rest: sk.joints.iter().map(|j| j.rest).collect(),
             root,
         })
+    }
+
+    /// The correspondences: `(vertex, joint)` for every tied vertex.
+    pub fn tied(&self) -> &[(u32, u32)] {
+        &self.tied
     }
 
     /// The vertices tied to joint `j`'s segment.
