@@ -80,6 +80,27 @@ fn run_rigless(args: &[&str]) -> (String, u64) {
     (stdout, logged)
 }
 
+/// Runs the procedural hand fed by the bundled finger-play session for `seconds`, with
+/// `extra` TOML appended to `[outputs.rerun]` (whose target is a file) and `solver`
+/// TOML in `[solver]`; returns what [`READER`] reads back and the frames logged.
+fn run_hand_stage(solver: &str, extra: &str, seconds: &str) -> (serde_json::Value, u64) {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        format!("[character]\nprocedural = \"hand\"\n\n[solver]\n{solver}\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n\n[outputs.rerun]\ntarget = \"save=stage.rrd\"\n{extra}\n"),
+    )
+    .unwrap();
+    let (_, logged) = run_rigless(&[
+        "run",
+        "--config",
+        stage.to_str().unwrap(),
+        "--seconds",
+        seconds,
+    ]);
+    (read_back(&dir.path().join("stage.rrd")), logged)
+}
+
 /// What [`READER`] says about `rrd`.
 fn read_back(rrd: &std::path::Path) -> serde_json::Value {
     let read = Command::new("python3")
@@ -186,16 +207,8 @@ fn stage_logs_the_control_mesh_and_the_input_series() {
     if !rerun_sdk() {
         return;
     }
-    let dir = tempfile::tempdir().unwrap();
-    let stage = dir.path().join("stage.toml");
-    std::fs::write(
-        &stage,
-        "[character]\nprocedural = \"hand\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n\n[outputs.rerun]\ntarget = \"save=stage.rrd\"\nmesh_every = 4\ncontrol_mesh = true\n",
-    )
-    .unwrap();
-    let (_, logged) = run_rigless(&["run", "--config", stage.to_str().unwrap(), "--seconds", "2"]);
+    let (v, logged) = run_hand_stage("", "mesh_every = 4\ncontrol_mesh = true", "2");
     assert!(logged >= 60, "{logged} frames logged");
-    let v = read_back(&dir.path().join("stage.rrd"));
     let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
     // Frames 0, 4, 8...: at most a quarter of the logged frames (rounded up), and at
     // least a quarter of them less what the sink may have skipped.
@@ -241,22 +254,12 @@ fn harmonic_stage_logs_its_rotation_field() {
     if !rerun_sdk() {
         return;
     }
-    let dir = tempfile::tempdir().unwrap();
-    let stage = dir.path().join("stage.toml");
-    std::fs::write(
-        &stage,
-        "[character]\nprocedural = \"hand\"\n\n[solver]\nmethod = \"harmonic\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n\n[outputs.rerun]\ntarget = \"save=field.rrd\"\nmesh_every = 8\nharmonic_field = true\n",
-    )
-    .unwrap();
-    let (_, logged) = run_rigless(&[
-        "run",
-        "--config",
-        stage.to_str().unwrap(),
-        "--seconds",
+    let (v, logged) = run_hand_stage(
+        "method = \"harmonic\"",
+        "mesh_every = 8\nharmonic_field = true",
         "1.5",
-    ]);
+    );
     assert!(logged >= 45, "{logged} frames logged");
-    let v = read_back(&dir.path().join("field.rrd"));
     let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
     let meshes = rows("/character/mesh") - 1;
     assert!(meshes >= 3, "{v}");

@@ -345,6 +345,8 @@ struct Logger {
     mesh_every: u64,
     control_mesh: bool,
     harmonic_field: bool,
+    /// The markers' names as Rerun text (shared buffers: a clone does not copy).
+    labels: Vec<::rerun::components::Text>,
     inputs: Vec<InputWindow>,
     first_time_s: Option<f64>,
     strips: Vec<Vec<[f32; 3]>>,
@@ -426,7 +428,13 @@ impl Logger {
             );
         }
         let harmonic_field = opts.harmonic_field && !scene.tied.is_empty();
+        let labels = scene
+            .marker_names
+            .iter()
+            .map(|n| ::rerun::components::Text::from(n.as_str()))
+            .collect();
         Self {
+            labels,
             rec,
             scene,
             mesh_every: opts.mesh_every,
@@ -502,7 +510,7 @@ impl Logger {
                     let [r, g, b, a] = fill_color(f.marker_states[k]);
                     ::rerun::Color::from_unmultiplied_rgba(r, g, b, a)
                 }))
-                .with_labels(present.iter().map(|&k| self.scene.marker_names[k].clone()))
+                .with_labels(present.iter().map(|&k| self.labels[k].clone()))
                 .with_radii([0.006f32]),
         );
         if !f.joints_m.is_empty() {

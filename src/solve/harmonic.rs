@@ -607,15 +607,22 @@ mod tests {
 
     fn setup() -> (crate::character::Character, HarmonicRig) {
         let ch = demo_hand();
-        let rig = HarmonicRig::new(
+        let rig = hand_rig(&ch, &[]).unwrap();
+        (ch, rig)
+    }
+
+    /// The hand's rig with the given correspondences.
+    fn hand_rig(
+        ch: &crate::character::Character,
+        given: &[Correspondence],
+    ) -> Result<HarmonicRig, HarmonicError> {
+        HarmonicRig::new(
             &ch.vertices,
             &ch.triangles,
             &ch.skeleton,
             &HarmonicParams::default(),
-            &[],
+            given,
         )
-        .unwrap();
-        (ch, rig)
     }
 
     #[test]
@@ -747,15 +754,7 @@ mod tests {
 
     #[test]
     fn correspondences_from_the_file_replace_the_automatic_ones_of_their_joint() {
-        let ch = demo_hand();
-        let auto = HarmonicRig::new(
-            &ch.vertices,
-            &ch.triangles,
-            &ch.skeleton,
-            &HarmonicParams::default(),
-            &[],
-        )
-        .unwrap();
+        let (ch, auto) = setup();
         // The first 40 triangles, tied to the joint that owns the most automatic ties.
         let j = (0..ch.skeleton.len())
             .max_by_key(|&j| auto.tied_to(j).count())
@@ -764,14 +763,7 @@ mod tests {
             joint: j,
             triangles: (0..40).collect(),
         };
-        let rig = HarmonicRig::new(
-            &ch.vertices,
-            &ch.triangles,
-            &ch.skeleton,
-            &HarmonicParams::default(),
-            std::slice::from_ref(&given),
-        )
-        .unwrap();
+        let rig = hand_rig(&ch, std::slice::from_ref(&given)).unwrap();
         let mut expected: Vec<usize> = ch.triangles[..40]
             .iter()
             .flatten()
@@ -796,13 +788,7 @@ mod tests {
             triangles: vec![ch.triangles.len() as u32],
         };
         assert!(matches!(
-            HarmonicRig::new(
-                &ch.vertices,
-                &ch.triangles,
-                &ch.skeleton,
-                &HarmonicParams::default(),
-                &[bad],
-            ),
+            hand_rig(&ch, &[bad]),
             Err(HarmonicError::BadCorrespondence { .. })
         ));
     }
