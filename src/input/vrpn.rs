@@ -15,7 +15,7 @@
 
 use crate::protocol::vrpn::{
     cookie, decode_message, description_payload, encode_connection_request, encode_message,
-    parse_cookie, parse_pos_quat, udp_description, Names, PosQuat, COOKIE_LEN, PING, PONG,
+    parse_pos_quat, udp_description, Message, Names, PosQuat, StreamReader, VrpnError, PING, PONG,
     POS_QUAT, SENDER_DESCRIPTION, TYPE_DESCRIPTION, UDP_DESCRIPTION,
 };
 use std::io::{Read, Write};
@@ -133,38 +133,34 @@ struct Peer<'a> {
 }
 
 impl Peer<'_> {
-    /// Handles every whole message in `b`; returns the bytes used. Pongs go to `replies`.
-    fn handle(
+    /// Handles one message; pongs go to `replies`.
+    fn message(
         &mut self,
-        b: &[u8],
+        m: &Message<'_>,
         replies: &mut Vec<u8>,
         on_report: &mut dyn FnMut(f64, f64, &PosQuat),
-    ) -> std::io::Result<usize> {
-        let mut at = 0;
-        while let Some((m, used)) = decode_message(&b[at..]).map_err(invalid)? {
-            at += used;
-            self.stats.messages.fetch_add(1, Ordering::Relaxed);
-            if self.names.observe(&m).map_err(invalid)? {
-                continue;
-            }
-            let from_device = self.names.sender(m.sender) == Some(self.device);
-            match self.names.kind(m.kind) {
-                Some(POS_QUAT) if from_device => {
-                    if let Some(r) = parse_pos_quat(m.payload) {
-                        self.stats.reports.fetch_add(1, Ordering::Relaxed);
-                        let source_s = m.seconds as f64 + m.microseconds as f64 * 1e-6;
-                        on_report(unix_now().0, source_s, &r);
-                    }
-                }
-                Some(PING) if from_device => {
-                    let (_, s, us) = unix_now();
-                    encode_message(replies, s, us, OUR_SENDER, OUR_PONG, &[]);
-                    self.stats.pings_answered.fetch_add(1, Ordering::Relaxed);
-                }
-                _ => {}
-            }
+    ) -> Result<(), VrpnError> {
+        self.stats.messages.fetch_add(1, Ordering::Relaxed);
+        if self.names.observe(m)? {
+            return Ok(());
         }
-        Ok(at)
+        let from_device = self.names.sender(m.sender) == Some(self.device);
+        match self.names.kind(m.kind) {
+            Some(POS_QUAT) if from_device => {
+                if let Some(r) = parse_pos_quat(m.payload) {
+                    self.stats.reports.fetch_add(1, Ordering::Relaxed);
+                    let source_s = m.seconds as f64 + m.microseconds as f64 * 1e-6;
+                    on_report(unix_now().0, source_s, &r);
+                }
+            }
+            Some(PING) if from_device => {
+                let (_, s, us) = unix_now();
+                encode_message(replies, s, us, OUR_SENDER, OUR_PONG, &[]);
+                self.stats.pings_answered.fetch_add(1, Ordering::Relaxed);
+            }
+            _ => {}
+        }
+        Ok(())
     }
 }
 
@@ -175,11 +171,21 @@ fn handle_datagram(
     replies: &mut Vec<u8>,
     on_report: &mut dyn FnMut(f64, f64, &PosQuat),
 ) {
-    match peer.handle(d, replies, on_report) {
-        Ok(used) if used == d.len() => {}
-        _ => {
-            peer.stats.bad_datagrams.fetch_add(1, Ordering::Relaxed);
+    let mut at = 0;
+    let whole = loop {
+        match decode_message(&d[at..]) {
+            Ok(Some((m, used))) => {
+                at += used;
+                if peer.message(&m, replies, on_report).is_err() {
+                    break false;
+                }
+            }
+            Ok(None) => break at == d.len(),
+            Err(_) => break false,
         }
+    };
+    if !whole {
+        peer.stats.bad_datagrams.fetch_add(1, Ordering::Relaxed);
     }
 }
 
@@ -204,9 +210,8 @@ fn session(
         }
         None => sock.set_read_timeout(Some(POLL))?,
     }
-    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
+    let mut reader = StreamReader::default();
     let mut chunk = vec![0u8; 1 << 16];
-    let mut cookie_seen = false;
     let mut peer = Peer {
         device,
         names: Names::default(),
@@ -231,7 +236,6 @@ fn session(
             }
         }
         // TCP first: the descriptions a datagram's messages refer to came that way.
-        let mut tcp_progress = false;
         match sock.read(&mut chunk) {
             Ok(0) => {
                 // The server hung up: what it sent last over UDP may still be on its way.
@@ -249,24 +253,14 @@ fn session(
             }
             Ok(n) => {
                 stats.received(n);
-                buf.extend_from_slice(&chunk[..n]);
-                tcp_progress = true;
+                reader
+                    .feed(&chunk[..n], &mut |m| {
+                        peer.message(m, &mut replies, on_report)
+                    })
+                    .map_err(invalid)?;
             }
             Err(e) if super::is_wait(&e) => {}
             Err(e) => return Err(e),
-        }
-        if tcp_progress {
-            let mut at = 0;
-            if !cookie_seen && buf.len() >= COOKIE_LEN {
-                let c: &[u8; COOKIE_LEN] = buf[..COOKIE_LEN].try_into().expect("24 bytes");
-                parse_cookie(c).map_err(invalid)?;
-                cookie_seen = true;
-                at = COOKIE_LEN;
-            }
-            if cookie_seen {
-                at += peer.handle(&buf[at..], &mut replies, on_report)?;
-                buf.drain(..at);
-            }
         }
         if let Some(n) = got_datagram {
             handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
@@ -474,7 +468,7 @@ mod tests {
                 }
                 got.extend_from_slice(&chunk[..n]);
                 let mut names = Names::default();
-                let mut at = COOKIE_LEN.min(got.len());
+                let mut at = crate::protocol::vrpn::COOKIE_LEN.min(got.len());
                 let mut pong = false;
                 while let Ok(Some((m, used))) = decode_message(&got[at..]) {
                     let m: Message = m;

@@ -92,6 +92,56 @@ fn be_u32(b: &[u8]) -> u32 {
     u32::from_be_bytes([b[0], b[1], b[2], b[3]])
 }
 
+/// The bytes of one VRPN TCP connection as they arrive: the peer's cookie, then
+/// messages. Pure (bytes in, messages out, no I/O). Between calls it keeps at most one
+/// partial message, which [`decode_message`] bounds by [`MAX_MESSAGE_LEN`].
+#[derive(Debug, Default)]
+pub struct StreamReader {
+    buf: Vec<u8>,
+    /// The peer's version, once its cookie is whole.
+    version: Option<(u32, u32)>,
+}
+
+impl StreamReader {
+    /// Takes `bytes`: checks the cookie once it is whole, passes every whole message
+    /// to `on_message`, and keeps the rest. A bad cookie or message, or an error from
+    /// `on_message`, is returned: the stream cannot be trusted after it.
+    pub fn feed<E: From<VrpnError>>(
+        &mut self,
+        bytes: &[u8],
+        on_message: &mut dyn FnMut(&Message<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.buf.extend_from_slice(bytes);
+        let mut at = 0;
+        if self.version.is_none() {
+            let Some(c) = self.buf.first_chunk::<COOKIE_LEN>() else {
+                return Ok(());
+            };
+            self.version = Some(parse_cookie(c)?);
+            at = COOKIE_LEN;
+        }
+        let result = loop {
+            match decode_message(&self.buf[at..]) {
+                Ok(Some((m, used))) => {
+                    at += used;
+                    if let Err(e) = on_message(&m) {
+                        break Err(e);
+                    }
+                }
+                Ok(None) => break Ok(()),
+                Err(e) => break Err(e.into()),
+            }
+        };
+        self.buf.drain(..at);
+        result
+    }
+
+    /// The peer's VRPN version, once its cookie has arrived.
+    pub fn version(&self) -> Option<(u32, u32)> {
+        self.version
+    }
+}
+
 /// The first message of `b` and the bytes it takes (padding included), or `None` when
 /// `b` holds only part of it.
 pub fn decode_message(b: &[u8]) -> Result<Option<(Message<'_>, usize)>, VrpnError> {
@@ -379,6 +429,38 @@ mod tests {
             if b.len() >= 24 {
                 let _ = parse_cookie(b[..24].try_into().unwrap());
             }
+            // A stream reader over hostile bytes, in two pieces: no panic, and what it
+            // keeps stays below one message.
+            let mut r = StreamReader::default();
+            let cut = b.len() / 3;
+            let _ = r.feed::<VrpnError>(&b[..cut], &mut |_| Ok(()));
+            let _ = r.feed::<VrpnError>(&b[cut..], &mut |_| Ok(()));
+            prop_assert!(r.buf.len() <= MAX_MESSAGE_LEN as usize + b.len());
+        }
+
+        /// A valid stream fed in any two pieces gives the same messages as in one.
+        #[test]
+        fn a_stream_split_anywhere_reads_the_same(cut in 0usize..400, n in 1usize..6) {
+            let mut b = cookie().to_vec();
+            for k in 0..n {
+                encode_message(&mut b, k as u32, 0, 3, 4, &[k as u8; 37]);
+            }
+            let cut = cut.min(b.len());
+            let mut r = StreamReader::default();
+            let mut seen = Vec::new();
+            for part in [&b[..cut], &b[cut..]] {
+                r.feed::<VrpnError>(part, &mut |m| {
+                    seen.push((m.seconds, m.payload.to_vec()));
+                    Ok(())
+                })
+                .unwrap();
+            }
+            prop_assert_eq!(r.version(), Some((7, 38)));
+            prop_assert_eq!(seen.len(), n);
+            for (k, (s, p)) in seen.iter().enumerate() {
+                prop_assert_eq!((*s, p.clone()), (k as u32, vec![k as u8; 37]));
+            }
+            prop_assert!(r.buf.is_empty());
         }
     }
 }

@@ -191,16 +191,11 @@ fn encode_vrpn(unix_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
 /// (Ethernet's MTU less the IP and UDP headers, as VRPN's own buffer).
 const VRPN_DATAGRAM_BYTES: usize = 1472;
 
-/// Cap on what a VRPN client may have sent us unread, bytes (it only ever sends a few
-/// descriptions).
-const VRPN_CLIENT_INBOX_BYTES: usize = 1 << 16;
-
 /// A VRPN client of the replay server.
 struct VrpnClient {
     tcp: std::net::TcpStream,
-    /// Bytes received and not yet parsed.
-    inbox: Vec<u8>,
-    cookie_seen: bool,
+    /// What it sent: its cookie, then messages (descriptions).
+    reader: crate::protocol::vrpn::StreamReader,
     /// Where its UDP description asks for low-latency messages to go.
     udp_dest: Option<SocketAddr>,
 }
@@ -209,9 +204,7 @@ impl VrpnClient {
     /// Reads what the client sent without blocking and takes in its UDP description.
     /// Returns false when the client is gone or misbehaves.
     fn poll(&mut self) -> bool {
-        use crate::protocol::vrpn::{
-            decode_message, parse_cookie, parse_udp_description, COOKIE_LEN, UDP_DESCRIPTION,
-        };
+        use crate::protocol::vrpn::{parse_udp_description, VrpnError, UDP_DESCRIPTION};
         use std::io::Read;
         let mut chunk = [0u8; 4096];
         if self.tcp.set_nonblocking(true).is_err() {
@@ -220,45 +213,22 @@ impl VrpnClient {
         let alive = loop {
             match self.tcp.read(&mut chunk) {
                 Ok(0) => break false,
-                Ok(n) if self.inbox.len() + n <= VRPN_CLIENT_INBOX_BYTES => {
-                    self.inbox.extend_from_slice(&chunk[..n])
+                Ok(n) => {
+                    let udp_dest = &mut self.udp_dest;
+                    let fed = self.reader.feed(&chunk[..n], &mut |m| {
+                        if m.kind == UDP_DESCRIPTION {
+                            *udp_dest = Some(parse_udp_description(m)?);
+                        }
+                        Ok::<(), VrpnError>(())
+                    });
+                    if fed.is_err() {
+                        break false;
+                    }
                 }
-                Ok(_) => break false,
                 Err(e) => break crate::input::is_wait(&e),
             }
         };
-        if !alive || self.tcp.set_nonblocking(false).is_err() {
-            return false;
-        }
-        let mut at = 0;
-        if !self.cookie_seen {
-            if self.inbox.len() < COOKIE_LEN {
-                return true;
-            }
-            let c: &[u8; COOKIE_LEN] = self.inbox[..COOKIE_LEN].try_into().expect("24 bytes");
-            if parse_cookie(c).is_err() {
-                return false;
-            }
-            self.cookie_seen = true;
-            at = COOKIE_LEN;
-        }
-        loop {
-            match decode_message(&self.inbox[at..]) {
-                Ok(Some((m, used))) => {
-                    if m.kind == UDP_DESCRIPTION {
-                        match parse_udp_description(&m) {
-                            Ok(a) => self.udp_dest = Some(a),
-                            Err(_) => return false,
-                        }
-                    }
-                    at += used;
-                }
-                Ok(None) => break,
-                Err(_) => return false,
-            }
-        }
-        self.inbox.drain(..at);
-        true
+        alive && self.tcp.set_nonblocking(false).is_ok()
     }
 }
 
@@ -446,8 +416,7 @@ impl Sink {
                     if c.set_nonblocking(false).is_ok() && c.write_all(greeting).is_ok() {
                         clients.push(VrpnClient {
                             tcp: c,
-                            inbox: Vec::new(),
-                            cookie_seen: false,
+                            reader: Default::default(),
                             udp_dest: None,
                         });
                     }
