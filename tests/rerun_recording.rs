@@ -267,13 +267,12 @@ fn harmonic_stage_logs_its_rotation_field() {
     assert_eq!(rows("/character/correspondences"), meshes + 1, "{v}");
     let colors: Vec<(u64, u64)> = serde_json::from_value(v["mesh_colors"].clone()).unwrap();
     assert_eq!(colors.len() as u64, meshes, "{v}");
-    // The hand's 5,001 vertices each get a colour; a curling hand's field takes many.
-    assert!(
-        colors
-            .iter()
-            .all(|&(n, distinct)| n == 5001 && distinct > 50),
-        "{colors:?}"
-    );
+    // The hand's 5,001 vertices each get a colour; a curling hand's field takes many
+    // (all but the first frame, which may come before the first sample: the rest pose,
+    // one colour).
+    assert!(colors.iter().all(|&(n, _)| n == 5001), "{colors:?}");
+    let varied = colors.iter().filter(|&&(_, distinct)| distinct > 50).count();
+    assert!(varied + 1 >= colors.len(), "{colors:?}");
     let tied: Vec<u64> = serde_json::from_value(v["tied"].clone()).unwrap();
     assert!(
         tied.len() as u64 == meshes && tied.iter().all(|n| *n == tied[0] && *n > 500),
