@@ -90,6 +90,10 @@ pub struct SolverConfig {
     pub rest_prior: f64,
     /// The same towards the previous frame's posture (higher: smoother, more lag).
     pub prev_prior: f64,
+    /// ARAP: gain of the volume restoration (0: off; 1: the default, which gives
+    /// compressed flesh at creases back its volume within a few frames; above 2 it may
+    /// oscillate).
+    pub volume_gain: f64,
 }
 
 /// `solver.method`.
@@ -127,6 +131,7 @@ impl Default for SolverConfig {
             channel_capacity: 4096,
             rest_prior: crate::solve::ik::IkParams::default().rest_prior,
             prev_prior: crate::solve::ik::IkParams::default().prev_prior,
+            volume_gain: crate::solve::frame::SolverParams::default().volume_gain,
         }
     }
 }
@@ -629,6 +634,12 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
                 format!("must be in [0, 1], got {v}"),
             ));
         }
+    }
+    if !(solver.volume_gain.is_finite() && (0.0..=2.0).contains(&solver.volume_gain)) {
+        problems.push(lines.at(
+            "solver.volume_gain",
+            format!("must be in [0, 2], got {}", solver.volume_gain),
+        ));
     }
     if !(solver.harmonic_margin.is_finite() && (0.0..0.5).contains(&solver.harmonic_margin)) {
         problems.push(lines.at(

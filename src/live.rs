@@ -148,6 +148,7 @@ pub fn run(cfg: &StageConfig, base_dir: &std::path::Path, opts: &RunOptions) -> 
                 prev_prior: cfg.solver.prev_prior,
                 ..IkParams::default()
             },
+            volume_gain: cfg.solver.volume_gain,
         },
     )
     .with_context(|| format!("setting up the {:?} solver for {name}", cfg.solver.method))?;

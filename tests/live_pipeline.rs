@@ -338,10 +338,12 @@ fn all_markers_lost_for_ten_seconds_then_back() {
         lossy.settle_m, lossy.last_second_drift_m
     );
     // Holding: with no information the mesh only finishes converging (the ARAP iterations
-    // of a frame stop at a relative tolerance, so the held pose settles geometrically):
-    // under 0.5 mm in all on a 0.2 m hand, and under 1 µm per frame by the end.
+    // of a frame stop at a relative tolerance, and the volume restoration gives the
+    // flesh at creases its volume back over a few frames, so the held pose settles
+    // geometrically): under 1 mm in all on a 0.2 m hand, and under 1 µm per frame by
+    // the end.
     assert!(
-        lossy.settle_m < 5e-4,
+        lossy.settle_m < 1e-3,
         "held pose moved {} m",
         lossy.settle_m
     );

@@ -271,7 +271,10 @@ fn harmonic_stage_logs_its_rotation_field() {
     // (all but the first frame, which may come before the first sample: the rest pose,
     // one colour).
     assert!(colors.iter().all(|&(n, _)| n == 5001), "{colors:?}");
-    let varied = colors.iter().filter(|&&(_, distinct)| distinct > 50).count();
+    let varied = colors
+        .iter()
+        .filter(|&&(_, distinct)| distinct > 50)
+        .count();
     assert!(varied + 1 >= colors.len(), "{colors:?}");
     let tied: Vec<u64> = serde_json::from_value(v["tied"].clone()).unwrap();
     assert!(

@@ -10,8 +10,8 @@ use crate::rig::bind::BindParams;
 /// Binding parameters for the procedural hand.
 pub fn hand_bind_params() -> BindParams {
     BindParams {
-        cell_size_m: 0.009,
-        skeleton_step_m: 0.008,
+        cell_size_m: 0.014,
+        skeleton_step_m: 0.0126,
         w_shape: 1.0,
         w_marker: 30.0,
         w_skeleton: 1000.0,

@@ -46,6 +46,11 @@ pub struct SolverParams {
     pub tolerance: f64,
     /// The skeleton step's posture fit.
     pub ik: IkParams,
+    /// Volume restoration (0: off): before each global step, each control vertex's
+    /// rotation is scaled by `s_i`, which integrates `J_i^(−gain/3)` over iterations and
+    /// frames (`J_i`: the volume of the vertex's tets over their rest volume), so that
+    /// flesh compressed at a crease is given back its volume.
+    pub volume_gain: f64,
 }
 
 impl Default for SolverParams {
@@ -55,6 +60,7 @@ impl Default for SolverParams {
             max_iterations: 30,
             tolerance: 1e-3,
             ik: IkParams::default(),
+            volume_gain: 1.0,
         }
     }
 }
@@ -92,7 +98,21 @@ pub struct SolveReport {
     pub solve_ms: f64,
     /// Time to move the full mesh with the Green coordinates, ms.
     pub gc_ms: f64,
+    /// Folded control tets pushed back after the iterations (volume projections made;
+    /// 0 on most frames).
+    pub untangled: usize,
 }
+
+/// A control tet is taken as folded below this share of its rest volume, and pushed back
+/// to it ([`crate::rig::tetmesh::TetMesh::untangle`]).
+pub const UNTANGLE_MIN_RATIO: f64 = 0.02;
+
+/// Bounds of a control vertex's volume scale.
+pub const VOLUME_SCALE_MIN: f64 = 0.8;
+pub const VOLUME_SCALE_MAX: f64 = 1.25;
+
+/// Sweeps of the untangling projection per frame at most.
+pub const UNTANGLE_MAX_SWEEPS: usize = 10;
 
 /// A per-character solver: owns the mutable state, shares the rig.
 pub struct Solver {
@@ -126,6 +146,13 @@ pub struct Solver {
     clusters: SegmentClusters,
     segment_rot: Vec<DQuat>,
     segment_pos: Vec<DVec3>,
+    /// Six times each control tet's rest volume (for untangling).
+    tet_rest6: Vec<f64>,
+    /// Volume restoration: per control vertex, six times the rest volume of its tets,
+    /// the same now (scratch), and its scale `s_i` (carried across frames).
+    vertex_rest6: Vec<f64>,
+    vertex_now6: Vec<f64>,
+    volume_scale: Vec<f64>,
 }
 
 impl Solver {
@@ -164,6 +191,14 @@ impl Solver {
         let held_local = rig.ik.marker_offsets().to_vec();
         let rig_params = rig.ik.n_params();
         let clusters = SegmentClusters::new(&rig.marker_joint, &rig.skeleton);
+        let tet_rest6 = rig.control.rest_volumes6();
+        let mut vertex_rest6 = vec![0.0; rig.control.positions.len()];
+        for (t, v6) in rig.control.tets.iter().zip(&tet_rest6) {
+            for &i in t {
+                vertex_rest6[i as usize] += v6;
+            }
+        }
+        let n_control = vertex_rest6.len();
         Self {
             params: SolverParams {
                 method: Method::Arap,
@@ -184,6 +219,10 @@ impl Solver {
             any_pin: false,
             harmonic: None,
             clusters,
+            tet_rest6,
+            vertex_rest6,
+            vertex_now6: vec![0.0; n_control],
+            volume_scale: vec![1.0; n_control],
             segment_rot: vec![DQuat::IDENTITY; nj],
             segment_pos: vec![DVec3::ZERO; nj],
         }
@@ -351,6 +390,7 @@ impl Solver {
                 marker_residual_max_mm: max2.sqrt() * 1e3,
                 solve_ms: (t1 - t0).as_secs_f64() * 1e3,
                 gc_ms: 0.0,
+                untangled: 0,
             };
         }
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
@@ -410,9 +450,20 @@ impl Solver {
                 break;
             }
             prev = Some(crit);
+            if self.params.volume_gain > 0.0 {
+                self.scale_for_volume();
+            }
             sys.global_step(&mut self.st);
             iterations += 1;
         }
+        // Per-vertex ARAP can fold a few tets at strongly flexed creases (the minimum of
+        // its energy, not early stopping): push them back before the mesh is read.
+        let untangled = rig.control.untangle(
+            &mut self.st.positions,
+            &self.tet_rest6,
+            UNTANGLE_MIN_RATIO,
+            UNTANGLE_MAX_SWEEPS,
+        );
         let (mut sum2, mut max2) = (0.0f64, 0.0f64);
         for k in 0..nm {
             let d2 = (sys.rows.eval(k, &self.st.positions) - self.st.targets[k]).length_squared();
@@ -438,6 +489,28 @@ impl Solver {
             marker_residual_max_mm: max2.sqrt() * 1e3,
             solve_ms: (t1 - t0).as_secs_f64() * 1e3,
             gc_ms: (t2 - t1).as_secs_f64() * 1e3,
+            untangled,
+        }
+    }
+
+    /// Scales each control vertex's rotation (for the next global step) by its volume
+    /// scale, after updating the scale from its tets' volume ratio.
+    fn scale_for_volume(&mut self) {
+        let control = &self.rig.control;
+        let p = &self.st.positions;
+        self.vertex_now6.fill(0.0);
+        for t in &control.tets {
+            let [a, b, c, d] = t.map(|i| p[i as usize]);
+            let v6 = crate::rig::tetmesh::signed_volume6(a, b, c, d);
+            for &i in t {
+                self.vertex_now6[i as usize] += v6;
+            }
+        }
+        let k = -self.params.volume_gain / 3.0;
+        for (i, s) in self.volume_scale.iter_mut().enumerate() {
+            let j = (self.vertex_now6[i] / self.vertex_rest6[i]).max(0.1);
+            *s = (*s * j.powf(k)).clamp(VOLUME_SCALE_MIN, VOLUME_SCALE_MAX);
+            self.st.rots[i] *= *s;
         }
     }
 
