@@ -141,15 +141,17 @@ fn warm_start_needs_no_more_iterations_than_cold() {
     );
 }
 
-#[test]
-fn the_hand_follows_finger_play_within_the_quality_targets() {
+/// 2.5 s of the hand's finger play (a full curl wave of every finger, period 2.4 s, and
+/// most of a spread cycle) through a solver with `params`; `on_frame` sees each report.
+fn play_finger_play(
+    params: SolverParams,
+    on_frame: impl FnMut(usize, &rigless::solve::frame::SolveReport),
+) -> rigless::bench::characters::CharacterRecord {
     use rigless::bench::characters::{run_character, CharacterRun, Motion};
-    let ch = demo_hand();
-    let mut worst_limit_deg = 0.0f64;
-    let rec = run_character(
-        &ch,
+    run_character(
+        &demo_hand(),
         &hand_bind_params(),
-        SolverParams::default(),
+        params,
         Motion::FingerPlay,
         CharacterRun {
             seconds: 2.5,
@@ -158,11 +160,18 @@ fn the_hand_follows_finger_play_within_the_quality_targets() {
             // Quality must not depend on this machine's speed: no deadline stops.
             frame_budget_s: 10.0,
         },
-        |_, r| worst_limit_deg = worst_limit_deg.max(r.joint_limit_violation_deg),
+        on_frame,
     )
-    .expect("hand binds");
-    // The targets (DESIGN.md's quality table); 2.5 s covers a full curl wave of
-    // every finger (period 2.4 s) and most of a spread cycle.
+    .expect("hand binds")
+}
+
+#[test]
+fn the_hand_follows_finger_play_within_the_quality_targets() {
+    let mut worst_limit_deg = 0.0f64;
+    let rec = play_finger_play(SolverParams::default(), |_, r| {
+        worst_limit_deg = worst_limit_deg.max(r.joint_limit_violation_deg)
+    });
+    // The targets (DESIGN.md's quality table).
     assert!(
         worst_limit_deg <= 0.5,
         "joint limits exceeded by {worst_limit_deg}°"
@@ -180,26 +189,14 @@ fn the_hand_follows_finger_play_within_the_quality_targets() {
 /// with it (the default) a third of that or less, at the same tracking quality.
 #[test]
 fn volume_restoration_gives_flexed_flesh_its_volume_back() {
-    use rigless::bench::characters::{run_character, CharacterRun, Motion};
-    let ch = demo_hand();
     let run = |volume_gain: f64| {
-        run_character(
-            &ch,
-            &hand_bind_params(),
+        play_finger_play(
             SolverParams {
                 volume_gain,
                 ..SolverParams::default()
             },
-            Motion::FingerPlay,
-            CharacterRun {
-                seconds: 2.5,
-                rate_hz: 120.0,
-                noise_m: 0.0,
-                frame_budget_s: 10.0,
-            },
             |_, _| {},
         )
-        .expect("hand binds")
     };
     let (off, on) = (run(0.0), run(1.0));
     assert!(off.volume_error_mean > 0.03, "{off:?}");
