@@ -61,8 +61,8 @@ impl Default for IkParams {
             rest_prior: 2e-3,
             prev_prior: 2e-3,
             max_iterations: 30,
-            step_tolerance_rad: 1e-4,
-            cost_tolerance: 1e-8,
+            step_tolerance_rad: 2e-3,
+            cost_tolerance: 1e-6,
         }
     }
 }
