@@ -77,71 +77,6 @@ impl TetMesh {
         Ok(Self { positions, tets })
     }
 
-    /// Six times each tet's signed volume at rest (for [`Self::untangle`]).
-    pub fn rest_volumes6(&self) -> Vec<f64> {
-        self.tets
-            .iter()
-            .map(|t| {
-                let [a, b, c, d] = t.map(|i| self.positions[i as usize]);
-                signed_volume6(a, b, c, d)
-            })
-            .collect()
-    }
-
-    /// Pushes folded tets back to a small positive volume: every tet whose signed volume
-    /// at `positions` is below `min_ratio` of its rest volume (`rest6`, from
-    /// [`Self::rest_volumes6`]) has its four vertices moved along the volume's gradient,
-    /// by the least squared motion that brings it to exactly that ratio (the volume
-    /// constraint projection of position-based dynamics, Müller et al. 2007, Sec. 3.3,
-    /// with unit masses). Moving shared vertices can tip a neighbour below the
-    /// threshold, so the sweep repeats, at most `max_sweeps` times. Returns the number
-    /// of projections made (0: nothing was folded; positions untouched).
-    pub fn untangle(
-        &self,
-        positions: &mut [DVec3],
-        rest6: &[f64],
-        min_ratio: f64,
-        max_sweeps: usize,
-    ) -> usize {
-        let mut projections = 0;
-        for _ in 0..max_sweeps {
-            let mut moved = false;
-            for (t, r6) in self.tets.iter().zip(rest6) {
-                let [ia, ib, ic, id] = t.map(|i| i as usize);
-                let [a, b, c, d] = [positions[ia], positions[ib], positions[ic], positions[id]];
-                let (ab, ac, ad) = (b - a, c - a, d - a);
-                let v6 = ab.cross(ac).dot(ad);
-                let goal6 = min_ratio * r6;
-                if v6 >= goal6 {
-                    continue;
-                }
-                // ∂V6/∂b, ∂c, ∂d, and ∂a = −(their sum).
-                let gb = ac.cross(ad);
-                let gc = ad.cross(ab);
-                let gd = ab.cross(ac);
-                let ga = -(gb + gc + gd);
-                let norm2 = ga.length_squared()
-                    + gb.length_squared()
-                    + gc.length_squared()
-                    + gd.length_squared();
-                if norm2 <= f64::MIN_POSITIVE {
-                    continue;
-                }
-                let lambda = (goal6 - v6) / norm2;
-                positions[ia] += ga * lambda;
-                positions[ib] += gb * lambda;
-                positions[ic] += gc * lambda;
-                positions[id] += gd * lambda;
-                projections += 1;
-                moved = true;
-            }
-            if !moved {
-                break;
-            }
-        }
-        projections
-    }
-
     /// Number of tets whose signed volume under `positions` is not positive.
     pub fn inverted_tets(&self, positions: &[DVec3]) -> usize {
         self.tets
@@ -345,6 +280,144 @@ impl Reader<'_> {
     }
 }
 
+/// Pushes folded tets of a [`TetMesh`] back to a small positive volume: every tet whose
+/// signed volume is below `min_ratio` of its rest volume has its four vertices moved
+/// along the volume's gradient, by the least squared motion that brings it to that ratio
+/// (to first order: the volume constraint projection of position-based dynamics, Müller
+/// et al. 2007, Sec. 3.3, with unit masses). Moving shared vertices can tip a neighbour
+/// below the threshold, so after the first sweep over all tets the tets around every
+/// moved vertex are checked again, for at most `max_sweeps` sweeps.
+///
+/// Precomputed per mesh (rest volumes, the tets around each vertex) and allocation-free
+/// per call.
+#[derive(Clone, Debug)]
+pub struct Untangler {
+    /// Six times each tet's rest volume.
+    rest6: Vec<f64>,
+    /// Tets around each vertex (CSR).
+    vertex_tets_start: Vec<u32>,
+    vertex_tets: Vec<u32>,
+    /// The tets to check in the current and the next sweep, and the sweep that last
+    /// queued each tet.
+    check: Vec<u32>,
+    next: Vec<u32>,
+    queued: Vec<u32>,
+}
+
+impl Untangler {
+    pub fn new(mesh: &TetMesh) -> Self {
+        let rest6 = mesh
+            .tets
+            .iter()
+            .map(|t| {
+                let [a, b, c, d] = t.map(|i| mesh.positions[i as usize]);
+                signed_volume6(a, b, c, d)
+            })
+            .collect();
+        let n = mesh.positions.len();
+        let mut count = vec![0u32; n + 1];
+        for t in &mesh.tets {
+            for &v in t {
+                count[v as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            count[i + 1] += count[i];
+        }
+        let mut fill = count.clone();
+        let mut vertex_tets = vec![0u32; mesh.tets.len() * 4];
+        for (k, t) in mesh.tets.iter().enumerate() {
+            for &v in t {
+                vertex_tets[fill[v as usize] as usize] = k as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        let nt = mesh.tets.len();
+        Self {
+            rest6,
+            vertex_tets_start: count,
+            vertex_tets,
+            check: Vec::with_capacity(nt),
+            next: Vec::with_capacity(nt),
+            queued: vec![u32::MAX; nt],
+        }
+    }
+
+    /// Six times each tet's rest volume.
+    pub fn rest6(&self) -> &[f64] {
+        &self.rest6
+    }
+
+    /// Unfolds the tets of `mesh` at `positions` (see the type's doc). Returns the number
+    /// of projections made (0: nothing was folded; positions untouched).
+    pub fn run(
+        &mut self,
+        mesh: &TetMesh,
+        positions: &mut [DVec3],
+        min_ratio: f64,
+        max_sweeps: usize,
+    ) -> usize {
+        let mut projections = 0;
+        self.check.clear();
+        self.check.extend(0..mesh.tets.len() as u32);
+        for sweep in 0..max_sweeps as u32 {
+            self.next.clear();
+            for &t in &self.check {
+                let t = t as usize;
+                let [ia, ib, ic, id] = mesh.tets[t].map(|i| i as usize);
+                let [a, b, c, d] = [positions[ia], positions[ib], positions[ic], positions[id]];
+                let (ab, ac, ad) = (b - a, c - a, d - a);
+                let v6 = ab.cross(ac).dot(ad);
+                let goal6 = min_ratio * self.rest6[t];
+                if v6 >= goal6 {
+                    continue;
+                }
+                // ∂V6/∂b, ∂c, ∂d, and ∂a = −(their sum).
+                let gb = ac.cross(ad);
+                let gc = ad.cross(ab);
+                let gd = ab.cross(ac);
+                let ga = -(gb + gc + gd);
+                let norm2 = ga.length_squared()
+                    + gb.length_squared()
+                    + gc.length_squared()
+                    + gd.length_squared();
+                if norm2 <= f64::MIN_POSITIVE {
+                    continue;
+                }
+                let lambda = (goal6 - v6) / norm2;
+                positions[ia] += ga * lambda;
+                positions[ib] += gb * lambda;
+                positions[ic] += gc * lambda;
+                positions[id] += gd * lambda;
+                projections += 1;
+                // Everything around the moved vertices is checked next sweep (this one
+                // included: the linearised step may fall short).
+                for v in [ia, ib, ic, id] {
+                    let (lo, hi) = (
+                        self.vertex_tets_start[v] as usize,
+                        self.vertex_tets_start[v + 1] as usize,
+                    );
+                    for &k in &self.vertex_tets[lo..hi] {
+                        if self.queued[k as usize] != sweep {
+                            self.queued[k as usize] = sweep;
+                            self.next.push(k);
+                        }
+                    }
+                }
+            }
+            if self.next.is_empty() {
+                break;
+            }
+            std::mem::swap(&mut self.check, &mut self.next);
+        }
+        // Sweep numbers restart at 0 on the next call.
+        if projections > 0 {
+            self.queued.fill(u32::MAX);
+        }
+        projections
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -368,15 +441,16 @@ mod tests {
     #[test]
     fn untangling_leaves_good_tets_alone_and_unfolds_a_folded_one() {
         let m = two_tets();
-        let rest6 = m.rest_volumes6();
+        let mut u = Untangler::new(&m);
+        let rest6 = u.rest6.clone();
         assert!(rest6.iter().all(|v| *v > 0.0));
         let mut p = m.positions.clone();
-        assert_eq!(m.untangle(&mut p, &rest6, 0.02, 10), 0);
+        assert_eq!(u.run(&m, &mut p, 0.02, 10), 0);
         assert_eq!(p, m.positions);
         // Push apex 4 through the shared face: that tet folds to −30 % of its volume.
         p[4] = DVec3::new(0.2, 0.2, -0.3);
         assert_eq!(m.inverted_tets(&p), 1);
-        let n = m.untangle(&mut p, &rest6, 0.02, 10);
+        let n = u.run(&m, &mut p, 0.02, 10);
         assert!(n >= 1);
         assert_eq!(m.inverted_tets(&p), 0);
         for (t, r6) in m.tets.iter().zip(&rest6) {

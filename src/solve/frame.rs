@@ -14,7 +14,7 @@
 //!    (`SolverParams::volume_gain`), so that flesh compressed at a crease regains its
 //!    volume (the ARAP minimum alone loses a few per cent at a full curl).
 //! 4. Untangling: control tets folded below [`UNTANGLE_MIN_RATIO`] of their rest volume
-//!    are projected back ([`crate::rig::tetmesh::TetMesh::untangle`]).
+//!    are projected back ([`crate::rig::tetmesh::Untangler`]).
 //!
 //! Then the full mesh follows the control mesh. Allocation-free per frame.
 
@@ -26,6 +26,7 @@ use crate::character::skeleton::clamp_to_limits;
 use crate::markers::MarkerFrame;
 use crate::rig::bind::Rig;
 use crate::rig::green::GreenScratch;
+use crate::rig::tetmesh::Untangler;
 use glam::{DMat3, DQuat, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
@@ -109,7 +110,7 @@ pub struct SolveReport {
 }
 
 /// A control tet is taken as folded below this share of its rest volume, and pushed back
-/// to it ([`crate::rig::tetmesh::TetMesh::untangle`]).
+/// to it ([`crate::rig::tetmesh::Untangler`]).
 pub const UNTANGLE_MIN_RATIO: f64 = 0.02;
 
 /// Bounds of a control vertex's volume scale.
@@ -151,8 +152,8 @@ pub struct Solver {
     clusters: SegmentClusters,
     segment_rot: Vec<DQuat>,
     segment_pos: Vec<DVec3>,
-    /// Six times each control tet's rest volume (for untangling).
-    tet_rest6: Vec<f64>,
+    /// Pushes folded control tets back after the iterations.
+    untangler: Untangler,
     /// Volume restoration: per control vertex, six times the rest volume of its tets,
     /// the same now (scratch), and its scale `s_i` (carried across frames).
     vertex_rest6: Vec<f64>,
@@ -196,9 +197,9 @@ impl Solver {
         let held_local = rig.ik.marker_offsets().to_vec();
         let rig_params = rig.ik.n_params();
         let clusters = SegmentClusters::new(&rig.marker_joint, &rig.skeleton);
-        let tet_rest6 = rig.control.rest_volumes6();
+        let untangler = Untangler::new(&rig.control);
         let mut vertex_rest6 = vec![0.0; rig.control.positions.len()];
-        for (t, v6) in rig.control.tets.iter().zip(&tet_rest6) {
+        for (t, v6) in rig.control.tets.iter().zip(untangler.rest6()) {
             for &i in t {
                 vertex_rest6[i as usize] += v6;
             }
@@ -224,7 +225,7 @@ impl Solver {
             any_pin: false,
             harmonic: None,
             clusters,
-            tet_rest6,
+            untangler,
             vertex_rest6,
             vertex_now6: vec![0.0; n_control],
             volume_scale: vec![1.0; n_control],
@@ -463,9 +464,9 @@ impl Solver {
         }
         // Per-vertex ARAP can fold a few tets at strongly flexed creases (the minimum of
         // its energy, not early stopping): push them back before the mesh is read.
-        let untangled = rig.control.untangle(
+        let untangled = self.untangler.run(
+            &rig.control,
             &mut self.st.positions,
-            &self.tet_rest6,
             UNTANGLE_MIN_RATIO,
             UNTANGLE_MAX_SWEEPS,
         );
