@@ -330,14 +330,13 @@ fn solve_stage(
         Method::Arap => "arap",
         Method::Harmonic => "harmonic",
     };
-    let text = toml::to_string(&toml::toml! {
+    let mut stage = toml::toml! {
         [solver]
         method = method
 
         [outputs.stream]
         tcp = (stream.to_string())
-    })?;
-    let mut stage: Table = toml::from_str(&text)?;
+    };
     stage.insert("character".into(), Value::Table(ch));
     stage.insert("inputs".into(), Value::Array(vec![Value::Table(input)]));
     Ok(rigless::config::parse_stage(

@@ -77,6 +77,19 @@ impl TetMesh {
         Ok(Self { positions, tets })
     }
 
+    /// Six times the volume of each vertex's tets at `positions`, summed per vertex into
+    /// `out` (`len` = vertex count; overwritten). No allocation.
+    pub fn vertex_volumes6(&self, positions: &[DVec3], out: &mut [f64]) {
+        out.fill(0.0);
+        for t in &self.tets {
+            let [a, b, c, d] = t.map(|i| positions[i as usize]);
+            let v6 = signed_volume6(a, b, c, d);
+            for &i in t {
+                out[i as usize] += v6;
+            }
+        }
+    }
+
     /// Number of tets whose signed volume under `positions` is not positive.
     pub fn inverted_tets(&self, positions: &[DVec3]) -> usize {
         self.tets
@@ -341,11 +354,6 @@ impl Untangler {
             next: Vec::with_capacity(nt),
             queued: vec![u32::MAX; nt],
         }
-    }
-
-    /// Six times each tet's rest volume.
-    pub fn rest6(&self) -> &[f64] {
-        &self.rest6
     }
 
     /// Unfolds the tets of `mesh` at `positions` (see the type's doc). Returns the number

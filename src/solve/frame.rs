@@ -198,13 +198,10 @@ impl Solver {
         let rig_params = rig.ik.n_params();
         let clusters = SegmentClusters::new(&rig.marker_joint, &rig.skeleton);
         let untangler = Untangler::new(&rig.control);
-        let mut vertex_rest6 = vec![0.0; rig.control.positions.len()];
-        for (t, v6) in rig.control.tets.iter().zip(untangler.rest6()) {
-            for &i in t {
-                vertex_rest6[i as usize] += v6;
-            }
-        }
-        let n_control = vertex_rest6.len();
+        let n_control = rig.control.positions.len();
+        let mut vertex_rest6 = vec![0.0; n_control];
+        rig.control
+            .vertex_volumes6(&rig.control.positions, &mut vertex_rest6);
         Self {
             params: SolverParams {
                 method: Method::Arap,
@@ -265,17 +262,10 @@ impl Solver {
     /// with the root; a tied vertex reads its segment's angle). Returns false (and writes
     /// nothing) with ARAP. `out.len()` must be the vertex count.
     pub fn harmonic_field_deg(&self, out: &mut [f32]) -> bool {
-        let Some((_, st)) = &self.harmonic else {
+        let Some((hr, st)) = &self.harmonic else {
             return false;
         };
-        let root = self
-            .rig
-            .skeleton
-            .joints
-            .iter()
-            .position(|j| j.parent.is_none())
-            .unwrap_or(0);
-        let reference = self.segment_rot[root];
+        let reference = self.segment_rot[hr.root()];
         for (o, q) in out.iter_mut().zip(st.vertex_rotations()) {
             *o = rotation_angle_between(reference, *q).to_degrees() as f32;
         }
@@ -502,16 +492,9 @@ impl Solver {
     /// Scales each control vertex's rotation (for the next global step) by its volume
     /// scale, after updating the scale from its tets' volume ratio.
     fn scale_for_volume(&mut self) {
-        let control = &self.rig.control;
-        let p = &self.st.positions;
-        self.vertex_now6.fill(0.0);
-        for t in &control.tets {
-            let [a, b, c, d] = t.map(|i| p[i as usize]);
-            let v6 = crate::rig::tetmesh::signed_volume6(a, b, c, d);
-            for &i in t {
-                self.vertex_now6[i as usize] += v6;
-            }
-        }
+        self.rig
+            .control
+            .vertex_volumes6(&self.st.positions, &mut self.vertex_now6);
         let k = -self.params.volume_gain / 3.0;
         for (i, s) in self.volume_scale.iter_mut().enumerate() {
             let j = (self.vertex_now6[i] / self.vertex_rest6[i]).max(0.1);

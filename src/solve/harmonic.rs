@@ -403,6 +403,11 @@ impl HarmonicRig {
         })
     }
 
+    /// The skeleton's root joint: the frame's reference rotation.
+    pub fn root(&self) -> usize {
+        self.root
+    }
+
     /// The correspondences: `(vertex, joint)` for every tied vertex.
     pub fn tied(&self) -> &[(u32, u32)] {
         &self.tied
