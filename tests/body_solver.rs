@@ -4,30 +4,39 @@ use rigless::bench::characters::{
     body_bind_params, demo_body, run_character, CharacterRun, Motion,
 };
 use rigless::character::body::BodyMotion;
-use rigless::solve::frame::SolverParams;
+use rigless::solve::frame::{SolveReport, SolverParams};
+
+/// 1.8 s of `motion` (a full gait cycle of 1.1 s, and most of the reach: 3.2 s cycle, its
+/// farthest point at 1.6 s) through a solver with `params`; `on_frame` sees each report.
+fn play(
+    motion: BodyMotion,
+    params: SolverParams,
+    on_frame: impl FnMut(usize, &SolveReport),
+) -> rigless::bench::characters::CharacterRecord {
+    run_character(
+        &demo_body(),
+        &body_bind_params(),
+        params,
+        Motion::Body(motion),
+        CharacterRun {
+            seconds: 1.8,
+            rate_hz: 120.0,
+            noise_m: 0.0,
+            // Quality must not depend on this machine's speed: no deadline stops.
+            frame_budget_s: 10.0,
+        },
+        on_frame,
+    )
+    .expect("body binds")
+}
 
 #[test]
 fn the_body_walks_and_reaches_within_the_quality_targets() {
-    let body = demo_body();
     for motion in [BodyMotion::Walk, BodyMotion::Reach] {
         let mut worst_limit_deg = 0.0f64;
-        let rec = run_character(
-            &body,
-            &body_bind_params(),
-            SolverParams::default(),
-            Motion::Body(motion),
-            CharacterRun {
-                // A full gait cycle (1.1 s) and most of the reach (3.2 s cycle, its
-                // farthest point at 1.6 s).
-                seconds: 1.8,
-                rate_hz: 120.0,
-                noise_m: 0.0,
-                // Quality must not depend on this machine's speed: no deadline stops.
-                frame_budget_s: 10.0,
-            },
-            |_, r| worst_limit_deg = worst_limit_deg.max(r.joint_limit_violation_deg),
-        )
-        .expect("body binds");
+        let rec = play(motion, SolverParams::default(), |_, r| {
+            worst_limit_deg = worst_limit_deg.max(r.joint_limit_violation_deg)
+        });
         // The targets (DESIGN.md's quality table).
         assert!(
             worst_limit_deg <= 0.5,
@@ -48,25 +57,15 @@ fn the_body_walks_and_reaches_within_the_quality_targets() {
 fn the_harmonic_method_follows_the_body_within_the_quality_targets() {
     use rigless::solve::frame::Method;
     use rigless::solve::harmonic::HarmonicParams;
-    let body = demo_body();
     for motion in [BodyMotion::Walk, BodyMotion::Reach] {
-        let rec = run_character(
-            &body,
-            &body_bind_params(),
+        let rec = play(
+            motion,
             SolverParams {
                 method: Method::Harmonic(HarmonicParams::default()),
                 ..SolverParams::default()
             },
-            Motion::Body(motion),
-            CharacterRun {
-                seconds: 1.8,
-                rate_hz: 120.0,
-                noise_m: 0.0,
-                frame_budget_s: 10.0,
-            },
             |_, _| {},
-        )
-        .expect("body binds and ties");
+        );
         assert_eq!(rec.method, "harmonic");
         assert!(rec.marker_residual_mm_rms <= 2.0, "{rec:?}");
         assert!(rec.volume_error_mean <= 0.02, "{rec:?}");
