@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 /// Magic bytes at the start of a cache file.
 pub const MAGIC: &[u8; 12] = b"RIGLESS-RIG\0";
 /// Bumped whenever the stored rig's layout changes.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 const HEADER_LEN: usize = 40;
 
 /// Why a cache file was not used (the caller rebinds and says why).

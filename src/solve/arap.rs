@@ -23,7 +23,7 @@
 //! `b_i = Σ_j w_ij (R_i + R_j)(v_i − v_j)`. The matrix is factored once.
 
 use super::factor::{FactorError, FactorKind, SparseCholesky};
-use super::polar::extract_rotation;
+use super::polar::{extract_rotation, extract_rotations4};
 use crate::rig::tetmesh::TetMesh;
 use glam::{DMat3, DQuat, DVec3};
 
@@ -392,27 +392,50 @@ impl ArapSystem {
     /// `Σ w‖e'‖² − 2 tr(R_iᵀ A_i) + Σ w‖e‖²`.
     pub fn local_step(&self, st: &mut ArapState) -> f64 {
         let op = &self.op;
+        let n = op.n();
         let mut energy = 0.0;
         let mut polar_iters = 0;
-        for i in 0..op.n() {
-            let pi = st.positions[i];
-            let mut a = DMat3::ZERO;
-            let mut e2 = op.rest_sq[i];
-            for k in op.start[i] as usize..op.start[i + 1] as usize {
-                let w = op.weight[k];
-                let ed = pi - st.positions[op.nbr[k] as usize];
-                let er = op.rest_edge[k];
-                let wd = ed * w;
-                a.x_axis += wd * er.x;
-                a.y_axis += wd * er.y;
-                a.z_axis += wd * er.z;
-                e2 += w * ed.length_squared();
+        // Four vertices at a time: their rotation extractions run side by side.
+        let mut a4 = [DMat3::ZERO; 4];
+        let mut e2_4 = [0.0; 4];
+        let mut q4 = [DQuat::IDENTITY; 4];
+        for first in (0..n).step_by(4) {
+            let lanes = (n - first).min(4);
+            for l in 0..lanes {
+                let i = first + l;
+                let pi = st.positions[i];
+                let mut a = DMat3::ZERO;
+                let mut e2 = op.rest_sq[i];
+                for k in op.start[i] as usize..op.start[i + 1] as usize {
+                    let w = op.weight[k];
+                    let ed = pi - st.positions[op.nbr[k] as usize];
+                    let er = op.rest_edge[k];
+                    let wd = ed * w;
+                    a.x_axis += wd * er.x;
+                    a.y_axis += wd * er.y;
+                    a.z_axis += wd * er.z;
+                    e2 += w * ed.length_squared();
+                }
+                a4[l] = a;
+                e2_4[l] = e2;
+                q4[l] = st.quats[i];
             }
-            polar_iters += extract_rotation(&a, &mut st.quats[i]);
-            let r = DMat3::from_quat(st.quats[i]);
-            st.rots[i] = r;
-            let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
-            energy += e2 - 2.0 * tr;
+            if lanes == 4 {
+                polar_iters += extract_rotations4(&a4, &mut q4);
+            } else {
+                for l in 0..lanes {
+                    polar_iters += extract_rotation(&a4[l], &mut q4[l]);
+                }
+            }
+            for l in 0..lanes {
+                let i = first + l;
+                st.quats[i] = q4[l];
+                let r = DMat3::from_quat(q4[l]);
+                st.rots[i] = r;
+                let a = &a4[l];
+                let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
+                energy += e2_4[l] - 2.0 * tr;
+            }
         }
         st.polar_iters = polar_iters;
         energy.max(0.0)
