@@ -365,6 +365,15 @@ fn real_main() -> Result<()> {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Bench { .. }) {
+        // Benchmarks print tables and JSON lines to stdout: piped into `head`, they should
+        // end quietly like any Unix filter, not panic on the closed pipe. (Their sockets
+        // are TCP, whose sends carry MSG_NOSIGNAL, so only stdout is concerned.)
+        // SAFETY: restoring the default disposition of a signal; no handler is installed.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     match cli.command {
         Command::Run {
             config,

@@ -124,9 +124,16 @@ struct FaceRest {
 pub struct GreenEmbedding {
     /// Control tets used by at least one vertex (positively oriented vertex indices).
     tets: Vec<[u32; 4]>,
-    faces_rest: Vec<[FaceRest; 4]>,
+    /// Per used tet, its four faces ([`TET_FACES`] order) as indices into `faces`: a face
+    /// two used tets share is deformed once per frame.
+    tet_faces: Vec<[u32; 4]>,
+    /// The used tets' distinct faces, each oriented as outward from the first tet that
+    /// uses it (vertex indices), with its rest data.
+    faces: Vec<[u32; 3]>,
+    faces_rest: Vec<FaceRest>,
     /// Per mesh vertex: index into `tets`, `φ` per tet vertex, `ψ` per tet face
-    /// ([`TET_FACES`] order).
+    /// ([`TET_FACES`] order; negated where the face is stored oriented for the tet on its
+    /// other side, so that the stored face's normal serves both).
     vertex_tet: Vec<u32>,
     phi: Vec<[f64; 4]>,
     psi: Vec<[f64; 4]>,
@@ -136,10 +143,10 @@ pub struct GreenEmbedding {
     pub max_rest_error_m: f64,
 }
 
-/// Per-solver scratch of [`GreenEmbedding::deform`]: `s_j n(t'_j)` per used tet face.
+/// Per-solver scratch of [`GreenEmbedding::deform`]: `s_j n(t'_j)` per distinct face.
 #[derive(Clone, Debug, Default)]
 pub struct GreenScratch {
-    face_terms: Vec<[DVec3; 4]>,
+    face_terms: Vec<DVec3>,
 }
 
 impl GreenEmbedding {
@@ -159,8 +166,8 @@ impl GreenEmbedding {
         progress: &mut dyn FnMut(f64),
     ) -> Self {
         let mut index: HashMap<usize, u32> = HashMap::new();
-        let mut tets = Vec::new();
-        let mut faces_rest = Vec::new();
+        // Distinct faces by their sorted vertex triple: (face index, stored orientation).
+        let mut face_index: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
         let mut out = Self::default();
         let tol = REPRODUCTION_TOLERANCE * size_m;
         let mut phi = [0.0; 4];
@@ -171,18 +178,29 @@ impl GreenEmbedding {
             }
             let tv = control.tets[t];
             let slot = *index.entry(t).or_insert_with(|| {
-                tets.push(tv);
-                let p = tv.map(|i| control.positions[i as usize]);
-                faces_rest.push(TET_FACES.map(|[a, b, c]| {
-                    let (u, v) = (p[b] - p[a], p[c] - p[a]);
-                    FaceRest {
-                        uv: u.dot(v),
-                        uu: u.length_squared(),
-                        vv: v.length_squared(),
-                        eight_area_sq: 2.0 * u.cross(v).length_squared(),
-                    }
-                }));
-                (tets.len() - 1) as u32
+                out.tets.push(tv);
+                let faces = TET_FACES.map(|[a, b, c]| {
+                    let oriented = [tv[a], tv[b], tv[c]];
+                    let mut key = oriented;
+                    key.sort_unstable();
+                    face_index
+                        .entry(key)
+                        .or_insert_with(|| {
+                            out.faces.push(oriented);
+                            let p = oriented.map(|i| control.positions[i as usize]);
+                            let (u, v) = (p[1] - p[0], p[2] - p[0]);
+                            out.faces_rest.push(FaceRest {
+                                uv: u.dot(v),
+                                uu: u.length_squared(),
+                                vv: v.length_squared(),
+                                eight_area_sq: 2.0 * u.cross(v).length_squared(),
+                            });
+                            ((out.faces.len() - 1) as u32, oriented)
+                        })
+                        .0
+                });
+                out.tet_faces.push(faces);
+                (out.tets.len() - 1) as u32
             });
             let cage = tv.map(|i| control.positions[i as usize]);
             green_coordinates(&cage, &TET_FACES, x, &mut phi, &mut psi);
@@ -200,60 +218,67 @@ impl GreenEmbedding {
             } else {
                 out.max_rest_error_m = out.max_rest_error_m.max(err);
             }
+            // A face stored oriented for the neighbouring tet has the opposite normal.
+            for (k, [a, b, c]) in TET_FACES.into_iter().enumerate() {
+                let stored = out.faces[out.tet_faces[slot as usize][k] as usize];
+                if !same_orientation(stored, [tv[a], tv[b], tv[c]]) {
+                    psi[k] = -psi[k];
+                }
+            }
             out.vertex_tet.push(slot);
             out.phi.push(phi);
             out.psi.push(psi);
         }
-        out.tets = tets;
-        out.faces_rest = faces_rest;
         out
     }
 
     /// Scratch sized for this embedding.
     pub fn scratch(&self) -> GreenScratch {
         GreenScratch {
-            face_terms: vec![[DVec3::ZERO; 4]; self.tets.len()],
+            face_terms: vec![DVec3::ZERO; self.faces.len()],
         }
     }
 
     /// Writes the deformed mesh for deformed control positions `control` into `out`
     /// (`len` = mesh vertex count). No allocation.
     pub fn deform(&self, control: &[DVec3], scratch: &mut GreenScratch, out: &mut [DVec3]) {
-        for ((tv, rest), terms) in self
-            .tets
+        for ((f, r), term) in self
+            .faces
             .iter()
             .zip(&self.faces_rest)
             .zip(scratch.face_terms.iter_mut())
         {
-            let p = tv.map(|i| control[i as usize]);
-            for (k, [a, b, c]) in TET_FACES.into_iter().enumerate() {
-                let (u, v) = (p[b] - p[a], p[c] - p[a]);
-                let r = rest[k];
-                // s n̂ = n · sqrt(s_num² / (8 A² ‖n‖²)): one square root, one division.
-                let n = u.cross(v);
-                let s2 =
-                    u.length_squared() * r.vv - 2.0 * u.dot(v) * r.uv + v.length_squared() * r.uu;
-                let den = r.eight_area_sq * n.length_squared();
-                terms[k] = if den > 0.0 {
-                    n * (s2.max(0.0) / den).sqrt()
-                } else {
-                    DVec3::ZERO
-                };
-            }
+            let p0 = control[f[0] as usize];
+            let (u, v) = (control[f[1] as usize] - p0, control[f[2] as usize] - p0);
+            // s n̂ = n · sqrt(s_num² / (8 A² ‖n‖²)): one square root, one division.
+            let n = u.cross(v);
+            let s2 = u.length_squared() * r.vv - 2.0 * u.dot(v) * r.uv + v.length_squared() * r.uu;
+            let den = r.eight_area_sq * n.length_squared();
+            *term = if den > 0.0 {
+                n * (s2.max(0.0) / den).sqrt()
+            } else {
+                DVec3::ZERO
+            };
         }
         for (o, ((&t, phi), psi)) in out
             .iter_mut()
             .zip(self.vertex_tet.iter().zip(&self.phi).zip(&self.psi))
         {
             let tv = self.tets[t as usize];
-            let terms = &scratch.face_terms[t as usize];
+            let tf = self.tet_faces[t as usize];
             let mut x = DVec3::ZERO;
             for k in 0..4 {
-                x += control[tv[k] as usize] * phi[k] + terms[k] * psi[k];
+                x += control[tv[k] as usize] * phi[k] + scratch.face_terms[tf[k] as usize] * psi[k];
             }
             *o = x;
         }
     }
+}
+
+/// Whether two vertex triples of the same face list it with the same orientation (one
+/// is a cyclic rotation of the other).
+fn same_orientation(a: [u32; 3], b: [u32; 3]) -> bool {
+    a == b || a == [b[1], b[2], b[0]] || a == [b[2], b[0], b[1]]
 }
 
 #[cfg(test)]
@@ -283,6 +308,58 @@ mod tests {
             v.push(cage[0] * d + cage[1] * a + cage[2] * b + cage[3] * c);
         }
         v
+    }
+
+    #[test]
+    fn a_face_shared_by_two_tets_is_deformed_once_for_both() {
+        // Two tets on either side of the face (1, 2, 3); points in both.
+        let mut positions = unit_tet().to_vec();
+        positions.push(DVec3::new(1.0, 1.0, 1.0));
+        let mesh = TetMesh::new(positions, vec![[0, 1, 2, 3], [4, 3, 2, 1]]).unwrap();
+        let cages = mesh
+            .tets
+            .iter()
+            .map(|t| t.map(|i| mesh.positions[i as usize]))
+            .collect::<Vec<_>>();
+        let (mut points, mut tet_of) = (Vec::new(), Vec::new());
+        for (t, cage) in cages.iter().enumerate() {
+            for x in points_inside(cage) {
+                points.push(x);
+                tet_of.push(t);
+            }
+        }
+        let g = GreenEmbedding::new(&mesh, &points, &tet_of, 1.0);
+        assert_eq!(g.faces.len(), 7, "4 + 4 faces, one shared");
+        // A non-affine deformation: every vertex moved differently.
+        let moved: Vec<DVec3> = mesh
+            .positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p * 1.1 + DVec3::new(0.05, -0.1, 0.2) * (i as f64 * 1.3).sin())
+            .collect();
+        let mut out = vec![DVec3::ZERO; points.len()];
+        g.deform(&moved, &mut g.scratch(), &mut out);
+        // Reference: each tet on its own, Lipman's formula with its own outward faces.
+        let (mut phi, mut psi) = ([0.0; 4], [0.0; 4]);
+        for ((x, &t), o) in points.iter().zip(&tet_of).zip(&out) {
+            let tv = mesh.tets[t];
+            green_coordinates(&cages[t], &TET_FACES, *x, &mut phi, &mut psi);
+            let p = tv.map(|i| moved[i as usize]);
+            let mut want = DVec3::ZERO;
+            for (k, [a, b, c]) in TET_FACES.into_iter().enumerate() {
+                let rest = cages[t];
+                let (u0, v0) = (rest[b] - rest[a], rest[c] - rest[a]);
+                let (u, v) = (p[b] - p[a], p[c] - p[a]);
+                let stretch = (u.length_squared() * v0.length_squared()
+                    - 2.0 * u.dot(v) * u0.dot(v0)
+                    + v.length_squared() * u0.length_squared())
+                .sqrt()
+                    / (8f64.sqrt() * 0.5 * u0.cross(v0).length());
+                want += p[k] * phi[k] + u.cross(v).normalize() * stretch * psi[k];
+            }
+            // Round-off only: the same sums in another order.
+            assert!((*o - want).length() < 1e-12, "{o} against {want}");
+        }
     }
 
     #[test]
