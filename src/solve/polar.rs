@@ -38,54 +38,12 @@ pub const POLAR_MAX_ITERS: usize = 32;
 /// leaves `q` unchanged (every rotation is then optimal).
 #[inline]
 pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
-    // Scale-free without normalising `a`: ω = H⁻¹g is invariant under scaling `a`, and the
-    // positive-definiteness margins below are taken relative to ‖A‖_F (`d1 > ε‖A‖`,
-    // `d2 > ε‖A‖²`, `d3 > ε‖A‖³`), so no tolerance depends on units.
     let s2 = a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared();
     if s2 == 0.0 || !s2.is_finite() {
         return 0;
     }
-    const EPS: f64 = 1e-6;
-    let (eps1_sq, eps2, eps3_sq) = (EPS * EPS * s2, EPS * s2, EPS * EPS * s2 * s2 * s2);
     for it in 0..POLAR_MAX_ITERS {
-        let r = DMat3::from_quat(*q);
-        let g: DVec3 =
-            r.x_axis.cross(a.x_axis) + r.y_axis.cross(a.y_axis) + r.z_axis.cross(a.z_axis);
-        let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
-        // M = A Rᵀ = Σ_c a_c r_cᵀ (columns); only its symmetric part enters H.
-        let m_row = |k: usize| {
-            DVec3::new(
-                a.x_axis[k] * r.x_axis.x + a.y_axis[k] * r.y_axis.x + a.z_axis[k] * r.z_axis.x,
-                a.x_axis[k] * r.x_axis.y + a.y_axis[k] * r.y_axis.y + a.z_axis[k] * r.z_axis.y,
-                a.x_axis[k] * r.x_axis.z + a.y_axis[k] * r.y_axis.z + a.z_axis[k] * r.z_axis.z,
-            )
-        };
-        let (m0, m1, m2) = (m_row(0), m_row(1), m_row(2));
-        // H = tr(M) I − sym(M), symmetric: six entries.
-        let (h00, h11, h22) = (tr - m0.x, tr - m1.y, tr - m2.z);
-        let h01 = -0.5 * (m0.y + m1.x);
-        let h02 = -0.5 * (m0.z + m2.x);
-        let h12 = -0.5 * (m1.z + m2.y);
-        // Cofactors of the symmetric H (its adjugate), then the determinant from them.
-        let c00 = h11 * h22 - h12 * h12;
-        let c11 = h00 * h22 - h02 * h02;
-        let c22 = h00 * h11 - h01 * h01;
-        let c01 = h02 * h12 - h01 * h22;
-        let c02 = h01 * h12 - h02 * h11;
-        let c12 = h01 * h02 - h00 * h12;
-        let det = h00 * c00 + h01 * c01 + h02 * c02;
-        // Positive definite by Sylvester's criterion (leading minors h00, c22, det), with
-        // a margin against round-off.
-        let pd = h00 > 0.0 && h00 * h00 > eps1_sq && c22 > eps2 && det > 0.0 && det * det > eps3_sq;
-        let omega = if pd {
-            DVec3::new(
-                c00 * g.x + c01 * g.y + c02 * g.z,
-                c01 * g.x + c11 * g.y + c12 * g.z,
-                c02 * g.x + c12 * g.y + c22 * g.z,
-            ) / det
-        } else {
-            g / (tr.abs() + 1e-9 * s2.sqrt())
-        };
+        let (omega, pd) = newton_direction(a, s2, *q);
         let w2 = omega.length_squared();
         if w2 < POLAR_ANGLE_TOL_RAD * POLAR_ANGLE_TOL_RAD {
             return it;
@@ -111,6 +69,58 @@ pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
     POLAR_MAX_ITERS
 }
 
+/// The Newton direction of one extraction step from `q` (see [`extract_rotation`]) and
+/// whether `H` was positive definite (else the direction is Müller's). `s2 = ‖A‖_F²`.
+/// Scale-free without normalising `a`: ω = H⁻¹g is invariant under scaling `a`, and the
+/// positive-definiteness margins are taken relative to ‖A‖_F (`d1 > ε‖A‖`,
+/// `d2 > ε‖A‖²`, `d3 > ε‖A‖³`), so no tolerance depends on units.
+#[inline(always)]
+fn newton_direction(a: &DMat3, s2: f64, q: DQuat) -> (DVec3, bool) {
+    const EPS: f64 = 1e-6;
+    let r = DMat3::from_quat(q);
+    let g: DVec3 = r.x_axis.cross(a.x_axis) + r.y_axis.cross(a.y_axis) + r.z_axis.cross(a.z_axis);
+    let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
+    // M = A Rᵀ = Σ_c a_c r_cᵀ (columns); only its symmetric part enters H.
+    let m_row = |k: usize| {
+        DVec3::new(
+            a.x_axis[k] * r.x_axis.x + a.y_axis[k] * r.y_axis.x + a.z_axis[k] * r.z_axis.x,
+            a.x_axis[k] * r.x_axis.y + a.y_axis[k] * r.y_axis.y + a.z_axis[k] * r.z_axis.y,
+            a.x_axis[k] * r.x_axis.z + a.y_axis[k] * r.y_axis.z + a.z_axis[k] * r.z_axis.z,
+        )
+    };
+    let (m0, m1, m2) = (m_row(0), m_row(1), m_row(2));
+    // H = tr(M) I − sym(M), symmetric: six entries.
+    let (h00, h11, h22) = (tr - m0.x, tr - m1.y, tr - m2.z);
+    let h01 = -0.5 * (m0.y + m1.x);
+    let h02 = -0.5 * (m0.z + m2.x);
+    let h12 = -0.5 * (m1.z + m2.y);
+    // Cofactors of the symmetric H (its adjugate), then the determinant from them.
+    let c00 = h11 * h22 - h12 * h12;
+    let c11 = h00 * h22 - h02 * h02;
+    let c22 = h00 * h11 - h01 * h01;
+    let c01 = h02 * h12 - h01 * h22;
+    let c02 = h01 * h12 - h02 * h11;
+    let c12 = h01 * h02 - h00 * h12;
+    let det = h00 * c00 + h01 * c01 + h02 * c02;
+    // Positive definite by Sylvester's criterion (leading minors h00, c22, det), with a
+    // margin against round-off.
+    let pd = h00 > 0.0
+        && h00 * h00 > EPS * EPS * s2
+        && c22 > EPS * s2
+        && det > 0.0
+        && det * det > EPS * EPS * s2 * s2 * s2;
+    if pd {
+        let adj_g = DVec3::new(
+            c00 * g.x + c01 * g.y + c02 * g.z,
+            c01 * g.x + c11 * g.y + c12 * g.z,
+            c02 * g.x + c12 * g.y + c22 * g.z,
+        );
+        (adj_g / det, true)
+    } else {
+        (g / (tr.abs() + 1e-9 * s2.sqrt()), false)
+    }
+}
+
 /// [`extract_rotation`] for four matrices at once, with the same results: the Newton
 /// steps of the four are taken side by side (four independent dependency chains instead
 /// of one; warm-started ARAP local steps need one or two), and a lane that needs a long
@@ -118,7 +128,6 @@ pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
 /// [`extract_rotation`]. Returns the total iterations.
 #[inline]
 pub fn extract_rotations4(a: &[DMat3; 4], q: &mut [DQuat; 4]) -> usize {
-    const EPS: f64 = 1e-6;
     let mut s2 = [0.0; 4];
     let mut active = [false; 4];
     for l in 0..4 {
@@ -135,45 +144,7 @@ pub fn extract_rotations4(a: &[DMat3; 4], q: &mut [DQuat; 4]) -> usize {
         }
         // One Newton step's direction for every lane (as in `extract_rotation`).
         for l in 0..4 {
-            let (a, s2) = (&a[l], s2[l]);
-            let r = DMat3::from_quat(q[l]);
-            let g: DVec3 =
-                r.x_axis.cross(a.x_axis) + r.y_axis.cross(a.y_axis) + r.z_axis.cross(a.z_axis);
-            let tr = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
-            let m_row = |k: usize| {
-                DVec3::new(
-                    a.x_axis[k] * r.x_axis.x + a.y_axis[k] * r.y_axis.x + a.z_axis[k] * r.z_axis.x,
-                    a.x_axis[k] * r.x_axis.y + a.y_axis[k] * r.y_axis.y + a.z_axis[k] * r.z_axis.y,
-                    a.x_axis[k] * r.x_axis.z + a.y_axis[k] * r.y_axis.z + a.z_axis[k] * r.z_axis.z,
-                )
-            };
-            let (m0, m1, m2) = (m_row(0), m_row(1), m_row(2));
-            let (h00, h11, h22) = (tr - m0.x, tr - m1.y, tr - m2.z);
-            let h01 = -0.5 * (m0.y + m1.x);
-            let h02 = -0.5 * (m0.z + m2.x);
-            let h12 = -0.5 * (m1.z + m2.y);
-            let c00 = h11 * h22 - h12 * h12;
-            let c11 = h00 * h22 - h02 * h02;
-            let c22 = h00 * h11 - h01 * h01;
-            let c01 = h02 * h12 - h01 * h22;
-            let c02 = h01 * h12 - h02 * h11;
-            let c12 = h01 * h02 - h00 * h12;
-            let det = h00 * c00 + h01 * c01 + h02 * c02;
-            pd[l] = h00 > 0.0
-                && h00 * h00 > EPS * EPS * s2
-                && c22 > EPS * s2
-                && det > 0.0
-                && det * det > EPS * EPS * s2 * s2 * s2;
-            let newton = DVec3::new(
-                c00 * g.x + c01 * g.y + c02 * g.z,
-                c01 * g.x + c11 * g.y + c12 * g.z,
-                c02 * g.x + c12 * g.y + c22 * g.z,
-            ) / det;
-            omega[l] = if pd[l] {
-                newton
-            } else {
-                g / (tr.abs() + 1e-9 * s2.sqrt())
-            };
+            (omega[l], pd[l]) = newton_direction(&a[l], s2[l], q[l]);
         }
         for l in 0..4 {
             if !active[l] {
@@ -262,13 +233,8 @@ mod tests {
     fn one_warm_step_is_exact_enough() {
         // A = R S with S symmetric positive definite (stretch up to 30 %, shear): the polar
         // factor is exactly R. Warm starts 0 to 0.1 rad away, as in the ARAP local step.
-        let mut rng = 0x2545F4914F6CDD1Du64;
-        let mut u = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::input::synthetic::Rng::new(7);
+        let mut u = move || rng.next_f64() * 2.0 - 1.0;
         let mut worst = 0.0f64;
         let mut single = 0;
         for n in 0..20_000 {
