@@ -156,6 +156,7 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
         "/solver/iterations",
         "/solver/solve_ms",
         "/solver/volume_error",
+        "/solver/untangle_projections",
         "/markers/measured",
     ] {
         assert_eq!(rows(path), logged, "{path}: {v}");

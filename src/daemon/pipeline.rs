@@ -225,6 +225,7 @@ impl Pipeline {
             s.joint_limit_violation_deg = solve.joint_limit_violation_deg as f32;
             s.marker_residual_rms_mm = solve.marker_residual_rms_mm as f32;
             s.marker_residual_max_mm = solve.marker_residual_max_mm as f32;
+            f.untangle_projections = solve.untangled.min(u32::MAX as usize) as u32;
             f.marker_states.copy_from_slice(&self.markers.states);
             for (o, p) in f.markers_m.iter_mut().zip(&self.markers.positions) {
                 *o = p.as_vec3();

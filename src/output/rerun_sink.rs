@@ -13,7 +13,9 @@
 //!   red where the bone's joint exceeds its limits by more than 0.5° on the solved mesh.
 //! - `solver/*`: time series (`Scalars`): iterations, solve_ms, gc_ms, rrms,
 //!   bone_length_error, joint_limit_violation_deg, marker_residual_rms_mm, volume_error
-//!   (relative change of the mesh's enclosed volume, computed on this thread); and
+//!   (relative change of the mesh's enclosed volume, computed on this thread),
+//!   untangle_projections (volume projections that unfolded control tets after the
+//!   frame's iterations); and
 //!   `markers/*`: how many markers are in each fill state.
 //! - `solver/convergence`: the convergence criterion after each iteration of a frame, on
 //!   an `iteration` timeline as well, so a frame's convergence reads directly.
@@ -205,6 +207,7 @@ pub fn blueprint() -> ::rerun::blueprint::Blueprint {
                         "solver/joint_limit_violation_deg",
                         "solver/marker_residual_rms_mm",
                         "solver/volume_error",
+                        "solver/untangle_projections",
                     ])
                     .into(),
             ])
@@ -564,6 +567,10 @@ impl Logger {
             (
                 "solver/marker_residual_rms_mm",
                 f64::from(s.marker_residual_rms_mm),
+            ),
+            (
+                "solver/untangle_projections",
+                f64::from(f.untangle_projections),
             ),
         ] {
             let _ = rec.log(name, &::rerun::Scalars::single(v));

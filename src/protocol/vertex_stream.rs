@@ -111,6 +111,9 @@ pub struct DeformedFrame {
     /// Harmonic method: per vertex, the rotation field's angle from the root segment,
     /// degrees (in-process only; empty unless the pipeline was asked for it).
     pub field_deg: Vec<f32>,
+    /// Volume projections the solver made to unfold control tets this frame (in-process
+    /// only; 0 on most frames; see [`crate::rig::tetmesh::Untangler`]).
+    pub untangle_projections: u32,
 }
 
 impl DeformedFrame {
@@ -139,6 +142,7 @@ impl DeformedFrame {
             joint_limit_excess_deg: Vec::new(),
             control_m: Vec::new(),
             field_deg: Vec::new(),
+            untangle_projections: 0,
         }
     }
 }
@@ -488,6 +492,7 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
         joint_limit_excess_deg: Vec::new(),
         control_m: Vec::new(),
         field_deg: Vec::new(),
+        untangle_projections: 0,
         frame,
         source_time_s,
         publish_time_s,
