@@ -679,10 +679,16 @@ pub fn skin_pose(
 
 /// Signed volume enclosed by a closed, outward-oriented triangle mesh.
 pub fn mesh_volume(vertices: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
+    mesh_volume_of(triangles, |i| vertices[i as usize])
+}
+
+/// [`mesh_volume`] with vertex `i`'s position given by `position(i)` (for vertex buffers
+/// of another type): the sum of the signed tetrahedra from the origin to each triangle.
+pub fn mesh_volume_of(triangles: &[[u32; 3]], position: impl Fn(u32) -> DVec3) -> f64 {
     triangles
         .iter()
         .map(|t| {
-            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            let [a, b, c] = t.map(&position);
             a.dot(b.cross(c)) / 6.0
         })
         .sum()

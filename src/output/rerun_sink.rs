@@ -540,16 +540,10 @@ impl Logger {
             );
         }
         if self.scene.rest_volume_m3 != 0.0 {
-            // Relative change of the enclosed volume (signed tetrahedra from the origin).
-            let v: f64 = self
-                .scene
-                .triangles
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|i| f.vertices_m[i as usize].as_dvec3());
-                    a.dot(b.cross(c)) / 6.0
-                })
-                .sum();
+            // Relative change of the enclosed volume.
+            let v = crate::character::procedural::mesh_volume_of(&self.scene.triangles, |i| {
+                f.vertices_m[i as usize].as_dvec3()
+            });
             let err = (v - self.scene.rest_volume_m3).abs() / self.scene.rest_volume_m3.abs();
             let _ = rec.log("solver/volume_error", &::rerun::Scalars::single(err));
         }
