@@ -38,27 +38,23 @@ pub const POLAR_MAX_ITERS: usize = 32;
 /// leaves `q` unchanged (every rotation is then optimal).
 #[inline]
 pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
-    let s2 = a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared();
-    if s2 == 0.0 || !s2.is_finite() {
+    let Some(s2) = usable_norm_sq(a) else {
         return 0;
-    }
+    };
     for it in 0..POLAR_MAX_ITERS {
         let (omega, pd) = newton_direction(a, s2, *q);
         let w2 = omega.length_squared();
         if w2 < POLAR_ANGLE_TOL_RAD * POLAR_ANGLE_TOL_RAD {
             return it;
         }
-        let dq = if w2 < 1e-4 {
-            // exp(ω/2) to third order, made unit by the normalisation below.
-            let h = omega * 0.5;
-            DQuat::from_xyzw(h.x, h.y, h.z, 1.0 - h.length_squared() * 0.5)
+        *q = if w2 < SMALL_STEP_SQ {
+            small_step(omega, *q)
         } else {
             // A full Newton step larger than a quarter turn is outside the quadratic
             // model's trust region: shorten it.
             let w = w2.sqrt();
-            DQuat::from_axis_angle(omega / w, w.min(std::f64::consts::FRAC_PI_4))
+            (DQuat::from_axis_angle(omega / w, w.min(std::f64::consts::FRAC_PI_4)) * *q).normalize()
         };
-        *q = (dq * *q).normalize();
         // Newton converges quadratically here (H positive definite): after a step below
         // POLAR_QUADRATIC_STOP_RAD the error left is of order its square (see the
         // constant), so a pass only to confirm it is not needed.
@@ -67,6 +63,24 @@ pub fn extract_rotation(a: &DMat3, q: &mut DQuat) -> usize {
         }
     }
     POLAR_MAX_ITERS
+}
+
+/// Squared steps (rad²) below which a rotation step is taken by the small-angle formula.
+const SMALL_STEP_SQ: f64 = 1e-4;
+
+/// `‖A‖_F²`, or `None` for a zero or non-finite matrix (which leaves `q` unchanged).
+#[inline(always)]
+fn usable_norm_sq(a: &DMat3) -> Option<f64> {
+    let s2 = a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared();
+    (s2 > 0.0 && s2.is_finite()).then_some(s2)
+}
+
+/// `exp(ω/2) q` for a short step `ω` (`‖ω‖² <` [`SMALL_STEP_SQ`]): the exponential to
+/// third order, made unit by normalising.
+#[inline(always)]
+fn small_step(omega: DVec3, q: DQuat) -> DQuat {
+    let h = omega * 0.5;
+    (DQuat::from_xyzw(h.x, h.y, h.z, 1.0 - h.length_squared() * 0.5) * q).normalize()
 }
 
 /// The Newton direction of one extraction step from `q` (see [`extract_rotation`]) and
@@ -128,13 +142,9 @@ fn newton_direction(a: &DMat3, s2: f64, q: DQuat) -> (DVec3, bool) {
 /// [`extract_rotation`]. Returns the total iterations.
 #[inline]
 pub fn extract_rotations4(a: &[DMat3; 4], q: &mut [DQuat; 4]) -> usize {
-    let mut s2 = [0.0; 4];
-    let mut active = [false; 4];
-    for l in 0..4 {
-        let a = &a[l];
-        s2[l] = a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared();
-        active[l] = s2[l] > 0.0 && s2[l].is_finite();
-    }
+    let norms = a.each_ref().map(usable_norm_sq);
+    let s2 = norms.map(|n| n.unwrap_or(0.0));
+    let mut active = norms.map(|n| n.is_some());
     let mut iters = 0;
     let mut omega = [DVec3::ZERO; 4];
     let mut pd = [false; 4];
@@ -153,14 +163,12 @@ pub fn extract_rotations4(a: &[DMat3; 4], q: &mut [DQuat; 4]) -> usize {
             let w2 = omega[l].length_squared();
             if w2 < POLAR_ANGLE_TOL_RAD * POLAR_ANGLE_TOL_RAD {
                 active[l] = false;
-            } else if w2 >= 1e-4 {
+            } else if w2 >= SMALL_STEP_SQ {
                 // A long step: the scalar path takes it, with its trust region.
                 iters += extract_rotation(&a[l], &mut q[l]);
                 active[l] = false;
             } else {
-                let h = omega[l] * 0.5;
-                let dq = DQuat::from_xyzw(h.x, h.y, h.z, 1.0 - h.length_squared() * 0.5);
-                q[l] = (dq * q[l]).normalize();
+                q[l] = small_step(omega[l], q[l]);
                 iters += 1;
                 active[l] = !(pd[l] && w2 < POLAR_QUADRATIC_STOP_RAD * POLAR_QUADRATIC_STOP_RAD);
             }
