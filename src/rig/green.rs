@@ -168,6 +168,9 @@ impl GreenEmbedding {
         let mut index: HashMap<usize, u32> = HashMap::new();
         // Distinct faces by their sorted vertex triple: (face index, stored orientation).
         let mut face_index: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
+        // Per used tet, +1 or −1 per face: whether the stored face is oriented outward
+        // from this tet (else its normal is the opposite of this tet's).
+        let mut face_sign: Vec<[f64; 4]> = Vec::new();
         let mut out = Self::default();
         let tol = REPRODUCTION_TOLERANCE * size_m;
         let mut phi = [0.0; 4];
@@ -183,23 +186,29 @@ impl GreenEmbedding {
                     let oriented = [tv[a], tv[b], tv[c]];
                     let mut key = oriented;
                     key.sort_unstable();
-                    face_index
-                        .entry(key)
-                        .or_insert_with(|| {
-                            out.faces.push(oriented);
-                            let p = oriented.map(|i| control.positions[i as usize]);
-                            let (u, v) = (p[1] - p[0], p[2] - p[0]);
-                            out.faces_rest.push(FaceRest {
-                                uv: u.dot(v),
-                                uu: u.length_squared(),
-                                vv: v.length_squared(),
-                                eight_area_sq: 2.0 * u.cross(v).length_squared(),
-                            });
-                            ((out.faces.len() - 1) as u32, oriented)
-                        })
-                        .0
+                    let &mut (f, stored) = face_index.entry(key).or_insert_with(|| {
+                        out.faces.push(oriented);
+                        let p = oriented.map(|i| control.positions[i as usize]);
+                        let (u, v) = (p[1] - p[0], p[2] - p[0]);
+                        out.faces_rest.push(FaceRest {
+                            uv: u.dot(v),
+                            uu: u.length_squared(),
+                            vv: v.length_squared(),
+                            eight_area_sq: 2.0 * u.cross(v).length_squared(),
+                        });
+                        ((out.faces.len() - 1) as u32, oriented)
+                    });
+                    (
+                        f,
+                        if same_orientation(stored, oriented) {
+                            1.0
+                        } else {
+                            -1.0
+                        },
+                    )
                 });
-                out.tet_faces.push(faces);
+                out.tet_faces.push(faces.map(|(f, _)| f));
+                face_sign.push(faces.map(|(_, sign)| sign));
                 (out.tets.len() - 1) as u32
             });
             let cage = tv.map(|i| control.positions[i as usize]);
@@ -219,11 +228,8 @@ impl GreenEmbedding {
                 out.max_rest_error_m = out.max_rest_error_m.max(err);
             }
             // A face stored oriented for the neighbouring tet has the opposite normal.
-            for (k, [a, b, c]) in TET_FACES.into_iter().enumerate() {
-                let stored = out.faces[out.tet_faces[slot as usize][k] as usize];
-                if !same_orientation(stored, [tv[a], tv[b], tv[c]]) {
-                    psi[k] = -psi[k];
-                }
+            for (p, sign) in psi.iter_mut().zip(face_sign[slot as usize]) {
+                *p *= sign;
             }
             out.vertex_tet.push(slot);
             out.phi.push(phi);
