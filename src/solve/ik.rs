@@ -77,6 +77,17 @@ enum Dofs {
     Angles { first: usize },
 }
 
+impl Dofs {
+    /// The indices of these unknowns.
+    fn params(self) -> std::ops::Range<usize> {
+        match self {
+            Dofs::None => 0..0,
+            Dofs::Root { first } => first..first + 6,
+            Dofs::Angles { first } => first..first + 3,
+        }
+    }
+}
+
 /// The posture problem of one rig: immutable, shared.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct IkModel {
@@ -273,11 +284,7 @@ impl IkModel {
             .map(|k| {
                 self.chain[self.chain_start[k]..self.chain_start[k + 1]]
                     .iter()
-                    .map(|&j| match self.dofs[j] {
-                        Dofs::Root { .. } => 6,
-                        Dofs::Angles { .. } => 3,
-                        Dofs::None => 0,
-                    })
+                    .map(|&j| self.dofs[j].params().len())
                     .sum::<usize>()
             })
             .max()
@@ -725,11 +732,7 @@ fn elimination_order(
             None => roots.push(j),
         }
     }
-    let params = |j: usize| match dofs[j] {
-        Dofs::None => 0..0,
-        Dofs::Root { first } => first..first + 6,
-        Dofs::Angles { first } => first..first + 3,
-    };
+    let params = |j: usize| dofs[j].params();
     // Iterative post-order: (joint, children visited).
     let mut order = Vec::with_capacity(n_params);
     let mut stack: Vec<(usize, bool)> = roots.iter().rev().map(|&r| (r, false)).collect();
