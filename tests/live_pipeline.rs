@@ -4,13 +4,13 @@
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::character::procedural::skin_pose;
-use rigless::daemon::clock::{Clock, ManualClock};
+use rigless::runtime::clock::{Clock, ManualClock};
 use rigless::daemon::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
-use rigless::daemon::slot::LatestSlot;
+use rigless::runtime::slot::LatestSlot;
 use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
 use rigless::markers::FillState;
-use rigless::protocol::vertex_stream::DeformedFrame;
+use rigless::output::frame::DeformedFrame;
 use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -230,6 +230,7 @@ fn run_loop_paces_ticks_on_the_clock_and_stops_at_the_end() {
         &mut s.pipeline,
         &clock,
         LoopParams {
+            start_s: 10.0,
             rate_hz: RATE_HZ,
             deadline_fraction: 0.8,
             end_s: Some(11.0),
@@ -237,7 +238,6 @@ fn run_loop_paces_ticks_on_the_clock_and_stops_at_the_end() {
         },
         &stop,
         &status,
-        &|_| far_deadline(),
     );
     // Ticks at 10 + k/120 for k = 0..=120: 121 frames, no overruns on a manual clock.
     assert_eq!(last.frames, 121);

@@ -137,7 +137,7 @@ fn spin0_server_bytes() -> Option<(Vec<u8>, Vec<rigless::protocol::vrpn::PosQuat
 /// `expected` (10 s at most), checks they are `expected` bit for bit, and returns its
 /// counters.
 fn read_spin0(
-    mode: rigless::input::vrpn::VrpnMode,
+    mode: rigless::protocol::url::VrpnMode,
     addr: std::net::SocketAddr,
     expected: &[rigless::protocol::vrpn::PosQuat],
 ) -> rigless::input::vrpn::VrpnStats {
@@ -159,7 +159,7 @@ fn read_spin0(
 
 #[test]
 fn the_tcp_client_reads_a_replayed_real_session() {
-    use rigless::input::vrpn::VrpnMode;
+    use rigless::protocol::url::VrpnMode;
     use std::io::{Read, Write};
     use std::sync::atomic::Ordering;
     let Some((capture, expected)) = spin0_server_bytes() else {
@@ -201,7 +201,7 @@ fn the_tcp_client_reads_a_replayed_real_session() {
 /// datagrams of whole messages to the UDP port the client described).
 #[test]
 fn the_udp_mode_client_reads_a_real_session_sent_as_datagrams() {
-    use rigless::input::vrpn::VrpnMode;
+    use rigless::protocol::url::VrpnMode;
     use rigless::protocol::vrpn::{
         datagrams, parse_connection_request, parse_udp_description, UDP_DESCRIPTION,
     };

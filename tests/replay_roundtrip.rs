@@ -1,7 +1,7 @@
 //! Replay to OSC, then receive with the OSC input over loopback: sample by sample, what
 //! arrives is the recording (to f32), occlusions included.
 
-use rigless::daemon::clock::SystemClock;
+use rigless::runtime::clock::SystemClock;
 use rigless::input::osc::{bind, run, OscStats};
 use rigless::protocol::osc::OscMapping;
 use rigless::replay::bundled::bundled;
@@ -91,18 +91,19 @@ fn replay_to_osc_arrives_sample_by_sample() {
 
 #[test]
 fn replay_as_a_vrpn_server_reaches_a_tcp_mode_vrpn_client_sample_by_sample() {
-    vrpn_round_trip(rigless::input::vrpn::VrpnMode::Tcp);
+    vrpn_round_trip(rigless::protocol::url::VrpnMode::Tcp);
 }
 
 /// The UDP connection mode: the client asks over UDP, the server calls back, and the
 /// reports come as datagrams (loopback neither loses nor reorders them).
 #[test]
 fn replay_as_a_vrpn_server_reaches_a_udp_mode_vrpn_client_sample_by_sample() {
-    vrpn_round_trip(rigless::input::vrpn::VrpnMode::Udp);
+    vrpn_round_trip(rigless::protocol::url::VrpnMode::Udp);
 }
 
-fn vrpn_round_trip(mode: rigless::input::vrpn::VrpnMode) {
-    use rigless::input::vrpn::{run_mode, VrpnMode, VrpnStats};
+fn vrpn_round_trip(mode: rigless::protocol::url::VrpnMode) {
+    use rigless::input::vrpn::{run_mode, VrpnStats};
+    use rigless::protocol::url::VrpnMode;
     let rec =
         Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
     // A free port for the server (picked, then released: loopback only).

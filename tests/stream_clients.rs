@@ -4,8 +4,9 @@
 
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
-use rigless::daemon::pipeline::{topology, Pipeline};
-use rigless::daemon::slot::LatestSlot;
+use rigless::daemon::pipeline::Pipeline;
+use rigless::output::scene::Scene;
+use rigless::runtime::slot::LatestSlot;
 use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
 use rigless::output::stream::StreamServer;
@@ -54,7 +55,7 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
     let server = StreamServer::start(
         Some(loopback),
         Some(loopback),
-        &topology(&rig, "hand", 120.0),
+        &Scene::of_rig(&rig, "hand", 120.0).topology(),
         slot,
     )
     .unwrap();
@@ -135,7 +136,8 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
                 .unwrap_or_else(|_| panic!("{name}: frame {i}"));
             assert_eq!(f.frame, i as u64, "{name}");
             assert_eq!(f.publish_time_s, 1e9 + t, "{name}");
-            assert_eq!(f.marker_states, pipeline.markers().states, "{name}");
+            let states: Vec<u8> = pipeline.markers().states.iter().map(|s| *s as u8).collect();
+            assert_eq!(f.marker_states, states, "{name}");
             assert!(
                 f.vertices_m == expected,
                 "{name}: frame {i} vertices differ"

@@ -141,3 +141,61 @@ pub fn timed_iters_for(n_vertices_hint: &str) -> usize {
         _ => 25,
     }
 }
+/// The suite: every case of [`CASES`] found under `data/tetmesh`, one line each.
+pub fn suite(
+    data: &Path,
+    json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<(), super::BenchError> {
+    let dir = data.join("tetmesh");
+    if !dir.is_dir() {
+        return Err(super::BenchError::NoData {
+            suite: "capsules",
+            dir: dir.display().to_string(),
+        });
+    }
+    if !json {
+        writeln!(
+            out,
+            "{:<20} {:>6} {:>7} {:>7} {:>9} {:>12} {:>10} {:>10} {:>12} {:>9} {:>8}",
+            "mesh",
+            "n",
+            "tets",
+            "clamped",
+            "factor_s",
+            "iter_ms p50",
+            "p10",
+            "p90",
+            "libigl_ms",
+            "target",
+            "inverted"
+        )?;
+    }
+    for (file, _, _, _) in CASES {
+        let path = dir.join(file);
+        let rec = run_case(&path, 10, timed_iters_for(file))
+            .map_err(|e| super::BenchError::case(path.display().to_string(), e))?;
+        if json {
+            super::json_line(out, &rec)?;
+            continue;
+        }
+        writeln!(
+            out,
+            "{:<20} {:>6} {:>7} {:>7} {:>9.3} {:>12.3} {:>10.3} {:>10.3} {:>5.2}-{:<6.2} {:>9.2} {:>8}",
+            rec.mesh,
+            rec.n,
+            rec.tets,
+            rec.clamped_weights,
+            rec.factor_s,
+            rec.per_iter_ms_median,
+            rec.per_iter_ms_p10,
+            rec.per_iter_ms_p90,
+            rec.libigl_ms_low,
+            rec.libigl_ms_high,
+            rec.target_ms,
+            rec.inverted_tets
+        )?;
+    }
+    Ok(())
+}
+

@@ -218,3 +218,78 @@ pub fn run_character(
     rec.ik_ms_p50 = Spread::of(&ik_t).median_ms;
     Ok(rec)
 }
+/// The suite: the hand's finger play, the body's walk and reach, and the body at 50,000
+/// triangles, 10 s at 120 Hz each, through both methods; one line per run.
+pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::BenchError> {
+    use crate::character::body::BodyMotion;
+    use crate::solve::harmonic::HarmonicParams;
+    let run = CharacterRun {
+        seconds: 10.0,
+        rate_hz: 120.0,
+        noise_m: 0.0,
+        frame_budget_s: 1.0 / 120.0,
+    };
+    let hand = demo_hand();
+    let body = demo_body();
+    // The body at about 50,000 triangles (25,000 vertices): the harmonic method's second
+    // target.
+    let body50k = crate::character::body::body(0.006, 50_000);
+    // Frame p99 targets (ms) of the two methods; the harmonic method's is the body's.
+    let walk = Motion::Body(BodyMotion::Walk);
+    let cases = [
+        (&hand, hand_bind_params(), Motion::FingerPlay, Some(1.0), None),
+        (&body, body_bind_params(), walk, Some(4.0), Some(3.0)),
+        (&body, body_bind_params(), Motion::Body(BodyMotion::Reach), Some(4.0), Some(3.0)),
+        (&body50k, body_bind_params(), walk, None, Some(15.0)),
+    ];
+    if !json {
+        writeln!(
+            out,
+            "{:<9} {:<6} {:<12} {:>6} {:>5} {:>9} {:>9} {:>6} {:>8} {:>8} {:>8} {:>7} {:>7} {:>5} {:>8}",
+            "method", "char", "motion", "verts", "n", "p50 ms", "p99 ms", "iters", "bone_err",
+            "limit°", "res mm", "vol", "gt %", "inv", "target"
+        )?;
+    }
+    for (ch, bind, motion, arap_target_ms, harmonic_target_ms) in cases {
+        for (method, target_ms) in [
+            (Method::Arap, arap_target_ms),
+            (Method::Harmonic(HarmonicParams::default()), harmonic_target_ms),
+        ] {
+            let params = SolverParams {
+                method,
+                ..SolverParams::default()
+            };
+            let rec = run_character(ch, &bind, params, motion, run, |_, _| {})
+                .map_err(|e| super::BenchError::case(format!("the procedural {}", ch.name), e))?;
+            if json {
+                super::json_line(out, &rec)?;
+                continue;
+            }
+            // The harmonic method has no control mesh: no iterations, no sampled bones
+            // (the posture's are rigid), no tets.
+            let arap = rec.method == "arap";
+            let na = |v: String| if arap { v } else { "-".into() };
+            writeln!(
+                out,
+                "{:<9} {:<6} {:<12} {:>6} {:>5} {:>9.3} {:>9.3} {:>6} {:>8} {:>8.3} {:>8.2} {:>7.3} {:>7.2} {:>5} {:>8}",
+                rec.method,
+                rec.character,
+                rec.motion,
+                rec.mesh_vertices,
+                na(rec.n.to_string()),
+                rec.frame_ms_p50,
+                rec.frame_ms_p99,
+                na(format!("{:.2}", rec.iterations_mean)),
+                na(format!("{:.4}", rec.bone_length_error_mean)),
+                rec.joint_limit_violation_deg_max,
+                rec.marker_residual_mm_rms,
+                rec.volume_error_mean,
+                rec.gt_vertex_error_mean * 100.0,
+                na(rec.inverted_tets_max.to_string()),
+                target_ms.map_or("-".into(), |t| format!("p99≤{t}"))
+            )?;
+        }
+    }
+    Ok(())
+}
+

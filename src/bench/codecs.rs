@@ -23,37 +23,6 @@ pub struct CodecRecord {
 const BATCH: u32 = 1000;
 const BATCHES: usize = 200;
 
-/// A NatNet 3.0 frame of data with one marker set and `n` labelled markers.
-pub fn natnet_frame(n: usize) -> Vec<u8> {
-    use glam::Vec3;
-    let p = |k: usize| {
-        Vec3::new(
-            k as f32 * 0.03,
-            (k * 3 + 1) as f32 * 0.01,
-            (k * 3 + 2) as f32 * 0.01,
-        )
-    };
-    natnet::encode_frame(&natnet::MocapFrame {
-        frame: 1234,
-        marker_sets: vec![("Body".into(), (0..n).map(p).collect())],
-        labeled: (0..n)
-            .map(|k| natnet::LabeledMarker {
-                asset_id: 1,
-                member_id: k as u16 + 1,
-                position_m: p(k),
-                size_m: 0.014,
-                occluded: false,
-                point_cloud_solved: true,
-                model_solved: false,
-                residual_m: 0.0002,
-            })
-            .collect(),
-        timestamp_s: 12.5,
-        ..natnet::MocapFrame::default()
-    })
-    .expect("a small frame")
-}
-
 fn time(mut f: impl FnMut()) -> Spread {
     for _ in 0..BATCH {
         f();
@@ -81,7 +50,7 @@ pub fn run() -> Vec<CodecRecord> {
         .collect();
     let osc = encode_native(1, (0, 1), &markers);
     let mapping = OscMapping::default();
-    let nat = natnet_frame(n);
+    let nat = natnet::example_frame(n);
     let mut out = Vec::new();
     let mut rec = |codec, markers: usize, bytes: usize, s: Spread| {
         out.push(CodecRecord {
@@ -136,13 +105,29 @@ pub fn run() -> Vec<CodecRecord> {
     out
 }
 
+/// The suite: one line per codec.
+pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::BenchError> {
+    for r in run() {
+        if json {
+            super::json_line(out, &r)?;
+        } else {
+            writeln!(
+                out,
+                "{:<12} {:>3} markers {:>5} bytes  decode µs median {:.2} (p10 {:.2}, p90 {:.2})",
+                r.codec, r.markers, r.packet_bytes, r.decode_us_median, r.decode_us_p10, r.decode_us_p90
+            )?;
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn the_benchmark_natnet_frame_decodes_to_what_was_written() {
-        let b = natnet_frame(50);
+        let b = natnet::example_frame(50);
         let natnet::Message::Frame(f) = natnet::decode(&b, Version(3, 0)).unwrap() else {
             panic!("a frame")
         };

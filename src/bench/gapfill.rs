@@ -3,7 +3,9 @@
 //! buffer fills them, and each filled position is compared with the sample that was
 //! removed.
 
+use super::BenchError;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
+use std::path::Path;
 use crate::markers::{FillState, MarkerFrame, MarkerSample};
 use glam::DVec3;
 
@@ -130,6 +132,150 @@ pub fn measure(
     }
     out
 }
+
+/// The gap lengths the suite punches, seconds.
+const GAPS_S: [f64; 7] = [0.01, 0.025, 0.05, 0.1, 0.2, 0.5, 1.0];
+
+/// The procedural hand's finger play and the body's walk, 30 s at 120 Hz with 0.5 mm
+/// noise and no gaps of their own.
+fn synthetic_sets() -> Vec<Trajectories> {
+    use crate::character::body::BodyMotion;
+    use crate::character::demo::{demo_body, demo_hand, Motion};
+    use crate::input::synthetic::{SyntheticParams, SyntheticSession};
+    use std::sync::Arc;
+    let mut sets = Vec::new();
+    for (ch, motion) in [
+        (demo_hand(), Motion::FingerPlay),
+        (demo_body(), Motion::Body(BodyMotion::Walk)),
+    ] {
+        let segment = ch.markers.iter().map(|m| m.joint.unwrap_or(0)).collect();
+        let rest = ch.markers.iter().map(|m| m.rest).collect();
+        let name = format!("synthetic {} {}", ch.name, motion.name());
+        let mut s = SyntheticSession::new(
+            Arc::new(ch),
+            motion,
+            SyntheticParams {
+                duration_secs: 30.0,
+                gap_fraction: 0.0,
+                noise_m: 0.0005,
+                ..SyntheticParams::default()
+            },
+        );
+        let mut frames = Vec::new();
+        let mut batch = Vec::new();
+        for i in 0..s.frames() {
+            batch.clear();
+            s.frame(i, 0.0, &mut batch);
+            frames.push(batch.iter().map(|m| m.position_m).collect());
+        }
+        sets.push(Trajectories {
+            name,
+            rate_hz: s.params().rate_hz,
+            frames,
+            segment,
+            rest,
+        });
+    }
+    sets
+}
+
+/// The suite: every gap length on the synthetic sessions and, when the shared data
+/// folder has them, the real Qualisys hand recording and the BTS gait capture.
+pub fn suite(data: &Path, json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError> {
+    let mut sets = synthetic_sets();
+    let tsv = data.join("hand/dfki_hand_recording.tsv");
+    match std::fs::read_to_string(&tsv) {
+        Ok(text) => {
+            let r = crate::replay::tsv::parse_tsv(&text)
+                .map_err(|e| BenchError::case(tsv.display().to_string(), e))?;
+            // Rigid groups by name prefix (hand_, back_, pillow_, ...).
+            let mut groups: Vec<String> = Vec::new();
+            let segment = r
+                .marker_names
+                .iter()
+                .map(|n| {
+                    let g = n.split('_').next().unwrap_or(n).to_owned();
+                    groups.iter().position(|x| *x == g).unwrap_or_else(|| {
+                        groups.push(g);
+                        groups.len() - 1
+                    })
+                })
+                .collect();
+            let rest = r
+                .frames
+                .iter()
+                .find(|f| f.iter().all(|p| p.is_finite()))
+                .cloned()
+                .unwrap_or_else(|| vec![glam::DVec3::ZERO; r.marker_names.len()]);
+            sets.push(Trajectories {
+                name: "dfki_hand_recording.tsv".into(),
+                rate_hz: r.rate_hz,
+                frames: r.frames,
+                segment,
+                rest,
+            });
+        }
+        Err(e) => tracing::warn!("skipping the real hand recording: {}: {e}", tsv.display()),
+    }
+    // BTS: 22 gait markers with half the samples missing; no rigid clusters, so every
+    // marker is its own segment (prediction only).
+    let bts = data.join("c3d/BTS.c3d");
+    match std::fs::read(&bts) {
+        Ok(bytes) => {
+            let c = crate::replay::c3d::read_c3d(&bytes)
+                .map_err(|e| BenchError::case(bts.display().to_string(), e))?;
+            let n = c.labels.len();
+            let mut rest = vec![glam::DVec3::ZERO; n];
+            for (k, r) in rest.iter_mut().enumerate() {
+                if let Some(p) = c.frames.iter().map(|f| f[k]).find(|p| p.is_finite()) {
+                    *r = p;
+                }
+            }
+            sets.push(Trajectories {
+                name: "BTS.c3d".into(),
+                rate_hz: c.rate_hz,
+                frames: c.frames,
+                segment: (0..n).collect(),
+                rest,
+            });
+        }
+        Err(e) => tracing::warn!("skipping BTS.c3d: {}: {e}", bts.display()),
+    }
+    if !json {
+        writeln!(
+            out,
+            "{:<34} {:>7} {:>6} {:>9} {:>8} {:>10} {:>9} {:>9} {:>6} {:>6} {:>6}",
+            "recording",
+            "gap_ms",
+            "gaps",
+            "mean_mm",
+            "p95_mm",
+            "predict_mm",
+            "rigid_mm",
+            "held_mm",
+            "pred%",
+            "rigid%",
+            "held%"
+        )?;
+    }
+    for tr in &sets {
+        for r in measure(tr, &BufferConfig::default(), &GAPS_S, 1.0) {
+            if json {
+                super::json_line(out, &r)?;
+            } else {
+                writeln!(
+                    out,
+                    "{:<34} {:>7.0} {:>6} {:>9.2} {:>8.2} {:>10.2} {:>9.2} {:>9.2} {:>6.1} {:>6.1} {:>6.1}",
+                    r.recording, r.gap_ms, r.gaps, r.error_mm_mean, r.error_mm_p95, r.predicted_mm_mean,
+                    r.rigid_mm_mean, r.held_mm_mean, 100.0 * r.predicted_share, 100.0 * r.rigid_share,
+                    100.0 * r.held_share
+                )?;
+            }
+        }
+    }
+    Ok(())
+}
+
 
 #[cfg(test)]
 mod tests {

@@ -1,34 +1,22 @@
-//! The `live` suite: the whole live pipeline in real time on the system clock (synthetic
-//! source thread, solver thread, vertex stream server, TCP clients on loopback), measuring
-//! latency from a sample entering the input channel to its frame's bytes arriving at a
-//! client, missed ticks, and what many clients cost the solver.
+//! The `live` suite: a whole stage in real time on the system clock (the procedural hand
+//! fed by a looping synthetic source, the solver thread, the vertex stream, TCP clients on
+//! loopback, optionally a Rerun sink saving every frame), measuring latency from a sample
+//! entering the input channel to its frame's bytes arriving at a client, missed ticks,
+//! and what many clients and Rerun cost the solver.
 
-use crate::character::demo::Motion;
-use crate::character::procedural::Character;
-use crate::daemon::clock::{Clock, SystemClock};
-use crate::daemon::pipeline::{run_loop, topology, LoopParams, LoopStatus, Pipeline};
-use crate::daemon::slot::LatestSlot;
-use crate::input::synthetic::{play, SyntheticParams, SyntheticSession};
-use crate::input::{unix_now, SourceCounters};
-use crate::markers::buffer::{BufferConfig, MarkerBuffer};
-use crate::output::rerun_sink::{
-    start as start_rerun, InputSeries, RerunOptions, RerunScene, RerunStats, RerunTarget,
-};
-use crate::output::stream::StreamServer;
+use super::BenchError;
+use crate::config::parse_stage;
+use crate::daemon::stage::{Stage, StartOptions};
 use crate::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
-use crate::rig::bind::Rig;
-use crate::solve::frame::{Solver, SolverParams};
+use crate::runtime::clock::{unix_now, Clock, SystemClock};
+use crate::runtime::stats::percentile;
 use std::io::Read;
 use std::net::TcpStream;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// The loop ticks this long after the source sends each frame (both run at the same
-/// rate on the same clock), seconds: a stage sets its phase the same way.
-const LOOP_PHASE_S: f64 = 0.0002;
-/// Seconds before the first tick (threads and clients start).
-const START_S: f64 = 0.5;
+/// Longest wait for the clients to connect, seconds.
+const CONNECT_TIMEOUT_S: f64 = 5.0;
 
 /// One case of the suite.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -83,14 +71,6 @@ pub fn rss_mib() -> f64 {
         .map_or(0.0, |kb| kb / 1024.0)
 }
 
-fn pct(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 /// What the measuring client saw of one frame.
 struct Seen {
     recv_unix: f64,
@@ -110,8 +90,6 @@ fn read_one(s: &mut TcpStream, buf: &mut Vec<u8>) -> Option<Message> {
     decode(buf).ok().map(|(m, _)| m)
 }
 
-/// Runs the pipeline for `seconds` at `rate_hz` with one measuring client, `readers`
-/// more clients that read and discard, and `silent` clients that never read.
 /// One case of the suite: rate, length, clients, and whether a Rerun sink saves the run.
 #[derive(Clone, Debug)]
 pub struct LiveCase {
@@ -125,12 +103,25 @@ pub struct LiveCase {
     pub rerun_file: Option<std::path::PathBuf>,
 }
 
-pub fn run_live(
-    rig: Arc<Rig>,
-    ch: Arc<Character>,
-    motion: Motion,
-    case: &LiveCase,
-) -> std::io::Result<LiveRecord> {
+/// The stage of a case: the procedural hand, a looping synthetic source with noise and
+/// no gaps at the case's rate, the stream on a free loopback port, and a Rerun sink
+/// saving every frame when asked.
+fn case_stage(case: &LiveCase) -> Result<crate::config::StageConfig, BenchError> {
+    let rate = case.rate_hz;
+    let mut text = format!(
+        "[character]\nprocedural = \"hand\"\n\n[solver]\nrate_hz = {rate:?}\n\n[[inputs]]\ntype = \"synthetic\"\nrate_hz = {rate:?}\ngap_percent = 0.0\nsession_secs = {:?}\nloop = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+        case.seconds + 5.0
+    );
+    if let Some(p) = &case.rerun_file {
+        let target = toml::Value::String(format!("save={}", p.display()));
+        text += &format!("\n[outputs.rerun]\ntarget = {target}\nmesh_every = 1\n");
+    }
+    parse_stage(&text, "live benchmark case").map_err(|e| BenchError::case("live stage", e))
+}
+
+/// Runs one case: the stage for `seconds` with one measuring client, `readers` more
+/// clients that read and discard, and `silent` clients that never read.
+pub fn run_live(case: &LiveCase) -> Result<LiveRecord, BenchError> {
     let LiveCase {
         rate_hz,
         seconds,
@@ -138,59 +129,22 @@ pub fn run_live(
         silent,
         ref rerun_file,
     } = *case;
-    let name = ch.name.clone();
-    let session = SyntheticSession::new(
-        ch,
-        motion,
-        SyntheticParams {
-            rate_hz,
-            duration_secs: seconds + 5.0,
-            gap_fraction: 0.0,
-            ..SyntheticParams::default()
-        },
-    );
-    let (tx, rx) = crossbeam_channel::bounded(4096);
-    let slot = Arc::new(LatestSlot::new());
-    let buffer = MarkerBuffer::new(BufferConfig::default(), &rig.marker_rest, &rig.marker_joint);
-    let solver = Solver::new(Arc::clone(&rig), SolverParams::default());
-    let mut slots = vec![Arc::clone(&slot)];
-    let rerun_slot = Arc::new(LatestSlot::new());
-    let rerun_stop = Arc::new(AtomicBool::new(false));
-    let rerun_stats = Arc::new(RerunStats::default());
-    let counters = Arc::new(SourceCounters::default());
-    let rerun_thread = match rerun_file {
-        Some(path) => {
-            slots.push(Arc::clone(&rerun_slot));
-            start_rerun(
-                &RerunOptions {
-                    target: RerunTarget::Save(path.clone()),
-                    mesh_every: 1,
-                    control_mesh: false,
-                    harmonic_field: false,
-                },
-                RerunScene::of_rig(&rig, &name),
-                vec![InputSeries {
-                    name: "0_synthetic".into(),
-                    counters: Arc::clone(&counters),
-                }],
-                Arc::clone(&rerun_slot),
-                Arc::clone(&rerun_stop),
-                Arc::clone(&rerun_stats),
-            )
-            .map_err(std::io::Error::other)?
-        }
-        None => None,
-    };
-    let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
-    let server = StreamServer::start(
-        Some("127.0.0.1:0".parse().expect("loopback address")),
-        None,
-        &topology(&rig, &name, rate_hz),
-        slot,
-    )?;
-    let addr = server.local_addr().expect("TCP is on");
+    let cfg = case_stage(case)?;
     let clock = Arc::new(SystemClock::new());
-    let stop = Arc::new(AtomicBool::new(false));
+    let stage = Stage::start_with(
+        &cfg,
+        std::path::Path::new("."),
+        Arc::clone(&clock) as Arc<dyn Clock>,
+        StartOptions {
+            stop_after_secs: Some(seconds),
+            ..StartOptions::default()
+        },
+    )
+    .map_err(|e| BenchError::case("live stage", e))?;
+    let info = stage.info().clone();
+    let addr = info
+        .stream_tcp
+        .ok_or_else(|| BenchError::case("live stage", std::io::Error::other("no TCP stream")))?;
 
     // Clients.
     let mut measuring = TcpStream::connect(addr)?;
@@ -225,61 +179,31 @@ pub fn run_live(
     let silent_conns: Vec<TcpStream> = (0..silent)
         .map(|_| TcpStream::connect(addr))
         .collect::<Result<_, _>>()?;
-    while server.stats().clients.load(Ordering::Relaxed) < (1 + readers + silent) as u64
-        && clock.now_s() < START_S
-    {
+    let connected_by = clock.now_s() + CONNECT_TIMEOUT_S;
+    while stage.stream_clients() < (1 + readers + silent) as u64 && clock.now_s() < connected_by {
         std::thread::sleep(Duration::from_millis(2));
     }
     let rss_start_mib = rss_mib();
-
-    let source = {
-        let (clock, stop, counters) =
-            (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&counters));
-        std::thread::spawn(move || play(session, &*clock, START_S, true, &tx, &stop, &counters))
-    };
-    let status = LatestSlot::<LoopStatus>::new();
-    let loop_start = START_S + LOOP_PHASE_S;
-    clock.sleep_until(loop_start);
-    let deadline_clock = Arc::clone(&clock);
-    let last = run_loop(
-        &mut pipeline,
-        &*clock,
-        LoopParams {
-            rate_hz,
-            deadline_fraction: 0.8,
-            end_s: Some(loop_start + seconds),
-            status_interval_s: 1.0,
-        },
-        &stop,
-        &status,
-        &move |t| deadline_clock.instant_at(t),
-    );
-    stop.store(true, Ordering::Relaxed);
-    let _ = source.join();
-    rerun_stop.store(true, Ordering::Relaxed);
-    if let Some(h) = rerun_thread {
-        let _ = h.join();
-    }
+    let summary = stage.join().map_err(|e| BenchError::case("live stage", e))?;
     let rss_end_mib = rss_mib();
-    let frames_skipped = server.stats().frames_skipped.load(Ordering::Relaxed);
-    server.shutdown("benchmark over");
     drop(silent_conns);
     let seen = measurer.join().unwrap_or_default();
     for o in others {
-        let _ = o.join();
+        if o.join().is_err() {
+            tracing::warn!("a reading client of the live benchmark panicked");
+        }
     }
     // A frame's newest sample entered the channel when the source sent it: at
-    // START_S + source_time (the source's clock is the daemon's).
+    // start_s + source_time on the stage's clock.
     let (mut wait, mut lat, mut over, mut solve, mut gc) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let period = 1.0 / rate_hz;
     for s in &seen {
-        let entry_unix = clock.unix_s(START_S + s.source_time_s);
+        let entry_s = info.start_s + s.source_time_s;
+        let entry_unix = clock.unix_s(entry_s);
         // The tick that drained it is the first tick at or after its entry.
-        let k = ((START_S + s.source_time_s - loop_start) / period)
-            .ceil()
-            .max(0.0);
-        let tick_unix = clock.unix_s(loop_start + k * period);
+        let k = ((entry_s - info.loop_start_s) / period).ceil().max(0.0);
+        let tick_unix = clock.unix_s(info.loop_start_s + k * period);
         let l = (s.recv_unix - entry_unix) * 1e3;
         wait.push((tick_unix - entry_unix) * 1e3);
         lat.push(l);
@@ -287,31 +211,81 @@ pub fn run_live(
         solve.push(s.solve_ms);
         gc.push(s.gc_ms);
     }
+    let st = &summary.status;
+    let rerun = summary.rerun;
     Ok(LiveRecord {
         suite: "live",
-        character: name,
+        character: info.character,
         rate_hz,
         seconds,
         clients: 1 + readers + silent,
         silent_clients: silent,
-        frames: last.frames,
-        overruns: last.overruns,
-        deadline_stops: last.deadline_stops,
+        frames: st.frames,
+        overruns: st.overruns,
+        deadline_stops: st.deadline_stops,
         frames_received: seen.len(),
-        frames_skipped,
-        solve_ms_p50: pct(&mut solve, 0.5),
-        solve_ms_p99: pct(&mut solve, 0.99),
-        gc_ms_p50: pct(&mut gc, 0.5),
-        wait_ms_p50: pct(&mut wait, 0.5),
-        wait_ms_p99: pct(&mut wait, 0.99),
-        latency_ms_p50: pct(&mut lat, 0.5),
-        latency_ms_p99: pct(&mut lat, 0.99),
-        overhead_ms_p50: pct(&mut over, 0.5),
-        overhead_ms_p99: pct(&mut over, 0.99),
+        frames_skipped: summary.stream.frames_skipped,
+        solve_ms_p50: percentile(&mut solve, 0.5),
+        solve_ms_p99: percentile(&mut solve, 0.99),
+        gc_ms_p50: percentile(&mut gc, 0.5),
+        wait_ms_p50: percentile(&mut wait, 0.5),
+        wait_ms_p99: percentile(&mut wait, 0.99),
+        latency_ms_p50: percentile(&mut lat, 0.5),
+        latency_ms_p99: percentile(&mut lat, 0.99),
+        overhead_ms_p50: percentile(&mut over, 0.5),
+        overhead_ms_p99: percentile(&mut over, 0.99),
         rss_start_mib,
         rss_end_mib,
         rerun: rerun_file.is_some(),
-        rerun_frames_logged: rerun_stats.frames_logged.load(Ordering::Relaxed),
-        rerun_frames_skipped: rerun_slot.dropped(),
+        rerun_frames_logged: rerun.map_or(0, |r| r.frames_logged),
+        rerun_frames_skipped: rerun.map_or(0, |r| r.frames_skipped),
     })
+}
+
+/// The suite: 120 Hz with one client, the same with a Rerun sink saving every frame,
+/// 240 Hz, and 120 Hz with 50 clients (one never reading); `seconds` each.
+pub fn suite(seconds: f64, json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError> {
+    if !json {
+        writeln!(
+            out,
+            "{:<6} {:>6} {:>8} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} rerun logged/skipped",
+            "char", "rate", "clients", "frames", "overrun", "solve p50", "solve p99", "wait p99",
+            "lat p50", "lat p99", "over p50", "over p99", "rss MiB"
+        )?;
+    }
+    let dir = std::env::temp_dir().join(format!("rigless-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let rrd = dir.join("bench-live.rrd");
+    // (rate, readers besides the measuring client, silent clients, a Rerun sink saving
+    // every frame: the same case with and without it shows what logging costs)
+    for (rate_hz, readers, silent, rerun) in [
+        (120.0, 0, 0, false),
+        (120.0, 0, 0, true),
+        (240.0, 0, 0, false),
+        (120.0, 48, 1, false),
+    ] {
+        let r = run_live(&LiveCase {
+            rate_hz,
+            seconds,
+            readers,
+            silent,
+            rerun_file: rerun.then(|| rrd.clone()),
+        })?;
+        if json {
+            super::json_line(out, &r)?;
+            continue;
+        }
+        writeln!(
+            out,
+            "{:<6} {:>6.0} {:>8} {:>7} {:>8} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>5.0}->{:<5.0} {}",
+            r.character, r.rate_hz, r.clients, r.frames, r.overruns, r.solve_ms_p50, r.solve_ms_p99,
+            r.wait_ms_p99, r.latency_ms_p50, r.latency_ms_p99, r.overhead_ms_p50, r.overhead_ms_p99,
+            r.rss_start_mib, r.rss_end_mib,
+            if r.rerun { format!("{}/{}", r.rerun_frames_logged, r.rerun_frames_skipped) } else { "-".into() }
+        )?;
+    }
+    if let Err(e) = std::fs::remove_dir_all(&dir) {
+        tracing::warn!("leaving {}: {e}", dir.display());
+    }
+    Ok(())
 }

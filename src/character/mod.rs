@@ -3,6 +3,7 @@
 //! the demo, the tests and the benchmarks.
 
 pub mod body;
+pub mod config;
 pub mod demo;
 pub mod file;
 pub mod mesh;

@@ -1,6 +1,6 @@
-//! Wiring of the live daemon: the clock, the latest-value slots between the solver thread
-//! and the sinks, and the fixed-rate loop (see the data flow in the crate docs).
+//! The live daemon in the library: [`stage::Stage`] builds a whole stage from its config
+//! (inputs, recorder, solver thread, sinks) and runs it on a clock; [`pipeline`] is the
+//! fixed-rate loop the solver thread runs.
 
-pub mod clock;
 pub mod pipeline;
-pub mod slot;
+pub mod stage;

@@ -6,14 +6,15 @@
 //! manual clock); [`run_loop`] paces it on a [`Clock`]. The per-frame path does not
 //! allocate once warm: published frames come back to a pool when every sink has let go.
 
-use super::clock::Clock;
-use super::slot::{LatestSlot, PinSlot};
 use crate::markers::buffer::MarkerBuffer;
 use crate::markers::{MarkerFrame, MarkerSample};
-use crate::protocol::vertex_stream::{DeformedFrame, StopCode, Topology};
+use crate::output::frame::DeformedFrame;
+use crate::protocol::vertex_stream::StopCode;
 use crate::rig::bind::Rig;
+use crate::runtime::clock::Clock;
+use crate::runtime::slot::{LatestSlot, PinSlot};
 use crate::solve::arap::StopReason;
-use crate::solve::frame::{SolveReport, Solver};
+use crate::solve::frame::{SolveReport, Solver, TRACE_LEN};
 use crossbeam_channel::{Receiver, Sender};
 use glam::DVec3;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -307,6 +308,7 @@ impl Pipeline {
         Arc::new(DeformedFrame::with_sizes(
             rig.n_markers,
             rig.mesh_rest.len(),
+            TRACE_LEN,
         ))
     }
 
@@ -356,30 +358,11 @@ impl Pipeline {
     }
 }
 
-/// The topology message for a rig's vertex stream.
-pub fn topology(rig: &Rig, character: &str, rate_hz: f64) -> Topology {
-    let sk = &rig.skeleton;
-    Topology {
-        character: character.to_owned(),
-        rate_hz: rate_hz as f32,
-        length_unit: "m".into(),
-        up_axis: "+Y".into(),
-        handedness: "right".into(),
-        vertex_count: rig.mesh_rest.len() as u32,
-        triangles: rig.triangles.clone(),
-        marker_names: rig.marker_names.clone(),
-        joint_names: sk.joints.iter().map(|j| j.name.clone()).collect(),
-        joint_parents: sk
-            .joints
-            .iter()
-            .map(|j| j.parent.map_or(-1, |p| p as i32))
-            .collect(),
-    }
-}
-
 /// How the loop runs.
 #[derive(Clone, Copy, Debug)]
 pub struct LoopParams {
+    /// The first tick, seconds on the clock.
+    pub start_s: f64,
     pub rate_hz: f64,
     /// Fraction of the period a frame's solve may use before it stops at its deadline.
     pub deadline_fraction: f64,
@@ -389,8 +372,8 @@ pub struct LoopParams {
     pub status_interval_s: f64,
 }
 
-/// Paces [`Pipeline::tick`] at `rate_hz` on `clock` from its current time until `stop` is
-/// set or `end_s`; a tick more than one period late is skipped (counted as an overrun),
+/// Paces [`Pipeline::tick`] at `rate_hz` on `clock` from `start_s` until `stop` is set
+/// or `end_s`; a tick more than one period late is skipped (counted as an overrun),
 /// never bunched. Status goes to `status` about every `status_interval_s`. Returns the
 /// final status.
 pub fn run_loop(
@@ -399,10 +382,9 @@ pub fn run_loop(
     params: LoopParams,
     stop: &AtomicBool,
     status: &LatestSlot<LoopStatus>,
-    deadline_of: &dyn Fn(f64) -> Instant,
 ) -> LoopStatus {
     let period = 1.0 / params.rate_hz;
-    let mut next = clock.now_s();
+    let mut next = params.start_s;
     let mut overruns = 0u64;
     // The first tick covers the period before it, so rates come out exact.
     let mut last_status = next - period;
@@ -419,7 +401,7 @@ pub fn run_loop(
         }
         p.tick(
             next,
-            deadline_of(next + period * params.deadline_fraction),
+            clock.deadline_at(next + period * params.deadline_fraction),
             &|| clock.unix_s(clock.now_s()),
         );
         if next - last_status >= params.status_interval_s {

@@ -6,8 +6,12 @@
 //! joints as control inputs"). The wrist itself comes from optical markers when the stage
 //! has them, otherwise it stays where it is.
 
-use super::{is_wait, unix_now, PacketStats};
+use super::config::{endpoint_of, GloveInputConfig, GLOVE_SCHEMES};
+use super::{InputError, InputSink, PacketStats};
 use crate::character::skeleton::{compose, Skeleton, SwingTwist};
+use crate::protocol::url::{Endpoint, GlovePort};
+use crate::runtime::clock::unix_now;
+use crate::runtime::net::is_wait;
 use crate::protocol::glove::{decode_line, GloveFormat, GloveReading, LineFramer, FINGERS};
 use glam::{DQuat, DVec3};
 use std::path::Path;
@@ -136,6 +140,11 @@ impl HandMap {
     }
 
     /// The skeleton joints driven, thumb to pinky, base to distal.
+    /// The glove's full-scale reading.
+    pub fn max_value(&self) -> u32 {
+        self.max_value
+    }
+
     pub fn joints(&self) -> [[usize; JOINTS_PER_FINGER]; 5] {
         self.driven.map(|d| d.map(|x| x.joint))
     }
@@ -231,17 +240,6 @@ impl std::fmt::Display for GloveStats {
     }
 }
 
-/// Serial settings of a glove port.
-#[derive(Clone, Debug, PartialEq)]
-pub struct GlovePort {
-    pub path: std::path::PathBuf,
-    /// Bits per second (8 data bits, no parity, 1 stop bit).
-    pub baud: u32,
-    pub format: GloveFormat,
-    /// Full-scale reading.
-    pub max_value: u32,
-}
-
 /// Reads the glove on `port` until `stop` is set, calling `on_reading(receive_unix_s,
 /// reading)` for each line that decodes. An absent or failing port is retried every
 /// [`REOPEN_INTERVAL`] (a replugged glove is picked up by itself); a partial line cut by
@@ -306,6 +304,68 @@ pub fn run(
                 }
             }
         }
+    }
+}
+
+/// An opened glove input: its port and its map onto the character's joints.
+pub struct GloveInput {
+    port: GlovePort,
+    map: HandMap,
+}
+
+impl GloveInput {
+    /// Reads `cfg.url` and maps the glove onto `skeleton` (the port itself is opened
+    /// when it runs, and again after an unplug).
+    pub fn open(cfg: &GloveInputConfig, skeleton: Option<&Skeleton>) -> Result<Self, InputError> {
+        let endpoint = endpoint_of(&cfg.url, GLOVE_SCHEMES).map_err(|source| InputError::Url {
+            url: cfg.url.clone(),
+            source,
+        })?;
+        let Endpoint::Glove(port) = endpoint else {
+            unreachable!("endpoint_of checked the scheme")
+        };
+        let skeleton = skeleton.ok_or_else(|| InputError::NeedsSkeleton {
+            url: cfg.url.clone(),
+        })?;
+        let map = HandMap::new(
+            skeleton,
+            &cfg.joints(),
+            cfg.calibration(port.max_value),
+            port.max_value,
+        )
+        .map_err(|errs| InputError::GloveMap {
+            url: cfg.url.clone(),
+            problems: errs.iter().map(ToString::to_string).collect(),
+        })?;
+        Ok(Self { port, map })
+    }
+
+    /// The port's settings.
+    pub fn port(&self) -> &GlovePort {
+        &self.port
+    }
+
+    /// `glove input reading PORT (BAUD baud, FORMAT, full scale MAX)`.
+    pub fn opened(&self) -> String {
+        let p = &self.port;
+        format!(
+            "glove input reading {} ({} baud, {:?}, full scale {}; reopens by itself)",
+            p.path.display(),
+            p.baud,
+            p.format,
+            p.max_value
+        )
+    }
+
+    /// Reads lines until `stop` is set; returns what it read.
+    pub fn run(self, stop: &AtomicBool, sink: &mut dyn InputSink) -> String {
+        let stats = GloveStats::default();
+        run(&self.port, stop, &stats, &mut |recv, r| {
+            if !sink.glove(recv, r, &self.map) {
+                stop.store(true, Ordering::Relaxed);
+            }
+        });
+        stats.to_string()
     }
 }
 

@@ -1,27 +1,248 @@
-//! Input sources that feed marker samples into the daemon's bounded channel.
+//! Input adapters: every kind of input is opened from its config section
+//! ([`Input::open`]: binds its socket, opens its port, loads its recording, resolves its
+//! marker names) and then runs on its own thread ([`Input::run`]): it receives, reads or
+//! plays its packets, decodes them with `protocol/`, converts units once, and hands each
+//! packet's [`MarkerSample`]s, marker indices already resolved, to an [`InputSink`]: the
+//! stage's bounded channel ([`ChannelSink`]) or `rigless listen`'s printer. [`Input`] is
+//! the one dispatch over input kinds in the crate; a new protocol is a codec in
+//! `protocol/`, an adapter file here and a variant of [`config::InputConfig`].
 
+pub mod config;
 pub mod glove;
 pub mod natnet;
 pub mod osc;
+pub mod replay;
 pub mod synthetic;
+pub mod udp;
 pub mod vrpn;
 
+use crate::character::procedural::Character;
+use crate::character::skeleton::Skeleton;
+use crate::markers::index::MarkerIndex;
 use crate::markers::MarkerSample;
+use crate::protocol::glove::GloveReading;
+use crate::rig::bind::Rig;
+use crate::runtime::clock::Clock;
+use crate::runtime::slot::PinSlot;
+use config::InputConfig;
 use crossbeam_channel::{Sender, TrySendError};
+use std::net::SocketAddr;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 
-/// What a running source has done (shared with the status line).
+/// Most distinct marker names a growing index (`rigless listen`) keeps: names come from
+/// the network, so their number is bounded.
+pub const MAX_LISTEN_NAMES: usize = 4096;
+
+/// What an input needs to know of the stage when it opens.
+#[derive(Clone, Copy)]
+pub struct OpenContext<'a> {
+    /// Folder that relative recording paths are resolved against.
+    pub base_dir: &'a Path,
+    /// The character's marker names; `None` (`rigless listen`) gives every name the
+    /// input meets an index of its own.
+    pub markers: Option<&'a [String]>,
+    /// The skeleton a data glove poses.
+    pub skeleton: Option<&'a Skeleton>,
+    /// The procedural character a synthetic input plays.
+    pub procedural: Option<&'a Arc<Character>>,
+}
+
+impl OpenContext<'_> {
+    /// The index an input resolves names with.
+    fn index(&self) -> MarkerIndex {
+        match self.markers {
+            Some(names) => MarkerIndex::fixed(names),
+            None => MarkerIndex::growing(MAX_LISTEN_NAMES),
+        }
+    }
+}
+
+/// Why an input could not open or run.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    #[error("{url}: {source}")]
+    Url {
+        url: String,
+        source: config::InputUrlError,
+    },
+    #[error("binding {url}: {source}")]
+    Bind {
+        url: String,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Recording(#[from] crate::replay::recording::RecordingError),
+    #[error("no bundled session {name:?}")]
+    NoSuchSession { name: String },
+    #[error("a replay input needs a session or a path")]
+    NoRecording,
+    #[error("{name}: none of its {labels} labels is one of the character's markers ({markers})")]
+    NoMatchingLabel {
+        name: String,
+        labels: usize,
+        markers: String,
+    },
+    #[error("a synthetic input needs a procedural character")]
+    NeedsProcedural,
+    #[error("{url}: a glove input needs a character with a skeleton")]
+    NeedsSkeleton { url: String },
+    #[error("{url}: the glove cannot drive this character:\n  {}", problems.join("\n  "))]
+    GloveMap { url: String, problems: Vec<String> },
+    #[error("{url}: cannot open its command socket: {source}")]
+    CommandSocket {
+        url: String,
+        source: std::io::Error,
+    },
+}
+
+/// One packet of an input (or one frame of a recording), decoded.
+#[derive(Clone, Copy, Debug)]
+pub struct InputFrame<'a> {
+    /// When it arrived (or was due, for a recording), seconds on the stage's clock.
+    pub time_s: f64,
+    /// When it arrived, seconds since the Unix epoch.
+    pub receive_unix_s: f64,
+    /// The sender's time of the packet, seconds, when the protocol has one.
+    pub source_time_s: Option<f64>,
+    /// The sender's frame number, when the protocol has one.
+    pub frame: Option<i64>,
+    /// Its markers, indices resolved (markers with no index are left out).
+    pub samples: &'a [MarkerSample],
+    /// Marker names by index (the character's, or every name met so far).
+    pub names: &'a [String],
+}
+
+/// Where an input's packets go.
+pub trait InputSink {
+    /// One packet's samples. Returns false when nobody takes them any more: the input
+    /// then ends.
+    fn frame(&mut self, frame: &InputFrame<'_>) -> bool;
+    /// One data-glove reading received at `receive_unix_s`, with the glove's map onto
+    /// the character's joints. Returns false as [`Self::frame`] does.
+    fn glove(&mut self, receive_unix_s: f64, reading: &GloveReading, map: &glove::HandMap)
+        -> bool;
+}
+
+/// An opened input, ready to run.
+pub struct Input {
+    kind: &'static str,
+    source: Source,
+}
+
+enum Source {
+    Osc(osc::OscInput),
+    NatNet(natnet::NatNetInput),
+    Vrpn(vrpn::VrpnInput),
+    Glove(glove::GloveInput),
+    Replay(replay::ReplayInput),
+    Synthetic(synthetic::SyntheticInput),
+}
+
+impl Input {
+    /// Opens the input `cfg` describes: binds, opens or loads what it needs and resolves
+    /// its names, so that what can fail fails here, before the stage runs.
+    pub fn open(cfg: &InputConfig, ctx: &OpenContext<'_>) -> Result<Self, InputError> {
+        let source = match cfg {
+            InputConfig::Osc(c) => Source::Osc(osc::OscInput::open(c, ctx.index())?),
+            InputConfig::NatNet(c) => Source::NatNet(natnet::NatNetInput::open(c, ctx.index())?),
+            InputConfig::Vrpn(c) => Source::Vrpn(vrpn::VrpnInput::open(c, ctx.index())?),
+            InputConfig::Glove(c) => Source::Glove(glove::GloveInput::open(c, ctx.skeleton)?),
+            InputConfig::Replay(c) => Source::Replay(replay::ReplayInput::open(c, ctx)?),
+            InputConfig::Synthetic(c) => {
+                Source::Synthetic(synthetic::SyntheticInput::open(c, ctx.procedural)?)
+            }
+        };
+        Ok(Self {
+            kind: cfg.kind(),
+            source,
+        })
+    }
+
+    /// The input's kind, as its config's `type` names it.
+    pub fn kind(&self) -> &'static str {
+        self.kind
+    }
+
+    /// What was opened, for the user: `osc input listening on udp://ADDR`, `replaying
+    /// NAME: ...`.
+    pub fn opened(&self) -> String {
+        match &self.source {
+            Source::Osc(i) => i.opened(),
+            Source::NatNet(i) => i.opened(),
+            Source::Vrpn(i) => i.opened(),
+            Source::Glove(i) => i.opened(),
+            Source::Replay(i) => i.opened(),
+            Source::Synthetic(i) => i.opened(),
+        }
+    }
+
+    /// What the user should know before it runs (labels ignored, markers no label
+    /// feeds, what a file reader tolerated).
+    pub fn warnings(&self) -> Vec<String> {
+        match &self.source {
+            Source::Replay(i) => i.warnings(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// The local address of a socket input.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        match &self.source {
+            Source::Osc(i) => i.local_addr(),
+            Source::NatNet(i) => i.local_addr(),
+            _ => None,
+        }
+    }
+
+    /// How long a finite input plays, seconds from its first frame to its last (`None`:
+    /// it runs until stopped).
+    pub fn duration_s(&self) -> Option<f64> {
+        match &self.source {
+            Source::Replay(i) => i.duration_s(),
+            Source::Synthetic(i) => i.duration_s(),
+            _ => None,
+        }
+    }
+
+    /// Whether the input paces itself on the stage's clock (recordings and the synthetic
+    /// source) rather than waiting on a socket or a port.
+    pub fn is_paced(&self) -> bool {
+        matches!(self.source, Source::Replay(_) | Source::Synthetic(_))
+    }
+
+    /// Runs the input on the calling thread until `stop` is set, it ends, or the sink
+    /// refuses a packet (which also sets `stop`); an input that paces itself sends its
+    /// first frame at `start_s` on `clock`. Returns a line on what it received.
+    pub fn run(
+        self,
+        clock: &dyn Clock,
+        start_s: f64,
+        stop: &AtomicBool,
+        sink: &mut dyn InputSink,
+    ) -> Result<String, InputError> {
+        match self.source {
+            Source::Osc(i) => Ok(i.run(clock, stop, sink)),
+            Source::NatNet(i) => i.run(clock, stop, sink),
+            Source::Vrpn(i) => Ok(i.run(clock, stop, sink)),
+            Source::Glove(i) => Ok(i.run(stop, sink)),
+            Source::Replay(i) => Ok(i.run(clock, start_s, stop, sink)),
+            Source::Synthetic(i) => Ok(i.run(clock, start_s, stop, sink)),
+        }
+    }
+}
+
+/// What a running input has done (shared with the status line and the Rerun sink).
 #[derive(Debug, Default)]
 pub struct SourceCounters {
-    /// Frames sent.
+    /// Frames (packets) received.
     pub frames: AtomicU64,
-    /// Samples sent.
+    /// Samples sent on.
     pub samples: AtomicU64,
     /// Samples dropped because the channel was full.
     pub dropped: AtomicU64,
-    /// Set when the session has ended (not looping).
-    pub finished: AtomicBool,
-    /// When the newest frame arrived, seconds on the source's own clock (`f64` bits).
+    /// When the newest frame arrived, seconds on the stage's clock (`f64` bits).
     last_frame_s: AtomicU64,
     /// The longest interval between consecutive frames since it was last taken, seconds
     /// (`f64` bits; non-negative, so the bits order as the values do).
@@ -45,48 +266,6 @@ impl SourceCounters {
     pub fn take_longest_interval_s(&self) -> f64 {
         f64::from_bits(self.longest_interval_s.swap(0, Ordering::Relaxed))
     }
-}
-
-/// Seconds since the Unix epoch now (0 if the clock is before it): the receive time
-/// every input stamps on what it reads.
-pub fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// How often a blocked UDP receive wakes to check its stop flag.
-pub const UDP_POLL: std::time::Duration = std::time::Duration::from_millis(100);
-
-/// Receive buffer asked of the OS for UDP inputs, bytes: a second of a 240 Hz, 50-marker
-/// sender (each datagram costs the kernel a few KiB of buffer on loopback), so a stalled
-/// moment of the receiving thread loses nothing. The OS may grant less (Linux:
-/// `net.core.rmem_max`).
-pub const RECV_BUFFER_BYTES: usize = 4 << 20;
-
-/// Binds a UDP input on `addr` with a large receive buffer and the read timeout
-/// [`udp_loop`] needs; an IPv4 multicast address binds the port on all interfaces and
-/// joins the group there.
-pub fn udp_bind(addr: std::net::SocketAddr) -> std::io::Result<std::net::UdpSocket> {
-    use std::net::{IpAddr, Ipv4Addr, SocketAddr};
-    let s = socket2::Socket::new(
-        socket2::Domain::for_address(addr),
-        socket2::Type::DGRAM,
-        Some(socket2::Protocol::UDP),
-    )?;
-    // Best effort: a smaller grant still works, only with less slack.
-    let _ = s.set_recv_buffer_size(RECV_BUFFER_BYTES);
-    match addr.ip() {
-        IpAddr::V4(g) if g.is_multicast() => {
-            s.set_reuse_address(true)?;
-            s.bind(&SocketAddr::from((Ipv4Addr::UNSPECIFIED, addr.port())).into())?;
-            s.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED)?;
-        }
-        _ => s.bind(&addr.into())?,
-    }
-    let s: std::net::UdpSocket = s.into();
-    s.set_read_timeout(Some(UDP_POLL))?;
-    Ok(s)
 }
 
 /// What a packet input has received (monotonic).
@@ -131,315 +310,119 @@ impl std::fmt::Display for PacketStats {
     }
 }
 
-/// Whether a socket error only means "nothing yet" (a read timeout or an interruption).
-pub fn is_wait(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        std::io::ErrorKind::WouldBlock
-            | std::io::ErrorKind::TimedOut
-            | std::io::ErrorKind::Interrupted
-    )
+/// Joint angles a data glove imposes on the posture, through the stage's pin slot.
+pub struct PinTarget {
+    /// Where the loop reads the angles.
+    pub slot: Arc<PinSlot>,
+    /// The rig whose posture parameters they are.
+    pub rig: Arc<Rig>,
 }
 
-/// Receives datagrams on `socket` (which must have a read timeout) until `stop` is set,
-/// calling `on_packet(receive_unix_s, bytes)` for each. Timeouts and interruptions are
-/// waits; other receive errors (ICMP from an earlier send and the like) go to
-/// `on_error` and the loop carries on. One input, one thread.
-pub fn udp_loop(
-    socket: &std::net::UdpSocket,
-    stop: &AtomicBool,
-    on_packet: &mut dyn FnMut(f64, &[u8]),
-    on_error: &mut dyn FnMut(&std::io::Error),
-) {
-    let mut buf = vec![0u8; 65_536];
-    while !stop.load(Ordering::Relaxed) {
-        match socket.recv_from(&mut buf) {
-            Ok((n, _)) => {
-                on_packet(unix_now(), &buf[..n]);
-            }
-            Err(e) if is_wait(&e) => {}
-            Err(e) => {
-                on_error(&e);
-                std::thread::sleep(UDP_POLL);
-            }
-        }
+/// The stage's sink: samples go into the bounded channel without blocking (a full
+/// channel drops and counts), glove readings into the pin slot; every frame is counted.
+pub struct ChannelSink {
+    tx: Sender<MarkerSample>,
+    counters: Arc<SourceCounters>,
+    pins: Option<PinTarget>,
+}
+
+impl ChannelSink {
+    pub fn new(
+        tx: Sender<MarkerSample>,
+        counters: Arc<SourceCounters>,
+        pins: Option<PinTarget>,
+    ) -> Self {
+        Self { tx, counters, pins }
     }
 }
 
-/// A source's fixed-rate sending loop: frame `n` (counting across loops) is due at
-/// `start_s + n · period_s` on `clock`; `fill(n, t, batch)` makes its samples (stamped
-/// `t`), which go out without blocking. It ends after `frames` frames unless `looping`,
-/// when `stop` is set, or when the receiver is gone, and marks `counters` finished.
+impl InputSink for ChannelSink {
+    fn frame(&mut self, frame: &InputFrame<'_>) -> bool {
+        let c = &self.counters;
+        c.count_frame(frame.time_s);
+        for s in frame.samples {
+            match self.tx.try_send(*s) {
+                Ok(()) => c.samples.fetch_add(1, Ordering::Relaxed),
+                Err(TrySendError::Full(_)) => c.dropped.fetch_add(1, Ordering::Relaxed),
+                Err(TrySendError::Disconnected(_)) => return false,
+            };
+        }
+        true
+    }
+
+    fn glove(
+        &mut self,
+        receive_unix_s: f64,
+        reading: &GloveReading,
+        map: &glove::HandMap,
+    ) -> bool {
+        if let Some(PinTarget { slot, rig }) = &self.pins {
+            let first = |j: usize| rig.ik.angle_params(j);
+            slot.write(|pins| map.write_pins(reading, &first, pins));
+        }
+        self.counters.count_frame(receive_unix_s);
+        true
+    }
+}
+
+/// A fixed-rate sending loop for inputs that pace themselves: frame `n` (counting across
+/// loops) is due at `start_s + n · period_s` on `clock`, where `emit(n, t)` sends it. It
+/// ends after `frames` frames unless `looping`, when `stop` is set, or when `emit`
+/// returns false.
 #[allow(clippy::too_many_arguments)]
 pub fn play_paced(
-    clock: &dyn crate::daemon::clock::Clock,
+    clock: &dyn Clock,
     start_s: f64,
     period_s: f64,
     frames: usize,
     looping: bool,
-    tx: &Sender<MarkerSample>,
     stop: &AtomicBool,
-    counters: &SourceCounters,
-    fill: &mut dyn FnMut(usize, f64, &mut Vec<MarkerSample>),
+    emit: &mut dyn FnMut(usize, f64) -> bool,
 ) {
-    let mut batch = Vec::new();
     let mut n = 0usize;
     while frames > 0 && (looping || n < frames) {
         let t = start_s + n as f64 * period_s;
         clock.sleep_until(t);
-        if stop.load(Ordering::Relaxed) {
+        if stop.load(Ordering::Relaxed) || !emit(n, t) {
             break;
         }
-        batch.clear();
-        fill(n, t, &mut batch);
-        if !send_samples(&batch, tx, counters) {
-            break;
-        }
-        counters.count_frame(t);
         n += 1;
-    }
-    counters.finished.store(true, Ordering::Relaxed);
-}
-
-/// Sends one frame's samples without blocking: a full channel drops (and counts) the
-/// sample. Returns false once the receiver is gone.
-pub fn send_samples(batch: &[MarkerSample], tx: &Sender<MarkerSample>, c: &SourceCounters) -> bool {
-    for s in batch {
-        match tx.try_send(*s) {
-            Ok(()) => {
-                c.samples.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(TrySendError::Full(_)) => {
-                c.dropped.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(TrySendError::Disconnected(_)) => return false,
-        }
-    }
-    true
-}
-
-/// An input URL, as stage configs and `rigless listen` name inputs.
-#[derive(Clone, Debug, PartialEq)]
-pub enum InputUrl {
-    /// `osc://HOST:PORT`: bind, native schema, address patterns and VMC.
-    Osc(std::net::SocketAddr),
-    /// `vmc://HOST:PORT`: bind, VMC only.
-    Vmc(std::net::SocketAddr),
-    /// `natnet://HOST:PORT[?version=M.m&server=IP[:PORT]]`: bind the data port (join the
-    /// group when multicast); NatNet 3.0 unless the version says otherwise. With a
-    /// server, talk to its command port (1510 by default): connect, take its version and
-    /// model definitions, keep a unicast stream alive.
-    NatNet(
-        std::net::SocketAddr,
-        crate::protocol::natnet::Version,
-        Option<std::net::SocketAddr>,
-    ),
-    /// `vrpn://DEVICE@tcp://HOST:PORT` (TCP connection mode) or
-    /// `vrpn://DEVICE@HOST[:PORT]` (UDP connection mode; port 3883 by default): a VRPN
-    /// server's DEVICE, whose tracker reports are read.
-    Vrpn {
-        device: String,
-        addr: std::net::SocketAddr,
-        mode: vrpn::VrpnMode,
-    },
-    /// `glove:///dev/ttyUSB0[?baud=115200&format=alpha|legacy&max=4095]`: a serial data
-    /// glove (8N1; 115200 baud, the alpha encoding and a 4095 full scale by default).
-    Glove(glove::GlovePort),
-}
-
-/// Parses an input URL, saying what is wrong.
-pub fn parse_url(url: &str) -> Result<InputUrl, String> {
-    let (scheme, rest) = url.split_once("://").ok_or_else(|| {
-        format!("{url:?} is not a URL (expected osc://, vmc://, natnet://HOST:PORT, vrpn://DEVICE@tcp://HOST:PORT or glove:///PORT)")
-    })?;
-    let (rest, query) = rest.split_once('?').unwrap_or((rest, ""));
-    let addr = rest.trim_end_matches('/').parse().map_err(|_| {
-        format!("{url:?}: {rest:?} is not HOST:PORT with a numeric host (e.g. 127.0.0.1:9000)")
-    });
-    match scheme {
-        "osc" => Ok(InputUrl::Osc(addr?)),
-        "vmc" => Ok(InputUrl::Vmc(addr?)),
-        "natnet" => {
-            let mut version = crate::protocol::natnet::Version(3, 0);
-            let mut server = None;
-            for kv in query.split('&').filter(|s| !s.is_empty()) {
-                match kv.split_once('=') {
-                    Some(("server", v)) => {
-                        let with_port = if v.parse::<std::net::SocketAddr>().is_ok() {
-                            v.to_owned()
-                        } else {
-                            format!("{v}:{}", natnet::COMMAND_PORT)
-                        };
-                        server = Some(with_port.parse().map_err(|_| {
-                            format!("{url:?}: server {v:?} is not IP[:PORT] with a numeric IP")
-                        })?);
-                    }
-                    Some(("version", v)) => {
-                        let (a, b) = v.split_once('.').unwrap_or((v, "0"));
-                        match (a.parse::<u8>(), b.parse::<u8>()) {
-                            (Ok(a), Ok(b)) if (3..=4).contains(&a) => {
-                                version = crate::protocol::natnet::Version(a, b)
-                            }
-                            _ => return Err(format!("{url:?}: version {v:?} is not 3.x or 4.x")),
-                        }
-                    }
-                    _ => {
-                        return Err(format!(
-                        "{url:?}: unknown option {kv:?} (expected version=M.m or server=IP[:PORT])"
-                    ))
-                    }
-                }
-            }
-            Ok(InputUrl::NatNet(addr?, version, server))
-        }
-        "vrpn" => {
-            let (device, target) = rest.split_once('@').ok_or_else(|| {
-                format!("{url:?}: expected vrpn://DEVICE@HOST[:PORT] or vrpn://DEVICE@tcp://HOST:PORT (e.g. vrpn://Tracker0@127.0.0.1)")
-            })?;
-            if device.is_empty() {
-                return Err(format!("{url:?}: no device name before @"));
-            }
-            let (mode, hp) = match target.strip_prefix("tcp://") {
-                Some(hp) => (vrpn::VrpnMode::Tcp, hp.trim_end_matches('/')),
-                None => (vrpn::VrpnMode::Udp, target.trim_end_matches('/')),
-            };
-            let with_port = if hp.parse::<std::net::SocketAddr>().is_ok() {
-                hp.to_owned()
-            } else {
-                format!("{hp}:{}", vrpn::DEFAULT_PORT)
-            };
-            let addr = with_port
-                .parse()
-                .map_err(|_| format!("{url:?}: {hp:?} is not HOST[:PORT] with a numeric host"))?;
-            Ok(InputUrl::Vrpn {
-                device: device.to_owned(),
-                addr,
-                mode,
-            })
-        }
-        "glove" => {
-            use crate::protocol::glove::{GloveFormat, DEFAULT_MAX_VALUE};
-            if rest.is_empty() {
-                return Err(format!(
-                    "{url:?}: no port path (e.g. glove:///dev/ttyUSB0?baud=115200&format=alpha)"
-                ));
-            }
-            let mut port = glove::GlovePort {
-                path: rest.into(),
-                baud: 115_200,
-                format: GloveFormat::Alpha,
-                max_value: DEFAULT_MAX_VALUE,
-            };
-            for kv in query.split('&').filter(|s| !s.is_empty()) {
-                match kv.split_once('=') {
-                    Some(("baud", v)) => {
-                        port.baud = v.parse().ok().filter(|&b| b > 0).ok_or_else(|| {
-                            format!("{url:?}: baud {v:?} is not a positive whole number")
-                        })?
-                    }
-                    Some(("format", "alpha")) => port.format = GloveFormat::Alpha,
-                    Some(("format", "legacy")) => port.format = GloveFormat::Legacy,
-                    Some(("format", v)) => {
-                        return Err(format!("{url:?}: format {v:?} is not alpha or legacy"))
-                    }
-                    Some(("max", v)) => {
-                        port.max_value = v.parse().ok().filter(|&m| m > 0).ok_or_else(|| {
-                            format!("{url:?}: max {v:?} is not a positive whole number")
-                        })?
-                    }
-                    _ => {
-                        return Err(format!(
-                            "{url:?}: unknown option {kv:?} (expected baud=, format= or max=)"
-                        ))
-                    }
-                }
-            }
-            Ok(InputUrl::Glove(port))
-        }
-        other => Err(format!(
-            "{url:?}: unknown scheme {other:?} (expected osc, vmc, natnet, vrpn or glove)"
-        )),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::protocol::natnet::Version;
 
     #[test]
-    fn urls_parse_or_say_why_not() {
-        assert_eq!(
-            parse_url("osc://127.0.0.1:9000"),
-            Ok(InputUrl::Osc("127.0.0.1:9000".parse().unwrap()))
-        );
-        assert_eq!(
-            parse_url("vmc://127.0.0.1:39539/"),
-            Ok(InputUrl::Vmc("127.0.0.1:39539".parse().unwrap()))
-        );
-        assert_eq!(
-            parse_url("natnet://239.255.42.99:1511?version=4.1"),
-            Ok(InputUrl::NatNet(
-                "239.255.42.99:1511".parse().unwrap(),
-                Version(4, 1),
-                None
-            ))
-        );
-        assert_eq!(
-            parse_url("natnet://127.0.0.1:1511?server=10.0.0.5"),
-            Ok(InputUrl::NatNet(
-                "127.0.0.1:1511".parse().unwrap(),
-                Version(3, 0),
-                Some("10.0.0.5:1510".parse().unwrap())
-            ))
-        );
-        assert!(parse_url("natnet://127.0.0.1:1511?version=2.9")
-            .unwrap_err()
-            .contains("3.x or 4.x"));
-        assert_eq!(
-            parse_url("vrpn://Tracker0@127.0.0.1"),
-            Ok(InputUrl::Vrpn {
-                device: "Tracker0".into(),
-                addr: "127.0.0.1:3883".parse().unwrap(),
-                mode: vrpn::VrpnMode::Udp,
-            })
-        );
-        assert_eq!(
-            parse_url("vrpn://Spin0@tcp://10.0.0.2:3884"),
-            Ok(InputUrl::Vrpn {
-                device: "Spin0".into(),
-                addr: "10.0.0.2:3884".parse().unwrap(),
-                mode: vrpn::VrpnMode::Tcp,
-            })
-        );
-        assert!(parse_url("vrpn://Tracker0@localhost")
-            .unwrap_err()
-            .contains("numeric host"));
-        assert!(parse_url("osc://localhost")
-            .unwrap_err()
-            .contains("HOST:PORT"));
-        assert!(parse_url("ftp://x").unwrap_err().contains("unknown scheme"));
-        assert_eq!(
-            parse_url("glove:///dev/ttyUSB0?baud=9600&format=legacy&max=1023"),
-            Ok(InputUrl::Glove(glove::GlovePort {
-                path: "/dev/ttyUSB0".into(),
-                baud: 9600,
-                format: crate::protocol::glove::GloveFormat::Legacy,
-                max_value: 1023,
-            }))
-        );
-        assert_eq!(
-            parse_url("glove:///dev/ttyACM1"),
-            Ok(InputUrl::Glove(glove::GlovePort {
-                path: "/dev/ttyACM1".into(),
-                baud: 115_200,
-                format: crate::protocol::glove::GloveFormat::Alpha,
-                max_value: 4095,
-            }))
-        );
-        assert!(parse_url("glove:///dev/x?format=beta")
-            .unwrap_err()
-            .contains("not alpha or legacy"));
-        assert!(parse_url("glove://").unwrap_err().contains("no port path"));
+    fn a_full_channel_drops_and_counts_and_a_closed_one_ends_the_input() {
+        let (tx, rx) = crossbeam_channel::bounded(2);
+        let counters = Arc::new(SourceCounters::default());
+        let mut sink = ChannelSink::new(tx, Arc::clone(&counters), None);
+        let sample = |k: u32| MarkerSample {
+            marker: k,
+            time_s: 0.0,
+            source_time_s: 0.0,
+            position_m: glam::DVec3::ZERO,
+            occluded: false,
+        };
+        let samples = [sample(0), sample(1), sample(2)];
+        let frame = |t: f64| InputFrame {
+            time_s: t,
+            receive_unix_s: 0.0,
+            source_time_s: None,
+            frame: None,
+            samples: &samples,
+            names: &[],
+        };
+        assert!(sink.frame(&frame(1.0)));
+        assert_eq!(counters.samples.load(Ordering::Relaxed), 2);
+        assert_eq!(counters.dropped.load(Ordering::Relaxed), 1);
+        assert_eq!(rx.try_recv().map(|s| s.marker), Ok(0));
+        assert!(sink.frame(&frame(1.25)));
+        assert_eq!(counters.take_longest_interval_s(), 0.25);
+        drop(rx);
+        assert!(!sink.frame(&frame(1.5)), "the receiver is gone");
+        assert_eq!(counters.frames.load(Ordering::Relaxed), 3);
     }
 }

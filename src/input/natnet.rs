@@ -13,7 +13,13 @@
 //! gives its labelled markers. A member is occluded when a labelled marker at its very
 //! position is flagged occluded (Motive repeats the member's position there).
 
-use super::unix_now;
+use super::config::{endpoint_of, NatNetInputConfig, NATNET_SCHEMES};
+use super::{InputError, InputFrame, InputSink};
+use crate::markers::index::MarkerIndex;
+use crate::markers::MarkerSample;
+use crate::protocol::url::Endpoint;
+use crate::runtime::clock::{unix_now, Clock};
+use crate::runtime::net::is_wait;
 use crate::protocol::natnet::{
     decode, encode_connect, encode_keepalive, encode_request_modeldef, Description, Message,
     MocapFrame, ServerInfo, Version,
@@ -21,9 +27,6 @@ use crate::protocol::natnet::{
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-
-/// Motive's command port.
-pub const COMMAND_PORT: u16 = 1510;
 
 /// What a NatNet input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -87,10 +90,124 @@ impl ModelNames {
     }
 }
 
-/// Binds the data port `addr` ([`super::udp_bind`]: a multicast address joins the
+/// Binds the data port `addr` ([`super::udp::udp_bind`]: a multicast address joins the
 /// group).
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
-    super::udp_bind(addr)
+    super::udp::udp_bind(addr)
+}
+
+/// An opened NatNet input: its data socket, and the server's command port if known.
+pub struct NatNetInput {
+    url: String,
+    socket: UdpSocket,
+    data: SocketAddr,
+    version: Version,
+    server: Option<SocketAddr>,
+    index: MarkerIndex,
+}
+
+impl NatNetInput {
+    /// Binds the data port of `cfg.url` (joining a multicast group).
+    pub fn open(cfg: &NatNetInputConfig, index: MarkerIndex) -> Result<Self, InputError> {
+        let endpoint = endpoint_of(&cfg.url, NATNET_SCHEMES).map_err(|source| InputError::Url {
+            url: cfg.url.clone(),
+            source,
+        })?;
+        let Endpoint::NatNet {
+            data,
+            version,
+            server,
+        } = endpoint
+        else {
+            unreachable!("endpoint_of checked the scheme")
+        };
+        let socket = bind(data).map_err(|source| InputError::Bind {
+            url: cfg.url.clone(),
+            source,
+        })?;
+        Ok(Self {
+            url: cfg.url.clone(),
+            socket,
+            data,
+            version,
+            server,
+            index,
+        })
+    }
+
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.socket.local_addr().ok()
+    }
+
+    /// `natnet input listening on udp://ADDR (NatNet M.m)`, and the command port.
+    pub fn opened(&self) -> String {
+        let bound = self
+            .local_addr()
+            .map_or_else(|| self.data.to_string(), |a| a.to_string());
+        let Version(major, minor) = self.version;
+        match self.server {
+            Some(server) => format!("natnet input listening on udp://{bound} (NatNet {major}.{minor}); version and marker names from the server's command port {server}"),
+            None => format!("natnet input listening on udp://{bound} (NatNet {major}.{minor})"),
+        }
+    }
+
+    /// Receives until `stop` is set; returns what it received.
+    pub fn run(
+        mut self,
+        clock: &dyn Clock,
+        stop: &AtomicBool,
+        sink: &mut dyn InputSink,
+    ) -> Result<String, InputError> {
+        let stats = NatNetStats::default();
+        let (mut named, mut batch) = (Vec::new(), Vec::new());
+        let index = &mut self.index;
+        run_input(
+            &self.socket,
+            self.data,
+            self.version,
+            self.server,
+            stop,
+            &stats,
+            &mut |recv, f, names| {
+                let t = clock.now_s();
+                named.clear();
+                markers_of(f, names, &mut named);
+                batch.clear();
+                for m in &named {
+                    if let Some(k) = index.resolve(&m.name) {
+                        batch.push(MarkerSample {
+                            marker: k,
+                            time_s: t,
+                            source_time_s: f.timestamp_s,
+                            position_m: m.position_m,
+                            occluded: m.occluded,
+                        });
+                    }
+                }
+                let frame = InputFrame {
+                    time_s: t,
+                    receive_unix_s: recv,
+                    source_time_s: Some(f.timestamp_s),
+                    frame: Some(i64::from(f.frame)),
+                    samples: &batch,
+                    names: index.names(),
+                };
+                if !sink.frame(&frame) {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            },
+        )
+        .map_err(|source| InputError::CommandSocket {
+            url: self.url.clone(),
+            source,
+        })?;
+        Ok(format!(
+            "{}; {} frames, {} other messages",
+            stats.packets,
+            stats.frames.load(Ordering::Relaxed),
+            stats.other.load(Ordering::Relaxed)
+        ))
+    }
 }
 
 /// The named markers of a frame, appended to `out` (names from `names` where they
@@ -240,7 +357,7 @@ pub fn run_with_server(
     let command = UdpSocket::bind(any)?;
     command.set_nonblocking(true)?;
     data.set_read_timeout(Some(
-        super::UDP_POLL.min(std::time::Duration::from_millis(20)),
+        super::udp::UDP_POLL.min(std::time::Duration::from_millis(20)),
     ))?;
     let empty = ModelNames::default();
     let mut buf = vec![0u8; 65_536];
@@ -264,7 +381,7 @@ pub fn run_with_server(
         for sock in [&command, data] {
             let (n, _) = match sock.recv_from(&mut buf) {
                 Ok(x) => x,
-                Err(e) if super::is_wait(&e) => continue,
+                Err(e) if is_wait(&e) => continue,
                 Err(e) => {
                     tracing::debug!(error = %e, "natnet: receive failed");
                     stats.packets.error();
@@ -342,7 +459,7 @@ pub fn run(
     stats: &NatNetStats,
     on_frame: &mut dyn FnMut(f64, &MocapFrame),
 ) {
-    super::udp_loop(
+    super::udp::udp_loop(
         socket,
         stop,
         &mut |now, bytes| {
@@ -424,7 +541,7 @@ mod tests {
 
     #[test]
     fn marker_sets_are_named_by_member_and_all_is_skipped() {
-        let b = crate::bench::codecs::natnet_frame(3);
+        let b = crate::protocol::natnet::example_frame(3);
         let Message::Frame(f) = decode(&b, Version(3, 0)).unwrap() else {
             panic!("a frame")
         };

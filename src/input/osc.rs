@@ -1,18 +1,116 @@
-//! The OSC input (UDP): receives datagrams on a bound address, decodes them with
-//! [`crate::protocol::osc`], and hands each packet's markers to a callback (the daemon
-//! turns them into samples for its channel; `rigless listen` prints them). Garbage costs
-//! only its own packet, and is counted.
+//! The OSC input (UDP, `osc://` and `vmc://`): receives datagrams on a bound address,
+//! decodes them with [`crate::protocol::osc`] (units and up axis converted there), and
+//! hands each packet's markers, names resolved, to the input's sink. Garbage costs only
+//! its own packet, and is counted.
 
+use super::config::{endpoint_of, OscInputConfig, OSC_SCHEMES};
+use super::{InputError, InputFrame, InputSink};
+use crate::markers::index::MarkerIndex;
+use crate::markers::MarkerSample;
 use crate::protocol::osc::{OscFrame, OscMapping};
+use crate::protocol::url::Endpoint;
+use crate::runtime::clock::Clock;
 use std::net::{SocketAddr, UdpSocket};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// What an OSC input has seen.
 pub type OscStats = super::PacketStats;
 
-/// Binds `addr` for an OSC input ([`super::udp_bind`]).
+/// Binds `addr` for an OSC input ([`super::udp::udp_bind`]).
 pub fn bind(addr: SocketAddr) -> std::io::Result<UdpSocket> {
-    super::udp_bind(addr)
+    super::udp::udp_bind(addr)
+}
+
+/// An opened OSC input.
+pub struct OscInput {
+    socket: UdpSocket,
+    mapping: OscMapping,
+    index: MarkerIndex,
+}
+
+impl OscInput {
+    /// Binds the address of `cfg.url`: `osc://` with the config's patterns, scale and up
+    /// axis (VMC messages too), `vmc://` for VMC only.
+    pub fn open(cfg: &OscInputConfig, index: MarkerIndex) -> Result<Self, InputError> {
+        let url_error = |source| InputError::Url {
+            url: cfg.url.clone(),
+            source,
+        };
+        let (addr, mapping) = match endpoint_of(&cfg.url, OSC_SCHEMES).map_err(url_error)? {
+            Endpoint::Vmc(a) => (
+                a,
+                OscMapping {
+                    patterns: Vec::new(),
+                    ..OscMapping::default()
+                },
+            ),
+            Endpoint::Osc(a) => (
+                a,
+                OscMapping {
+                    patterns: cfg.patterns.clone(),
+                    scale: cfg.scale,
+                    z_up: cfg.up.eq_ignore_ascii_case("z"),
+                    vmc: true,
+                },
+            ),
+            _ => unreachable!("endpoint_of checked the scheme"),
+        };
+        let socket = bind(addr).map_err(|source| InputError::Bind {
+            url: cfg.url.clone(),
+            source,
+        })?;
+        Ok(Self {
+            socket,
+            mapping,
+            index,
+        })
+    }
+
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.socket.local_addr().ok()
+    }
+
+    /// `osc input listening on udp://ADDR` (scripts and tests read this line).
+    pub fn opened(&self) -> String {
+        match self.local_addr() {
+            Some(a) => format!("osc input listening on udp://{a}"),
+            None => "osc input listening".into(),
+        }
+    }
+
+    /// Receives until `stop` is set; returns what it received.
+    pub fn run(mut self, clock: &dyn Clock, stop: &AtomicBool, sink: &mut dyn InputSink) -> String {
+        let stats = OscStats::default();
+        let mut batch = Vec::new();
+        run(&self.socket, &self.mapping, stop, &stats, &mut |recv, f| {
+            let t = clock.now_s();
+            let source = f.source_time_s();
+            batch.clear();
+            for m in f.markers() {
+                if let Some(k) = self.index.resolve(&m.name) {
+                    batch.push(MarkerSample {
+                        marker: k,
+                        time_s: t,
+                        source_time_s: source.unwrap_or(t),
+                        position_m: m.position_m,
+                        occluded: m.occluded,
+                    });
+                }
+            }
+            let frame = InputFrame {
+                time_s: t,
+                receive_unix_s: recv,
+                source_time_s: source,
+                frame: f.frame,
+                samples: &batch,
+                names: self.index.names(),
+            };
+            if !sink.frame(&frame) {
+                stop.store(true, Ordering::Relaxed);
+            }
+        });
+        stats.to_string()
+    }
 }
 
 /// Receives on `socket` until `stop` is set; calls `on_frame(receive_unix_s, frame)` for
@@ -26,7 +124,7 @@ pub fn run(
     on_frame: &mut dyn FnMut(f64, &OscFrame),
 ) {
     let mut frame = OscFrame::default();
-    super::udp_loop(
+    super::udp::udp_loop(
         socket,
         stop,
         &mut |now, bytes| {

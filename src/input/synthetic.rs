@@ -2,12 +2,13 @@
 //! as markers with noise and occlusion gaps whose truth is known. The demo plays it live;
 //! tests and the gap-filling benchmark read it frame by frame.
 
-use super::SourceCounters;
+use super::config::SyntheticInputConfig;
+use super::{play_paced, InputError, InputFrame, InputSink};
+use crate::character::body::BodyMotion;
 use crate::character::demo::Motion;
 use crate::character::procedural::{skin_pose, Character};
-use crate::daemon::clock::Clock;
 use crate::markers::MarkerSample;
-use crossbeam_channel::Sender;
+use crate::runtime::clock::Clock;
 use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -114,6 +115,10 @@ impl SyntheticSession {
         &self.ch
     }
 
+    pub fn motion(&self) -> Motion {
+        self.motion
+    }
+
     pub fn params(&self) -> &SyntheticParams {
         &self.params
     }
@@ -161,31 +166,95 @@ impl SyntheticSession {
     }
 }
 
-/// Plays a session in real time on `clock` from `start_s`, sending samples into `tx`
-/// until it ends (or forever with `looping`), `stop` is set, or the receiver is gone.
-/// Runs on the calling thread.
-pub fn play(
-    mut session: SyntheticSession,
-    clock: &dyn Clock,
-    start_s: f64,
+/// An opened synthetic input: a session of the stage's procedural character.
+pub struct SyntheticInput {
+    session: SyntheticSession,
     looping: bool,
-    tx: &Sender<MarkerSample>,
-    stop: &AtomicBool,
-    counters: &SourceCounters,
-) {
-    let frames = session.frames().max(1);
-    let period = 1.0 / session.params.rate_hz;
-    super::play_paced(
-        clock,
-        start_s,
-        period,
-        frames,
-        looping,
-        tx,
-        stop,
-        counters,
-        &mut |n, t, batch| session.frame(n % frames, t, batch),
-    );
+}
+
+impl SyntheticInput {
+    /// A session of `character` as `cfg` describes it.
+    pub fn open(
+        cfg: &SyntheticInputConfig,
+        character: Option<&Arc<Character>>,
+    ) -> Result<Self, InputError> {
+        let ch = character.ok_or(InputError::NeedsProcedural)?;
+        let motion = match (ch.name.as_str(), cfg.motion.as_deref()) {
+            ("body", Some("reach")) => Motion::Body(BodyMotion::Reach),
+            ("body", _) => Motion::Body(BodyMotion::Walk),
+            _ => Motion::FingerPlay,
+        };
+        let session = SyntheticSession::new(
+            Arc::clone(ch),
+            motion,
+            SyntheticParams {
+                rate_hz: cfg.rate_hz,
+                duration_secs: cfg.session_secs,
+                noise_m: cfg.noise_mm * 1e-3,
+                gap_fraction: cfg.gap_percent / 100.0,
+                seed: cfg.seed,
+                ..SyntheticParams::default()
+            },
+        );
+        Ok(Self {
+            session,
+            looping: cfg.looping,
+        })
+    }
+
+    /// `synthetic input: the CHARACTER's MOTION, N s at R Hz[, looping]`.
+    pub fn opened(&self) -> String {
+        let p = self.session.params();
+        format!(
+            "synthetic input: the {}'s {}, {} s at {} Hz{}",
+            self.session.character().name,
+            self.session.motion().name(),
+            p.duration_secs,
+            p.rate_hz,
+            if self.looping { ", looping" } else { "" }
+        )
+    }
+
+    /// Seconds from the first frame sent to the last (`None` when looping).
+    pub fn duration_s(&self) -> Option<f64> {
+        (!self.looping).then(|| self.session.params().duration_secs)
+    }
+
+    /// Plays the session in real time on `clock` from `start_s` to its end (forever
+    /// when looping) or until `stop` is set.
+    pub fn run(
+        mut self,
+        clock: &dyn Clock,
+        start_s: f64,
+        stop: &AtomicBool,
+        sink: &mut dyn InputSink,
+    ) -> String {
+        let frames = self.session.frames().max(1);
+        let period = 1.0 / self.session.params().rate_hz;
+        let names: Vec<String> = self
+            .session
+            .character()
+            .markers
+            .iter()
+            .map(|m| m.name.clone())
+            .collect();
+        let mut batch = Vec::new();
+        let mut sent = 0usize;
+        play_paced(clock, start_s, period, frames, self.looping, stop, &mut |n, t| {
+            batch.clear();
+            self.session.frame(n % frames, t, &mut batch);
+            sent += 1;
+            sink.frame(&InputFrame {
+                time_s: t,
+                receive_unix_s: clock.unix_s(t),
+                source_time_s: batch.first().map(|s| s.source_time_s),
+                frame: Some(n as i64),
+                samples: &batch,
+                names: &names,
+            })
+        });
+        format!("{sent} synthetic frames played")
+    }
 }
 
 #[cfg(test)]

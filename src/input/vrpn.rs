@@ -13,6 +13,14 @@
 //!
 //! The codec is [`crate::protocol::vrpn`]; this module owns the socket.
 
+use super::config::{endpoint_of, VrpnInputConfig, VRPN_SCHEMES};
+use super::{InputError, InputFrame, InputSink};
+use crate::markers::index::MarkerIndex;
+use crate::markers::MarkerSample;
+use crate::protocol::url::{Endpoint, VrpnMode};
+use crate::runtime::clock::Clock;
+use crate::runtime::net::is_wait;
+use std::collections::{BTreeMap, HashMap};
 use crate::protocol::vrpn::{
     cookie, decode_message, description_payload, encode_connection_request, encode_message,
     parse_pos_quat, udp_description, Message, Names, PosQuat, StreamReader, VrpnError, PING, PONG,
@@ -22,18 +30,6 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
-
-/// VRPN servers' usual port (TCP and UDP).
-pub const DEFAULT_PORT: u16 = 3883;
-
-/// How a client reaches a VRPN server.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum VrpnMode {
-    /// `DEVICE@tcp://HOST:PORT`: the client connects; everything over TCP.
-    Tcp,
-    /// `DEVICE@HOST[:PORT]`: the server calls back; reports over UDP.
-    Udp,
-}
 
 /// What a VRPN input has seen (monotonic).
 #[derive(Debug, Default)]
@@ -230,7 +226,7 @@ fn session(
                     stats.received(n);
                     got_datagram = Some(n);
                 }
-                Err(e) if super::is_wait(&e) => {}
+                Err(e) if is_wait(&e) => {}
                 // ICMP from an earlier send and the like: the datagram is lost.
                 Err(e) => tracing::debug!(error = %e, "vrpn: udp receive"),
             }
@@ -259,7 +255,7 @@ fn session(
                     })
                     .map_err(invalid)?;
             }
-            Err(e) if super::is_wait(&e) => {}
+            Err(e) if is_wait(&e) => {}
             Err(e) => return Err(e),
         }
         if let Some(n) = got_datagram {
@@ -391,7 +387,7 @@ fn call_back(
                     sock.set_nonblocking(false)?;
                     return Ok(Some((sock, udp)));
                 }
-                Err(e) if super::is_wait(&e) => std::thread::sleep(Duration::from_millis(10)),
+                Err(e) if is_wait(&e) => std::thread::sleep(Duration::from_millis(10)),
                 Err(e) => return Err(e),
             }
         }
@@ -402,6 +398,113 @@ fn call_back(
 /// The marker name of a device's sensor.
 pub fn sensor_name(device: &str, sensor: i32) -> String {
     format!("{device}_{sensor}")
+}
+
+/// Most sensors whose marker index a VRPN input remembers (sensor numbers come from the
+/// network; beyond this many, names are resolved report by report).
+const MAX_CACHED_SENSORS: usize = 1024;
+
+/// An opened VRPN input: a server's tracker device and how sensors name markers.
+pub struct VrpnInput {
+    device: String,
+    addr: SocketAddr,
+    mode: VrpnMode,
+    sensors: BTreeMap<String, String>,
+    index: MarkerIndex,
+}
+
+impl VrpnInput {
+    /// Reads `cfg.url` (the connection is made when it runs, and made again after a
+    /// drop).
+    pub fn open(cfg: &VrpnInputConfig, index: MarkerIndex) -> Result<Self, InputError> {
+        let endpoint = endpoint_of(&cfg.url, VRPN_SCHEMES).map_err(|source| InputError::Url {
+            url: cfg.url.clone(),
+            source,
+        })?;
+        let Endpoint::Vrpn { device, addr, mode } = endpoint else {
+            unreachable!("endpoint_of checked the scheme")
+        };
+        Ok(Self {
+            device,
+            addr,
+            mode,
+            sensors: cfg.sensors.clone(),
+            index,
+        })
+    }
+
+    /// `vrpn input connecting to ADDR for DEVICE (...)`.
+    pub fn opened(&self) -> String {
+        let (addr, device) = (self.addr, &self.device);
+        match self.mode {
+            VrpnMode::Tcp => {
+                format!("vrpn input connecting to {addr} for {device} (reconnects by itself)")
+            }
+            VrpnMode::Udp => format!(
+                "vrpn input asking {addr} (UDP) to call back for {device} (asks again after a drop)"
+            ),
+        }
+    }
+
+    /// The marker index of a sensor: its name from the config's `sensors`, or
+    /// `DEVICE_SENSOR`.
+    fn marker_of(&mut self, sensor: i32) -> Option<u32> {
+        let name = self
+            .sensors
+            .get(&sensor.to_string())
+            .cloned()
+            .unwrap_or_else(|| sensor_name(&self.device, sensor));
+        self.index.resolve(&name)
+    }
+
+    /// Reads reports until `stop` is set; returns what it received.
+    pub fn run(mut self, clock: &dyn Clock, stop: &AtomicBool, sink: &mut dyn InputSink) -> String {
+        let stats = VrpnStats::default();
+        let (mode, addr, device) = (self.mode, self.addr, self.device.clone());
+        let mut by_sensor: HashMap<i32, Option<u32>> = HashMap::new();
+        run_mode(mode, addr, &device, stop, &stats, &mut |recv, source, r| {
+            let t = clock.now_s();
+            let k = match by_sensor.get(&r.sensor) {
+                Some(k) => *k,
+                None => {
+                    let k = self.marker_of(r.sensor);
+                    if by_sensor.len() < MAX_CACHED_SENSORS {
+                        by_sensor.insert(r.sensor, k);
+                    }
+                    k
+                }
+            };
+            let sample = k.map(|marker| MarkerSample {
+                marker,
+                time_s: t,
+                source_time_s: source,
+                position_m: r.position,
+                occluded: !r.position.is_finite(),
+            });
+            let frame = InputFrame {
+                time_s: t,
+                receive_unix_s: recv,
+                source_time_s: Some(source),
+                frame: None,
+                samples: sample.as_slice(),
+                names: self.index.names(),
+            };
+            if !sink.frame(&frame) {
+                stop.store(true, Ordering::Relaxed);
+            }
+        });
+        format!(
+            "{} connections, {} messages, {} bytes, {} reports, {} pings answered, {} errors, {} datagrams ({} bad)",
+            stats.connections.load(Ordering::Relaxed),
+            stats.messages.load(Ordering::Relaxed),
+            stats.bytes.load(Ordering::Relaxed),
+            stats.reports.load(Ordering::Relaxed),
+            stats.pings_answered.load(Ordering::Relaxed),
+            stats.errors.load(Ordering::Relaxed),
+            stats.datagrams.load(Ordering::Relaxed),
+            stats.bad_datagrams.load(Ordering::Relaxed)
+        )
+    }
 }
 
 #[cfg(test)]

@@ -78,12 +78,13 @@ impl BufferConfig {
     }
 
     /// Every problem with these settings (empty when valid), each naming its key.
-    pub fn problems(&self) -> Vec<String> {
+    pub fn problems(&self) -> Vec<(String, String)> {
         let mut out = Vec::new();
         let mut positive = |name: &str, v: f64| {
             if !(v.is_finite() && v > 0.0) {
-                out.push(format!(
-                    "buffer.{name} must be a positive number of seconds or metres, got {v}"
+                out.push((
+                    name.to_owned(),
+                    format!("must be a positive number of seconds or metres, got {v}"),
                 ));
             }
         };
@@ -94,19 +95,19 @@ impl BufferConfig {
         positive("gate_floor_m", self.gate_floor_m);
         positive("gate_max_accel_m_s2", self.gate_max_accel_m_s2);
         if !(self.rigid_after_secs.is_finite() && self.rigid_after_secs >= 0.0) {
-            out.push(format!(
-                "buffer.rigid_after_secs must be zero or more, got {}",
-                self.rigid_after_secs
+            out.push((
+                "rigid_after_secs".into(),
+                format!("must be zero or more, got {}", self.rigid_after_secs),
             ));
         }
         if !(2..=4096).contains(&self.history_len) {
-            out.push(format!(
-                "buffer.history_len must be between 2 and 4096, got {}",
-                self.history_len
+            out.push((
+                "history_len".into(),
+                format!("must be between 2 and 4096, got {}", self.history_len),
             ));
         }
         if self.reacquire_samples == 0 {
-            out.push("buffer.reacquire_samples must be at least 1".into());
+            out.push(("reacquire_samples".into(), "must be at least 1".into()));
         }
         out
     }

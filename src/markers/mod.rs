@@ -1,9 +1,11 @@
 //! Markers between the inputs and the solver: [`MarkerSample`] (what an input sends, one
 //! marker at one instant), [`MarkerFrame`] (what the solver consumes each tick, every
 //! marker with a position and a [`FillState`]), and the [`buffer::MarkerBuffer`] that
-//! turns the first into the second with gap filling.
+//! turns the first into the second with gap filling; [`index::MarkerIndex`] finds a
+//! marker by the name an input gives it.
 
 pub mod buffer;
+pub mod index;
 
 use glam::DVec3;
 

@@ -1,4 +1,9 @@
-//! Sinks that read published frames: the vertex stream server and the Rerun recording.
+//! Sinks that read published frames: the in-process frame itself ([`frame`]), what
+//! every sink knows of the character ([`scene`]), the vertex stream server and the Rerun
+//! recording, and their config sections ([`config`]).
 
+pub mod config;
+pub mod frame;
 pub mod rerun_sink;
+pub mod scene;
 pub mod stream;

@@ -33,10 +33,11 @@
 //!
 //! World frame: metres, Y up (`ViewCoordinates::RIGHT_HAND_Y_UP` on `character`).
 
-use crate::daemon::slot::LatestSlot;
+use super::frame::DeformedFrame;
+use super::scene::Scene;
 use crate::input::SourceCounters;
 use crate::markers::FillState;
-use crate::protocol::vertex_stream::DeformedFrame;
+use crate::runtime::slot::LatestSlot;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -71,6 +72,18 @@ impl std::str::FromStr for RerunTarget {
     }
 }
 
+impl std::fmt::Display for RerunTarget {
+    /// The form [`str::parse`] reads back: `off`, `spawn`, `connect=ADDR`, `save=PATH`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Off => f.write_str("off"),
+            Self::Spawn => f.write_str("spawn"),
+            Self::Connect(a) => write!(f, "connect={a}"),
+            Self::Save(p) => write!(f, "save={}", p.display()),
+        }
+    }
+}
+
 /// What the sink logs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RerunOptions {
@@ -93,47 +106,6 @@ pub struct InputSeries {
 
 /// Seconds between points of the input series.
 const INPUT_WINDOW_S: f64 = 0.25;
-
-/// The parts of a character that do not change per frame.
-#[derive(Clone, Debug)]
-pub struct RerunScene {
-    pub character: String,
-    pub triangles: Vec<[u32; 3]>,
-    pub marker_names: Vec<String>,
-    /// Parent of each joint (`None`: root).
-    pub joint_parents: Vec<Option<usize>>,
-    /// Volume enclosed by the mesh at rest, m³ (for the volume error series; 0: not
-    /// logged).
-    pub rest_volume_m3: f64,
-    /// The control mesh's edges (vertex pairs, each once), for its wireframe.
-    pub control_edges: Vec<[u32; 2]>,
-    /// The harmonic method's correspondences, `(vertex, joint)` (empty with ARAP).
-    pub tied: Vec<(u32, u32)>,
-}
-
-impl RerunScene {
-    /// The scene of a bound character.
-    pub fn of_rig(rig: &crate::rig::bind::Rig, character: &str) -> Self {
-        Self {
-            character: character.to_owned(),
-            triangles: rig.triangles.clone(),
-            marker_names: rig.marker_names.clone(),
-            joint_parents: rig.skeleton.joints.iter().map(|j| j.parent).collect(),
-            rest_volume_m3: crate::character::procedural::mesh_volume(
-                &rig.mesh_rest,
-                &rig.triangles,
-            ),
-            control_edges: tet_edges(&rig.control.tets),
-            tied: Vec::new(),
-        }
-    }
-
-    /// The same, with the harmonic method's correspondences (`Solver::harmonic_tied`).
-    pub fn with_tied(mut self, tied: &[(u32, u32)]) -> Self {
-        self.tied = tied.to_vec();
-        self
-    }
-}
 
 /// Colour of a rotation-field angle: blue at 0°, green at 45°, red from 90°.
 fn field_color(angle_deg: f32) -> ::rerun::Color {
@@ -163,22 +135,6 @@ fn joint_color(j: u32) -> ::rerun::Color {
     };
     let c = |v: f32| (50.0 + 200.0 * v) as u8;
     ::rerun::Color::from_rgb(c(r), c(g), c(b))
-}
-
-/// The edges of tets, each once, as sorted vertex pairs in ascending order.
-pub fn tet_edges(tets: &[[u32; 4]]) -> Vec<[u32; 2]> {
-    let mut edges: Vec<[u32; 2]> = tets
-        .iter()
-        .flat_map(|t| {
-            [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)].map(|(i, j)| {
-                let (a, b) = (t[i], t[j]);
-                [a.min(b), a.max(b)]
-            })
-        })
-        .collect();
-    edges.sort_unstable();
-    edges.dedup();
-    edges
 }
 
 /// The default layout: the 3D view (mesh, markers, skeleton) on the left; on the right,
@@ -235,6 +191,19 @@ pub enum RerunError {
 #[derive(Debug, Default)]
 pub struct RerunStats {
     pub frames_logged: AtomicU64,
+    /// Log calls the SDK refused (the first is logged as a warning, the rest counted).
+    pub log_errors: AtomicU64,
+}
+
+impl RerunStats {
+    /// Counts a refused log call; the first one is logged.
+    fn check(&self, result: ::rerun::RecordingStreamResult<()>) {
+        if let Err(e) = result {
+            if self.log_errors.fetch_add(1, Ordering::Relaxed) == 0 {
+                tracing::warn!("rerun: a log call failed (later failures are only counted): {e}");
+            }
+        }
+    }
 }
 
 fn fill_color(s: FillState) -> [u8; 4] {
@@ -271,7 +240,7 @@ fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStrea
 /// the last one and flushes. Returns `None` for [`RerunTarget::Off`].
 pub fn start(
     opts: &RerunOptions,
-    scene: RerunScene,
+    scene: Scene,
     inputs: Vec<InputSeries>,
     slot: Arc<LatestSlot<DeformedFrame>>,
     stop: Arc<AtomicBool>,
@@ -292,17 +261,18 @@ pub fn start(
         .name("rerun".into())
         .spawn(move || {
             lower_thread_priority();
+            // `start` waits for this answer, so its receiver is there to take it.
             let rec = match open(&opts.target, &scene.character) {
                 Ok(rec) => {
-                    let _ = opened_tx.send(Ok(()));
+                    opened_tx.send(Ok(())).expect("start waits for the answer");
                     rec
                 }
                 Err(e) => {
-                    let _ = opened_tx.send(Err(e));
+                    opened_tx.send(Err(e)).expect("start waits for the answer");
                     return;
                 }
             };
-            let mut logger = Logger::new(rec, scene, &opts, inputs);
+            let mut logger = Logger::new(rec, scene, &opts, inputs, Arc::clone(&stats));
             loop {
                 let stopping = stop.load(Ordering::Relaxed);
                 match slot.take() {
@@ -336,15 +306,18 @@ fn lower_thread_priority() {
     // SAFETY: setpriority on the calling thread's id has no memory effects.
     unsafe {
         let tid = libc::gettid();
-        let _ = libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, SINK_NICE);
+        if libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, SINK_NICE) != 0 {
+            tracing::debug!("rerun: the sink's priority stays as it was (setpriority refused)");
+        }
     }
 }
 
-/// Turns frames into Rerun log calls. Logging errors are the SDK's to report (it logs
-/// and drops); this side has nothing to recover.
+/// Turns frames into Rerun log calls. A refused call is counted in [`RerunStats`] (the
+/// first one logged); there is nothing to recover.
 struct Logger {
     rec: ::rerun::RecordingStream,
-    scene: RerunScene,
+    stats: Arc<RerunStats>,
+    scene: Scene,
     mesh_every: u64,
     control_mesh: bool,
     harmonic_field: bool,
@@ -369,7 +342,7 @@ struct InputWindow {
 
 impl InputWindow {
     /// Logs the window's rate and longest gap once it spans [`INPUT_WINDOW_S`].
-    fn log(&mut self, rec: &::rerun::RecordingStream, t_s: f64) {
+    fn log(&mut self, rec: &::rerun::RecordingStream, stats: &RerunStats, t_s: f64) {
         let c = &self.series.counters;
         let n = c.frames.load(Ordering::Relaxed);
         let start_s = *self.start_s.get_or_insert_with(|| {
@@ -391,14 +364,14 @@ impl InputWindow {
         // thread's view, to a solver tick) when the source has gone quiet.
         let gap_s = c.take_longest_interval_s().max(t_s - self.changed_s);
         let base = format!("inputs/{}", self.series.name);
-        let _ = rec.log(
+        stats.check(rec.log(
             format!("{base}/packet_rate_hz"),
             &::rerun::Scalars::single(rate_hz),
-        );
-        let _ = rec.log(
+        ));
+        stats.check(rec.log(
             format!("{base}/gap_ms"),
             &::rerun::Scalars::single(gap_s * 1e3),
-        );
+        ));
         self.start_s = Some(t_s);
         self.start_frames = n;
     }
@@ -407,13 +380,14 @@ impl InputWindow {
 impl Logger {
     fn new(
         rec: ::rerun::RecordingStream,
-        scene: RerunScene,
+        scene: Scene,
         opts: &RerunOptions,
         inputs: Vec<InputSeries>,
+        stats: Arc<RerunStats>,
     ) -> Self {
-        let _ = rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP());
+        stats.check(rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP()));
         // The triangles never change: logged once, static; frames carry positions only.
-        let _ = rec.log_static(
+        stats.check(rec.log_static(
             "character/mesh",
             &::rerun::Mesh3D::update_fields().with_triangle_indices(
                 scene
@@ -421,14 +395,14 @@ impl Logger {
                     .iter()
                     .map(|t| ::rerun::components::TriangleIndices::from(*t)),
             ),
-        );
+        ));
         if opts.harmonic_field && !scene.tied.is_empty() {
-            let _ = rec.log_static(
+            stats.check(rec.log_static(
                 "character/correspondences",
                 &::rerun::Points3D::update_fields()
                     .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
                     .with_radii([::rerun::Radius::new_ui_points(2.0)]),
-            );
+            ));
         }
         let harmonic_field = opts.harmonic_field && !scene.tied.is_empty();
         let labels = scene
@@ -439,6 +413,7 @@ impl Logger {
         Self {
             labels,
             rec,
+            stats,
             scene,
             mesh_every: opts.mesh_every,
             control_mesh: opts.control_mesh,
@@ -461,6 +436,7 @@ impl Logger {
 
     fn log(&mut self, f: &DeformedFrame) {
         let rec = &self.rec;
+        let stats = &*self.stats;
         rec.set_time_sequence("frame", f.frame as i64);
         let t0 = *self.first_time_s.get_or_insert(f.publish_time_s);
         rec.set_duration_secs("time", (f.publish_time_s - t0).max(0.0));
@@ -472,9 +448,9 @@ impl Logger {
             if field {
                 mesh = mesh.with_vertex_colors(f.field_deg.iter().map(|a| field_color(*a)));
             }
-            let _ = rec.log("character/mesh", &mesh);
+            stats.check(rec.log("character/mesh", &mesh));
             if field {
-                let _ = rec.log(
+                stats.check(rec.log(
                     "character/correspondences",
                     &::rerun::Points3D::update_fields().with_positions(
                         self.scene
@@ -483,11 +459,11 @@ impl Logger {
                             .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
                             .map(|p| p.to_array()),
                     ),
-                );
+                ));
             }
             if self.control_mesh && !f.control_m.is_empty() {
                 let p = &f.control_m;
-                let _ = rec.log(
+                stats.check(rec.log(
                     "character/control_mesh",
                     &::rerun::LineStrips3D::new(
                         self.scene
@@ -497,16 +473,16 @@ impl Logger {
                     )
                     .with_radii([::rerun::Radius::new_ui_points(0.5)])
                     .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
-                );
+                ));
             }
         }
         for w in &mut self.inputs {
-            w.log(rec, f.publish_time_s);
+            w.log(rec, stats, f.publish_time_s);
         }
         let present: Vec<usize> = (0..f.markers_m.len())
             .filter(|&k| f.markers_m[k].is_finite())
             .collect();
-        let _ = rec.log(
+        stats.check(rec.log(
             "character/markers",
             &::rerun::Points3D::new(present.iter().map(|&k| f.markers_m[k].to_array()))
                 .with_colors(present.iter().map(|&k| {
@@ -515,7 +491,7 @@ impl Logger {
                 }))
                 .with_labels(present.iter().map(|&k| self.labels[k].clone()))
                 .with_radii([0.006f32]),
-        );
+        ));
         if !f.joints_m.is_empty() {
             // One strip per bone, red where its parent joint exceeds its limits by more
             // than 0.5° (the quality target) on the solved mesh.
@@ -533,11 +509,11 @@ impl Logger {
                     });
                 }
             }
-            let _ = rec.log(
+            stats.check(rec.log(
                 "character/skeleton",
                 &::rerun::LineStrips3D::new(self.strips.iter().cloned())
                     .with_colors(self.strip_colors.iter().copied()),
-            );
+            ));
         }
         if self.scene.rest_volume_m3 != 0.0 {
             // Relative change of the enclosed volume.
@@ -545,7 +521,7 @@ impl Logger {
                 f.vertices_m[i as usize].as_dvec3()
             });
             let err = (v - self.scene.rest_volume_m3).abs() / self.scene.rest_volume_m3.abs();
-            let _ = rec.log("solver/volume_error", &::rerun::Scalars::single(err));
+            stats.check(rec.log("solver/volume_error", &::rerun::Scalars::single(err)));
         }
         let s = &f.status;
         for (name, v) in [
@@ -567,16 +543,16 @@ impl Logger {
                 f64::from(f.untangle_projections),
             ),
         ] {
-            let _ = rec.log(name, &::rerun::Scalars::single(v));
+            stats.check(rec.log(name, &::rerun::Scalars::single(v)));
         }
         // The criterion per iteration of this frame, on the `iteration` timeline (with
         // the frame's own `frame` and `time`).
         for (i, c) in f.convergence.iter().enumerate() {
             rec.set_time_sequence("iteration", i as i64);
-            let _ = rec.log(
+            stats.check(rec.log(
                 "solver/convergence",
                 &::rerun::Scalars::single(f64::from(*c)),
-            );
+            ));
         }
         rec.disable_timeline("iteration");
         let mut counts = [0u32; 4];
@@ -592,10 +568,10 @@ impl Logger {
         .iter()
         .zip(counts)
         {
-            let _ = rec.log(
+            stats.check(rec.log(
                 format!("markers/{}", state.name()),
                 &::rerun::Scalars::single(f64::from(n)),
-            );
+            ));
         }
     }
 

@@ -8,10 +8,9 @@
 //! `watch` channel that every client task follows, so a slow client skips to the newest frame (the skipped frames
 //! are counted) and never holds up the loop or the other clients.
 
-use crate::daemon::slot::LatestSlot;
-use crate::protocol::vertex_stream::{
-    encode_frame, encode_goodbye, encode_topology, DeformedFrame, Topology,
-};
+use super::frame::DeformedFrame;
+use crate::protocol::vertex_stream::{encode_frame, encode_goodbye, encode_topology, Topology};
+use crate::runtime::slot::LatestSlot;
 use futures_util::SinkExt;
 use std::io;
 use std::net::SocketAddr;
@@ -212,7 +211,7 @@ async fn serve(
             tokio::select! {
                 f = slot.next() => {
                     let mut bytes = Vec::with_capacity(64 + 12 * f.vertices_m.len());
-                    encode_frame(&f, &mut bytes);
+                    encode_frame(&f.wire(), &mut bytes);
                     let e = Encoded { frame: f.frame, bytes };
                     drop(f);
                     frames_tx.send_replace(Some(Arc::new(e)));

@@ -4,5 +4,6 @@
 pub mod glove;
 pub mod natnet;
 pub mod osc;
+pub mod url;
 pub mod vertex_stream;
 pub mod vrpn;

@@ -553,6 +553,38 @@ pub fn decode(b: &[u8], v: Version) -> Result<Message, NatNetError> {
     })
 }
 
+/// An example NatNet 3.0 frame of data: one marker set `Body` and `n` labelled markers
+/// (asset 1) at fixed positions, for tests and the codec benchmark.
+pub fn example_frame(n: usize) -> Vec<u8> {
+    use glam::Vec3;
+    let p = |k: usize| {
+        Vec3::new(
+            k as f32 * 0.03,
+            (k * 3 + 1) as f32 * 0.01,
+            (k * 3 + 2) as f32 * 0.01,
+        )
+    };
+    encode_frame(&MocapFrame {
+        frame: 1234,
+        marker_sets: vec![("Body".into(), (0..n).map(p).collect())],
+        labeled: (0..n)
+            .map(|k| LabeledMarker {
+                asset_id: 1,
+                member_id: k as u16 + 1,
+                position_m: p(k),
+                size_m: 0.014,
+                occluded: false,
+                point_cloud_solved: true,
+                model_solved: false,
+                residual_m: 0.0002,
+            })
+            .collect(),
+        timestamp_s: 12.5,
+        ..MocapFrame::default()
+    })
+    .expect("a small frame")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

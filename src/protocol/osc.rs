@@ -202,6 +202,16 @@ fn match_pattern<'a>(pattern: &str, addr: &'a str) -> Option<&'a str> {
 /// Seconds between the NTP epoch (1900) and the Unix epoch (1970).
 pub const NTP_UNIX_OFFSET_S: f64 = 2_208_988_800.0;
 
+/// The NTP time tag `(seconds since 1900, 2^-32 fractions)` of a Unix time (the inverse
+/// of [`OscFrame::source_time_s`]'s conversion, to 2^-32 s).
+pub fn time_tag_of_unix(unix_s: f64) -> (u32, u32) {
+    let secs = unix_s.floor();
+    (
+        (secs + NTP_UNIX_OFFSET_S) as u64 as u32,
+        ((unix_s - secs) * 4_294_967_296.0) as u32,
+    )
+}
+
 impl OscFrame {
     /// The sender's time of this packet, seconds: the bundle time tag as Unix time, else
     /// VMC's `/VMC/Ext/T`; `None` when the packet carries no time.

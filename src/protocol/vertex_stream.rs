@@ -1,12 +1,12 @@
 //! The vertex stream's wire format (version 1), as pure functions over bytes: encode a
-//! [`Topology`], a [`DeformedFrame`] or a goodbye into a caller's buffer, and decode any
-//! of them back. No I/O here; `protocols/vertex-stream.md` is the specification and
+//! [`Topology`], a frame (a [`FrameView`] of whatever holds it) or a goodbye into a
+//! caller's buffer, and decode any of them back (a frame as a [`WireFrame`]). No I/O and
+//! no solver or marker types here; `protocols/vertex-stream.md` is the specification and
 //! `protocols/vertex_stream_client.py` the reference client.
 //!
 //! Every message is a 12-byte header followed by its payload, all little-endian:
 //! `"RGLS"`, `u16` version, `u16` kind, `u32` payload length.
 
-use crate::markers::FillState;
 use glam::Vec3;
 
 /// The four bytes every message starts with.
@@ -23,6 +23,10 @@ pub const MAX_PAYLOAD_LEN: u32 = 64 << 20;
 pub const KIND_TOPOLOGY: u16 = 1;
 pub const KIND_FRAME: u16 = 2;
 pub const KIND_GOODBYE: u16 = 3;
+
+/// Marker state codes on the wire: 0 measured, 1 predicted, 2 rigid-filled, 3 held
+/// (`protocols/vertex-stream.md`); a frame with a larger code is malformed.
+pub const MAX_MARKER_STATE_CODE: u8 = 3;
 
 /// What a client gets first: everything that does not change from frame to frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -81,9 +85,9 @@ pub struct FrameStatus {
     pub marker_residual_max_mm: f32,
 }
 
-/// One solved frame: what the loop publishes to every sink.
-#[derive(Clone, Debug, PartialEq)]
-pub struct DeformedFrame {
+/// The parts of a solved frame that go on the wire, borrowed from whatever holds them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameView<'a> {
     /// Frame number, counting solver ticks from 0.
     pub frame: u64,
     /// The markers' source time, seconds.
@@ -91,67 +95,67 @@ pub struct DeformedFrame {
     /// When the frame was published, seconds since the Unix epoch.
     pub publish_time_s: f64,
     pub status: FrameStatus,
-    /// Fill state of each marker.
-    pub marker_states: Vec<FillState>,
+    /// State code of each marker (up to [`MAX_MARKER_STATE_CODE`]).
+    pub marker_states: &'a [u8],
+    /// Each marker's position as the solver used it, metres.
+    pub markers_m: &'a [Vec3],
+    /// Full-resolution vertices, metres, world frame.
+    pub vertices_m: &'a [Vec3],
+}
+
+/// A decoded frame: what a client gets.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WireFrame {
+    /// Frame number, counting solver ticks from 0.
+    pub frame: u64,
+    /// The markers' source time, seconds.
+    pub source_time_s: f64,
+    /// When the frame was published, seconds since the Unix epoch.
+    pub publish_time_s: f64,
+    pub status: FrameStatus,
+    /// State code of each marker (0 measured, 1 predicted, 2 rigid-filled, 3 held).
+    pub marker_states: Vec<u8>,
     /// Each marker's position as the solver used it, metres.
     pub markers_m: Vec<Vec3>,
     /// Full-resolution vertices, metres, world frame.
     pub vertices_m: Vec<Vec3>,
-    /// The fitted skeleton's joint positions, metres (for in-process sinks such as Rerun;
-    /// not on the wire, empty when decoded).
-    pub joints_m: Vec<Vec3>,
-    /// The solver's convergence criterion after each iteration of this frame (in-process
-    /// only, like `joints_m`).
-    pub convergence: Vec<f32>,
-    /// Per joint, the excess over its limits on the solved mesh, degrees (in-process only).
-    pub joint_limit_excess_deg: Vec<f32>,
-    /// The deformed control mesh's vertices, metres (in-process only; empty unless the
-    /// pipeline was asked for them).
-    pub control_m: Vec<Vec3>,
-    /// Harmonic method: per vertex, the rotation field's angle from the root segment,
-    /// degrees (in-process only; empty unless the pipeline was asked for it).
-    pub field_deg: Vec<f32>,
-    /// Volume projections the solver made to unfold control tets this frame (in-process
-    /// only; 0 on most frames; see [`crate::rig::tetmesh::Untangler`]).
-    pub untangle_projections: u32,
 }
 
-impl DeformedFrame {
-    /// A frame with room for `markers` markers and `vertices` vertices (all zero).
-    pub fn with_sizes(markers: usize, vertices: usize) -> Self {
-        Self {
-            frame: 0,
-            source_time_s: 0.0,
-            publish_time_s: 0.0,
-            status: FrameStatus {
-                iterations: 0,
-                stop: StopCode::Converged,
-                solve_ms: 0.0,
-                gc_ms: 0.0,
-                rrms: 0.0,
-                bone_length_error: 0.0,
-                joint_limit_violation_deg: 0.0,
-                marker_residual_rms_mm: 0.0,
-                marker_residual_max_mm: 0.0,
-            },
-            marker_states: vec![FillState::Held; markers],
-            markers_m: vec![Vec3::ZERO; markers],
-            vertices_m: vec![Vec3::ZERO; vertices],
-            joints_m: Vec::new(),
-            convergence: Vec::with_capacity(crate::solve::frame::TRACE_LEN),
-            joint_limit_excess_deg: Vec::new(),
-            control_m: Vec::new(),
-            field_deg: Vec::new(),
-            untangle_projections: 0,
+impl WireFrame {
+    /// The frame as a view, to encode it again.
+    pub fn view(&self) -> FrameView<'_> {
+        FrameView {
+            frame: self.frame,
+            source_time_s: self.source_time_s,
+            publish_time_s: self.publish_time_s,
+            status: self.status,
+            marker_states: &self.marker_states,
+            markers_m: &self.markers_m,
+            vertices_m: &self.vertices_m,
         }
     }
+}
+
+impl FrameStatus {
+    /// A status with every figure zero (converged after no iteration).
+    pub const ZERO: FrameStatus = FrameStatus {
+        iterations: 0,
+        stop: StopCode::Converged,
+        solve_ms: 0.0,
+        gc_ms: 0.0,
+        rrms: 0.0,
+        bone_length_error: 0.0,
+        joint_limit_violation_deg: 0.0,
+        marker_residual_rms_mm: 0.0,
+        marker_residual_max_mm: 0.0,
+    };
 }
 
 /// A decoded message.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
     Topology(Topology),
-    Frame(DeformedFrame),
+    Frame(WireFrame),
     /// The server is closing the stream; the reason is for people.
     Goodbye(String),
 }
@@ -232,8 +236,9 @@ pub fn encode_topology(t: &Topology, out: &mut Vec<u8>) {
     finish(out, start);
 }
 
-/// Appends a frame message to `out` (no allocation once `out` has grown to a frame).
-pub fn encode_frame(f: &DeformedFrame, out: &mut Vec<u8>) {
+/// Appends a frame message to `out` (no allocation once `out` has grown to a frame). The
+/// marker arrays must have the same length.
+pub fn encode_frame(f: &FrameView<'_>, out: &mut Vec<u8>) {
     let start = header(out, KIND_FRAME);
     out.extend_from_slice(&f.frame.to_le_bytes());
     out.extend_from_slice(&f.source_time_s.to_le_bytes());
@@ -254,16 +259,16 @@ pub fn encode_frame(f: &DeformedFrame, out: &mut Vec<u8>) {
         put_f32(out, v);
     }
     put_u32(out, f.marker_states.len() as u32);
-    out.extend(f.marker_states.iter().map(|s| *s as u8));
+    out.extend_from_slice(f.marker_states);
     let pad = (4 - f.marker_states.len() % 4) % 4;
     out.extend(std::iter::repeat_n(0u8, pad));
-    for p in &f.markers_m {
+    for p in f.markers_m {
         for c in p.to_array() {
             put_f32(out, c);
         }
     }
     put_u32(out, f.vertices_m.len() as u32);
-    for p in &f.vertices_m {
+    for p in f.vertices_m {
         for c in p.to_array() {
             put_f32(out, c);
         }
@@ -462,7 +467,7 @@ fn decode_topology(b: &[u8]) -> Result<Topology, DecodeError> {
     })
 }
 
-fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
+fn decode_frame(b: &[u8]) -> Result<WireFrame, DecodeError> {
     let mut r = Reader::new(b, "frame");
     let frame = r.u64()?;
     let source_time_s = r.f64()?;
@@ -476,23 +481,16 @@ fn decode_frame(b: &[u8]) -> Result<DeformedFrame, DecodeError> {
     }
     let nm = r.count(13)?;
     let codes = r.take(nm, "truncated marker states")?;
-    let marker_states = codes
-        .iter()
-        .map(|c| FillState::from_code(*c))
-        .collect::<Option<Vec<_>>>()
-        .ok_or_else(|| r.err("unknown fill state"))?;
+    if codes.iter().any(|c| *c > MAX_MARKER_STATE_CODE) {
+        return Err(r.err("unknown marker state"));
+    }
+    let marker_states = codes.to_vec();
     r.take((4 - nm % 4) % 4, "truncated padding")?;
     let markers_m = r.vec3s(nm)?;
     let nv = r.count(12)?;
     let vertices_m = r.vec3s(nv)?;
     r.end()?;
-    Ok(DeformedFrame {
-        joints_m: Vec::new(),
-        convergence: Vec::new(),
-        joint_limit_excess_deg: Vec::new(),
-        control_m: Vec::new(),
-        field_deg: Vec::new(),
-        untangle_projections: 0,
+    Ok(WireFrame {
         frame,
         source_time_s,
         publish_time_s,
@@ -533,25 +531,29 @@ mod tests {
         }
     }
 
-    fn example_frame() -> DeformedFrame {
-        let mut f = DeformedFrame::with_sizes(1, 3);
-        f.frame = 7;
-        f.source_time_s = 0.5;
-        f.publish_time_s = 1.0e9;
-        f.status.iterations = 3;
-        f.status.stop = StopCode::Deadline;
-        f.status.solve_ms = 0.75;
-        f.marker_states[0] = FillState::Predicted;
-        f.markers_m[0] = Vec3::new(0.0, 1.0, 0.0);
-        f.vertices_m = vec![Vec3::X, Vec3::Y, Vec3::Z];
-        f
+    fn example_frame() -> WireFrame {
+        WireFrame {
+            frame: 7,
+            source_time_s: 0.5,
+            publish_time_s: 1.0e9,
+            status: FrameStatus {
+                iterations: 3,
+                stop: StopCode::Deadline,
+                solve_ms: 0.75,
+                ..FrameStatus::ZERO
+            },
+            // Predicted.
+            marker_states: vec![1],
+            markers_m: vec![Vec3::new(0.0, 1.0, 0.0)],
+            vertices_m: vec![Vec3::X, Vec3::Y, Vec3::Z],
+        }
     }
 
     #[test]
     fn messages_round_trip() {
         let mut b = Vec::new();
         encode_topology(&example_topology(), &mut b);
-        encode_frame(&example_frame(), &mut b);
+        encode_frame(&example_frame().view(), &mut b);
         encode_goodbye("shutting down", &mut b);
         let (m1, n1) = decode(&b).unwrap();
         assert_eq!(m1, Message::Topology(example_topology()));
@@ -579,14 +581,14 @@ mod tests {
             .map(|h| u8::from_str_radix(h, 16).unwrap())
             .collect();
         let mut b = Vec::new();
-        encode_frame(&example_frame(), &mut b);
+        encode_frame(&example_frame().view(), &mut b);
         assert_eq!(b, expected);
     }
 
     #[test]
     fn truncation_is_incomplete_not_an_error() {
         let mut b = Vec::new();
-        encode_frame(&example_frame(), &mut b);
+        encode_frame(&example_frame().view(), &mut b);
         for cut in 0..b.len() {
             assert!(
                 matches!(decode(&b[..cut]), Err(DecodeError::Incomplete { .. })),
@@ -614,7 +616,7 @@ mod tests {
         #[test]
         fn corrupted_frames_never_panic(flip in 0usize..128, value in any::<u8>()) {
             let mut b = Vec::new();
-            encode_frame(&example_frame(), &mut b);
+            encode_frame(&example_frame().view(), &mut b);
             let i = flip % b.len();
             b[i] = value;
             let _ = decode(&b);

@@ -247,56 +247,6 @@ pub struct MarkerSummary {
     pub gap_percent: f64,
 }
 
-/// How a recording's labels map onto a character's markers.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LabelMap {
-    /// Marker index of each label (`None`: not one of the character's markers).
-    pub marker_of_label: Vec<Option<u32>>,
-    /// Labels that match no marker (ignored).
-    pub unmatched_labels: Vec<String>,
-    /// Markers that no label feeds (held for the whole replay).
-    pub unfed_markers: Vec<String>,
-}
-
-/// Maps labels to markers by name: exactly, else ignoring case and a `Subject:` prefix
-/// (Vicon writes `Subject:LFHD`).
-pub fn map_labels(labels: &[String], markers: &[String]) -> LabelMap {
-    let bare = |s: &str| {
-        s.rsplit(':')
-            .next()
-            .unwrap_or(s)
-            .trim()
-            .to_ascii_lowercase()
-    };
-    let marker_of_label: Vec<Option<u32>> = labels
-        .iter()
-        .map(|l| {
-            markers
-                .iter()
-                .position(|m| m == l)
-                .or_else(|| markers.iter().position(|m| bare(m) == bare(l)))
-                .map(|k| k as u32)
-        })
-        .collect();
-    let unmatched_labels = labels
-        .iter()
-        .zip(&marker_of_label)
-        .filter(|(_, m)| m.is_none())
-        .map(|(l, _)| l.clone())
-        .collect();
-    let unfed_markers = markers
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| !marker_of_label.contains(&Some(*k as u32)))
-        .map(|(_, m)| m.clone())
-        .collect();
-    LabelMap {
-        marker_of_label,
-        unmatched_labels,
-        unfed_markers,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -323,21 +273,5 @@ mod tests {
         assert_eq!(s.gap_percent, 37.5);
         assert_eq!(s.bbox_min_m, Some([-1.0, 0.0, 0.0]));
         assert_eq!(s.bbox_max_m, Some([1.0, 2.0, 5.0]));
-    }
-
-    #[test]
-    fn labels_map_exactly_then_loosely() {
-        let labels: Vec<String> = ["Subject:LFHD", "rfhd", "C7", "extra"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        let markers: Vec<String> = ["C7", "LFHD", "RFHD", "T10"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        let m = map_labels(&labels, &markers);
-        assert_eq!(m.marker_of_label, vec![Some(1), Some(2), Some(0), None]);
-        assert_eq!(m.unmatched_labels, vec!["extra".to_string()]);
-        assert_eq!(m.unfed_markers, vec!["T10".to_string()]);
     }
 }

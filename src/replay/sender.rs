@@ -4,10 +4,10 @@
 //! dropouts and noise. Send times are measured against the file's clock (jitter).
 
 use super::recording::Recording;
-use crate::daemon::clock::Clock;
+use crate::runtime::clock::Clock;
 use crate::input::synthetic::Rng;
-use crate::input::InputUrl;
-use crate::protocol::osc::encode_native;
+use crate::protocol::osc::{encode_native, time_tag_of_unix};
+use crate::protocol::url::{Endpoint, UrlError};
 use glam::DVec3;
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 use std::net::{SocketAddr, UdpSocket};
@@ -42,24 +42,29 @@ pub enum Target {
 /// The marker set a NatNet replay sends.
 pub const NATNET_SET: &str = "replay";
 
+/// Why a URL is not somewhere a recording can be sent.
+#[derive(Debug, thiserror::Error)]
+pub enum TargetError {
+    #[error(transparent)]
+    Url(#[from] UrlError),
+    #[error("{url:?}: a recording holds markers, not glove readings: it cannot replay to glove://")]
+    Glove { url: String },
+}
+
 impl Target {
-    /// The target of a URL (`osc://`, `vmc://`, `vrpn://` or `natnet://`).
-    pub fn from_url(u: &InputUrl) -> Result<Self, String> {
-        match u {
-            InputUrl::Osc(a) => Ok(Target::Osc(*a)),
-            InputUrl::Vmc(a) => Ok(Target::Vmc(*a)),
-            InputUrl::NatNet(data, _, command) => Ok(Target::NatNet {
-                data: *data,
-                command: *command,
+    /// The target a URL names (`osc://`, `vmc://`, `vrpn://` or `natnet://`).
+    pub fn parse(url: &str) -> Result<Self, TargetError> {
+        match crate::protocol::url::parse(url)? {
+            Endpoint::Osc(a) => Ok(Target::Osc(a)),
+            Endpoint::Vmc(a) => Ok(Target::Vmc(a)),
+            Endpoint::NatNet { data, server, .. } => Ok(Target::NatNet {
+                data,
+                command: server,
             }),
-            InputUrl::Glove(_) => Err(
-                "a recording holds markers, not glove readings: it cannot replay to glove://"
-                    .into(),
-            ),
-            InputUrl::Vrpn { device, addr, .. } => Ok(Target::Vrpn {
-                device: device.clone(),
-                bind: *addr,
+            Endpoint::Glove(_) => Err(TargetError::Glove {
+                url: url.to_owned(),
             }),
+            Endpoint::Vrpn { device, addr, .. } => Ok(Target::Vrpn { device, bind: addr }),
         }
     }
 }
@@ -108,17 +113,6 @@ pub struct ReplayStats {
     pub jitter_ms_p50: f64,
     pub jitter_ms_p99: f64,
     pub jitter_ms_max: f64,
-}
-
-/// Seconds between the NTP epoch (1900) and the Unix epoch (1970), as an integer.
-const NTP_UNIX_OFFSET: u64 = 2_208_988_800;
-
-fn ntp(unix_s: f64) -> (u32, u32) {
-    let secs = unix_s.floor();
-    (
-        (secs as u64 + NTP_UNIX_OFFSET) as u32,
-        ((unix_s - secs) * 4_294_967_296.0) as u32,
-    )
 }
 
 fn encode_vmc(t_s: f64, markers: &[(&str, DVec3)]) -> Vec<u8> {
@@ -225,7 +219,7 @@ impl VrpnClient {
                         break false;
                     }
                 }
-                Err(e) => break crate::input::is_wait(&e),
+                Err(e) => break crate::runtime::net::is_wait(&e),
             }
         };
         alive && self.tcp.set_nonblocking(false).is_ok()
@@ -511,7 +505,7 @@ pub fn replay(
             markers.push((rec.labels[k].as_str(), p));
         }
         let bytes = match &target {
-            Target::Osc(_) => encode_native(n as i64, ntp(clock.unix_s(scheduled)), &markers),
+            Target::Osc(_) => encode_native(n as i64, time_tag_of_unix(clock.unix_s(scheduled)), &markers),
             Target::Vmc(_) => encode_vmc(i as f64 * period, &markers),
             Target::Vrpn { .. } => encode_vrpn(clock.unix_s(scheduled), &markers),
             Target::NatNet { .. } => encode_natnet(n, i as f64 * period, &markers)

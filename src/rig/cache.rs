@@ -17,8 +17,8 @@
 //! stale (the caller rebuilds), and decoding is limited to the payload's length, so a
 //! corrupt length field cannot make it allocate.
 
-use super::bind::Rig;
-use crate::character::file::fnv1a;
+use super::bind::{BindError, BindStage, Rig};
+use crate::character::file::{fnv1a, LoadedCharacter};
 use bincode::Options;
 use std::path::{Path, PathBuf};
 
@@ -137,4 +137,70 @@ pub fn store(character: &Path, rig: &Rig, inputs_hash: u64) -> Result<PathBuf, C
     std::fs::write(&tmp, &bytes).map_err(io)?;
     std::fs::rename(&tmp, &path).map_err(io)?;
     Ok(path)
+}
+
+/// Where a loaded or bound rig came from.
+#[derive(Debug)]
+pub enum RigSource {
+    /// Read from the cache file in this many seconds.
+    Cache { path: PathBuf, seconds: f64 },
+    /// Bound (the cache was forced aside, or missed for this reason) and written here.
+    Bound {
+        miss: Option<CacheMiss>,
+        written: PathBuf,
+    },
+}
+
+impl std::fmt::Display for RigSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RigSource::Cache { path, seconds } => {
+                write!(f, "loaded {} in {seconds:.3} s", path.display())
+            }
+            RigSource::Bound { miss, written } => {
+                let why = miss.as_ref().map_or("--force".to_owned(), ToString::to_string);
+                write!(f, "bound ({why}); wrote {}", written.display())
+            }
+        }
+    }
+}
+
+/// Why a character file's rig could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadOrBindError {
+    #[error("binding {path}: {source}")]
+    Bind { path: String, source: BindError },
+    #[error(transparent)]
+    Write(#[from] CacheWriteError),
+}
+
+/// The bound rig of a loaded character file (`path` is the character file): from its
+/// bake cache when current (and not `force`), else bound (`progress` hears each stage's
+/// fraction done) and cached.
+pub fn load_or_bind(
+    path: &Path,
+    loaded: &LoadedCharacter,
+    force: bool,
+    progress: &mut dyn FnMut(BindStage, f64),
+) -> Result<(Rig, RigSource), LoadOrBindError> {
+    let t0 = std::time::Instant::now();
+    let miss = match (force, load(path, loaded.inputs_hash)) {
+        (false, Ok(rig)) => {
+            let source = RigSource::Cache {
+                path: cache_path(path),
+                seconds: t0.elapsed().as_secs_f64(),
+            };
+            return Ok((rig, source));
+        }
+        (true, _) => None,
+        (false, Err(miss)) => Some(miss),
+    };
+    let rig = Rig::bind_with_progress(&loaded.character, &loaded.bind, progress).map_err(
+        |source| LoadOrBindError::Bind {
+            path: path.display().to_string(),
+            source,
+        },
+    )?;
+    let written = store(path, &rig, loaded.inputs_hash)?;
+    Ok((rig, RigSource::Bound { miss, written }))
 }

@@ -2,6 +2,7 @@
 //! its quality figures. No I/O, no locks, no logging: results come back in a report.
 
 pub mod arap;
+pub mod config;
 pub mod factor;
 pub mod frame;
 pub mod harmonic;

@@ -1,0 +1,46 @@
+//! The `[character]` table of a stage config: a procedural character or a character
+//! file, with the section's own checks ([`CharacterConfig::problems`]).
+
+use std::path::PathBuf;
+
+/// `[character]`: exactly one of `procedural` or `path`.
+#[derive(Clone, Debug, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CharacterConfig {
+    /// A procedural character: `"hand"` or `"body"`.
+    pub procedural: Option<String>,
+    /// A character file (TOML, see README), relative to the stage config's folder. It is
+    /// baked on first use and its bake cache reused afterwards.
+    pub path: Option<PathBuf>,
+}
+
+/// The motions each procedural character plays (empty: no such character).
+pub fn motions_of(procedural: &str) -> &'static [&'static str] {
+    match procedural {
+        "hand" => &["finger_play"],
+        "body" => &["walk", "reach"],
+        _ => &[],
+    }
+}
+
+impl CharacterConfig {
+    /// What is wrong, as `(key, message)` with keys relative to `[character]`.
+    pub fn problems(&self) -> Vec<(String, String)> {
+        match (&self.procedural, &self.path) {
+            (Some(_), Some(_)) => vec![(
+                String::new(),
+                "give either procedural or path, not both".into(),
+            )],
+            (None, None) => vec![(
+                String::new(),
+                "missing: set procedural = \"hand\" or \"body\", or path = \"CHARACTER.toml\""
+                    .into(),
+            )],
+            (Some(p), None) if motions_of(p).is_empty() => vec![(
+                "procedural".into(),
+                format!("unknown procedural character {p:?} (expected \"hand\" or \"body\")"),
+            )],
+            _ => Vec::new(),
+        }
+    }
+}

@@ -1,0 +1,45 @@
+//! `rigless bench --suite NAME`: runs a benchmark suite, a line per case.
+
+use anyhow::Result;
+use rigless::bench::{run_suite, BenchOptions, Suite};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared data
+    /// folder), `characters` (the procedural hand and body playing their motions, both
+    /// methods), `gapfill` (the marker buffer's fill error by gap length, on synthetic
+    /// sessions and the shared data folder's recordings), `live` (the whole pipeline in
+    /// real time: latency from input to client, missed ticks, Rerun on and off, 50
+    /// clients), `codecs` (decode cost per packet of each input format, 50 markers), or
+    /// `replay` (send-time jitter of `rigless replay` at 120 Hz against the file's clock).
+    #[arg(long, value_enum, default_value_t = Suite::Capsules)]
+    suite: Suite,
+    /// Print one JSON object per line instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// The shared data folder (holds `tetmesh/`, `hand/`, `c3d/`).
+    #[arg(long, default_value = "../shared/data")]
+    data: PathBuf,
+    /// Seconds per case of the `live` and `replay` suites.
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+}
+
+pub fn run(a: BenchArgs) -> Result<()> {
+    super::check_seconds(Some(a.seconds))?;
+    // Piped into `head`, a benchmark ends quietly like any Unix filter instead of
+    // panicking on the closed pipe. (Its sockets are TCP, whose sends carry
+    // MSG_NOSIGNAL, so only stdout is concerned.)
+    // SAFETY: restoring the default disposition of a signal; no handler is installed.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+    let opts = BenchOptions {
+        data: a.data,
+        seconds: a.seconds,
+        json: a.json,
+    };
+    run_suite(a.suite, &opts, &mut std::io::stdout().lock())?;
+    Ok(())
+}

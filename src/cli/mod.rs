@@ -1,0 +1,240 @@
+//! The command line's commands, one file each: their arguments, what they print, their
+//! progress bars and their exit codes. This is the only part of rigless that prints to
+//! the user or exits; everything it runs is the library's.
+
+pub mod bake;
+pub mod bench;
+pub mod demo;
+pub mod export_hand;
+pub mod info;
+pub mod listen;
+pub mod make_sessions;
+pub mod replay;
+pub mod run;
+
+use anyhow::{bail, Context, Result};
+use rigless::config::StageConfig;
+use rigless::daemon::pipeline::LoopStatus;
+use rigless::daemon::stage::{Stage, StartOptions, Summary};
+use rigless::output::rerun_sink::RerunTarget;
+use rigless::rig::bind::BindStage;
+use rigless::runtime::clock::SystemClock;
+use std::io::{IsTerminal, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// A flag set when the user presses Ctrl-C (a thread waits for the signal).
+pub fn ctrl_c_flag() -> Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let set = Arc::clone(&flag);
+    std::thread::Builder::new()
+        .name("ctrl-c".into())
+        .spawn(move || {
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build();
+            match rt {
+                Ok(rt) => {
+                    if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
+                        set.store(true, Ordering::Relaxed);
+                    }
+                }
+                Err(e) => tracing::warn!("Ctrl-C will not stop this command: {e}"),
+            }
+        })
+        .context("starting the Ctrl-C thread")?;
+    Ok(flag)
+}
+
+/// Refuses a `--seconds` that is not a positive number.
+pub fn check_seconds(seconds: Option<f64>) -> Result<()> {
+    match seconds {
+        Some(s) if !(s.is_finite() && s > 0.0) => {
+            bail!("--seconds must be a positive number of seconds, got {s}")
+        }
+        _ => Ok(()),
+    }
+}
+
+/// A progress bar on stderr for binding a character (every 5 %), ended by
+/// [`end_bind_progress`].
+pub fn bind_progress() -> impl FnMut(BindStage, f64) {
+    let mut last = (None, -1i64);
+    move |stage, f| {
+        let pct = (f * 100.0) as i64;
+        if (Some(stage), pct / 5) == (last.0, last.1 / 5) {
+            return;
+        }
+        last = (Some(stage), pct);
+        let name = match stage {
+            BindStage::Lattice => "lattice and binding",
+            BindStage::GreenCoordinates => "Green coordinates",
+            BindStage::Factorization => "weights and factorization",
+        };
+        let bar: String = (0..20)
+            .map(|k| if k < pct / 5 { '#' } else { '.' })
+            .collect();
+        eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
+        // A progress bar that cannot be flushed only shows late.
+        std::io::stderr().flush().ok();
+    }
+}
+
+/// Ends a progress bar drawn by [`bind_progress`], if one was drawn.
+pub fn end_bind_progress(drawn: bool) {
+    if drawn {
+        eprintln!("\r  binding [####################] done{:<30}", "");
+    }
+}
+
+/// How `run`, `demo` and `replay --solve` run their stage.
+pub struct LiveOptions {
+    /// Stop after this many seconds.
+    pub seconds: Option<f64>,
+    /// Status and summary as JSON lines.
+    pub json: bool,
+    /// Overrides `[outputs.rerun] target`.
+    pub rerun: Option<RerunTarget>,
+}
+
+/// Runs a stage on the system clock until it ends, `--seconds` pass or Ctrl-C: prints
+/// what was started, a status line every second and the summary.
+pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Result<()> {
+    if let Some(t) = &opts.rerun {
+        cfg.outputs.rerun.target = t.to_string();
+    }
+    let interrupted = ctrl_c_flag()?;
+    let mut drawn = false;
+    let mut bar = bind_progress();
+    let mut progress = |stage, f| {
+        if !opts.json {
+            drawn = true;
+            bar(stage, f);
+        }
+    };
+    let stage = Stage::start_with(
+        &cfg,
+        base_dir,
+        Arc::new(SystemClock::new()),
+        StartOptions {
+            stop_after_secs: opts.seconds,
+            progress: Some(&mut progress),
+            frames: None,
+        },
+    );
+    end_bind_progress(drawn);
+    let stage = stage?;
+    print_started(&stage, opts.json);
+    let tty = std::io::stdout().is_terminal() && !opts.json;
+    while !stage.is_finished() {
+        std::thread::sleep(Duration::from_millis(50));
+        if interrupted.load(Ordering::Relaxed) {
+            stage.stop();
+        }
+        if let Some(st) = stage.status() {
+            print_status(&st, stage.stream_clients(), opts.json, tty);
+        }
+    }
+    let summary = stage.join()?;
+    if tty {
+        println!();
+    }
+    print_summary(&summary, opts.json)
+}
+
+/// What was started. Tests and scripts read the `... listening on` lines for the ports.
+fn print_started(stage: &Stage, json: bool) {
+    let i = stage.info();
+    if let Some(a) = i.stream_tcp {
+        println!("vertex stream listening on tcp://{a}");
+    }
+    if let Some(a) = i.stream_ws {
+        println!("vertex stream listening on ws://{a}");
+    }
+    for input in &i.inputs {
+        println!("{}", input.opened);
+    }
+    if json {
+        return;
+    }
+    println!(
+        "{}: {} mesh vertices, {} markers, {} control vertices; ready in {:.2} s",
+        i.character, i.mesh_vertices, i.markers, i.control_vertices, i.bind_s
+    );
+    if let Some(source) = &i.rig_source {
+        println!("{source}");
+    }
+    for input in &i.inputs {
+        for w in &input.warnings {
+            println!("  warning: {w}");
+        }
+    }
+    if let Some((path, flush_s)) = &i.recording {
+        println!(
+            "recording every sample to {} (flushed every {flush_s} s)",
+            path.display()
+        );
+    }
+    if let Some(note) = &i.rerun_note {
+        println!("{note}");
+    }
+    if i.rerun != RerunTarget::Off {
+        println!("rerun: {}", i.rerun);
+    }
+    // The lines above are what scripts wait for; a pipe must not hold them back.
+    std::io::stdout().flush().ok();
+}
+
+fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
+    if json {
+        println!("{}", serde_json::json!({ "status": st, "clients": clients }));
+        return;
+    }
+    let [m, p, r, h] = st.fill_now;
+    let line = format!(
+        "frame {:>6}  {:>5.1} Hz  solve ms p50 {:.2} p99 {:.2} (frame {:.2} / {:.2})  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
+        st.frames, st.frame_rate_hz, st.solve_ms_p50, st.solve_ms_p99, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
+    );
+    if tty {
+        print!("\r{line}   ");
+        // A status line that cannot be flushed shows with the next one.
+        std::io::stdout().flush().ok();
+    } else {
+        println!("{line}");
+    }
+}
+
+fn print_summary(s: &Summary, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(s)?);
+        return Ok(());
+    }
+    if let Some((path, n)) = &s.recorded {
+        println!("recorded {n} samples to {}", path.display());
+    }
+    if let Some(r) = &s.rerun {
+        println!(
+            "rerun: {} frames logged, {} skipped (the sink fell behind), {} log errors",
+            r.frames_logged, r.frames_skipped, r.log_errors
+        );
+    }
+    let st = &s.status;
+    let b = &st.buffer;
+    let total: u64 = b.filled.iter().sum::<u64>().max(1);
+    let pct = |i: usize| 100.0 * b.filled[i] as f64 / total as f64;
+    println!(
+        "done ({}): {} frames, frame ms p50 {:.2} p99 {:.2}, {} deadline stops, {} overruns; inputs sent {} samples, {} dropped at a full channel",
+        s.stopped.reason(), st.frames, st.frame_ms_p50, st.frame_ms_p99, st.deadline_stops, st.overruns, s.source_samples, s.source_dropped
+    );
+    println!(
+        "markers: {:.1} % measured, {:.1} % predicted, {:.1} % rigid-filled, {:.1} % held; {} samples, {} occluded, {} gated ({} label swaps), {} re-acquired",
+        pct(0), pct(1), pct(2), pct(3), b.accepted + b.occluded, b.occluded, b.gate_rejected, b.label_swaps, b.reacquired
+    );
+    println!("stream: {}", serde_json::to_string(&s.stream)?);
+    for line in &s.inputs {
+        println!("input {line}");
+    }
+    Ok(())
+}

@@ -1,0 +1,219 @@
+//! `rigless replay FILE --to URL` (a recording sent as live traffic) and `rigless replay
+//! FILE --solve CHARACTER` (a recording driving a character through a stage).
+
+use super::{ctrl_c_flag, run_stage, LiveOptions};
+use anyhow::{bail, Context, Result};
+use rigless::output::rerun_sink::RerunTarget;
+use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
+use rigless::replay::sender::{replay, ReplayOptions, Target};
+use rigless::runtime::clock::SystemClock;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+#[derive(clap::Args)]
+pub struct ReplayArgs {
+    /// The recording.
+    file: PathBuf,
+    /// Where to send, e.g. osc://127.0.0.1:9000.
+    #[arg(long, required_unless_present = "solve", conflicts_with = "solve")]
+    to: Option<String>,
+    /// Solve this character from the recording: `hand`, `body` (the procedural ones) or
+    /// a character file (TOML).
+    #[arg(long, value_name = "hand|body|CHARACTER.toml")]
+    solve: Option<String>,
+    /// With --solve: the deformation method, `arap` (volumetric ARAP and Green
+    /// coordinates) or `harmonic` (harmonic rotation fields and a Poisson rebuild).
+    #[arg(long, default_value = "arap", value_parser = ["arap", "harmonic"], requires = "solve")]
+    method: String,
+    /// With --solve: where the vertex stream listens (TCP; port 0 picks a free port).
+    #[arg(long, default_value = "127.0.0.1:7878", requires = "solve")]
+    stream: SocketAddr,
+    /// With --solve: Rerun: off, spawn, connect=HOST:PORT or save=PATH.rrd (as on
+    /// `rigless run`).
+    #[arg(long, value_name = "off|spawn|connect=ADDR|save=PATH", requires = "solve")]
+    rerun: Option<RerunTarget>,
+    /// Playback speed (1 = the file's timing).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Start again at the end (until Ctrl-C).
+    #[arg(long = "loop")]
+    looping: bool,
+    /// Start this many seconds into the file (with --to).
+    #[arg(long, default_value_t = 0.0)]
+    start: f64,
+    /// Stop this many seconds into the file (with --to or --solve).
+    #[arg(long)]
+    end: Option<f64>,
+    /// Only these markers (comma-separated labels; with --to).
+    #[arg(long, conflicts_with = "solve")]
+    markers: Option<String>,
+    /// Drop this share of samples at random (sent as occluded), percent (with --to).
+    #[arg(long, default_value_t = 0.0, conflicts_with = "solve")]
+    dropout_percent: f64,
+    /// Add uniform noise of this amplitude per axis, millimetres (with --to).
+    #[arg(long, default_value_t = 0.0, conflicts_with = "solve")]
+    noise_mm: f64,
+    /// Seed of the dropouts and the noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Metres per BVH unit.
+    #[arg(long, default_value_t = DEFAULT_BVH_METRES_PER_UNIT)]
+    bvh_scale: f64,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Every problem with the flags at once.
+fn flag_problems(a: &ReplayArgs) -> Vec<String> {
+    let mut problems = Vec::new();
+    if !(a.speed.is_finite() && a.speed > 0.0 && a.speed <= 100.0) {
+        problems.push(format!("--speed must be in (0, 100], got {}", a.speed));
+    }
+    if !(a.start.is_finite() && a.start >= 0.0) {
+        problems.push(format!("--start must be zero or more seconds, got {}", a.start));
+    }
+    if a.end.is_some_and(|e| !(e.is_finite() && e > a.start)) {
+        problems.push(format!("--end must be after --start ({} s)", a.start));
+    }
+    if !(0.0..=100.0).contains(&a.dropout_percent) {
+        problems.push(format!(
+            "--dropout-percent must be 0 to 100, got {}",
+            a.dropout_percent
+        ));
+    }
+    if !(a.noise_mm.is_finite() && a.noise_mm >= 0.0) {
+        problems.push(format!("--noise-mm must be zero or more, got {}", a.noise_mm));
+    }
+    if !(a.bvh_scale.is_finite() && a.bvh_scale > 0.0) {
+        problems.push(format!("--bvh-scale must be positive, got {}", a.bvh_scale));
+    }
+    if a.solve.is_some() && a.start != 0.0 {
+        problems.push("--start shapes what --to sends; with --solve the recording plays from its first frame (--end stops it early)".into());
+    }
+    problems
+}
+
+pub fn run(a: ReplayArgs) -> Result<()> {
+    let mut problems = flag_problems(&a);
+    if let Some(character) = &a.solve {
+        if !problems.is_empty() {
+            bail!("{}", problems.join("\n"));
+        }
+        let cfg = solve_stage(&a, character)?;
+        return run_stage(
+            cfg,
+            Path::new("."),
+            &LiveOptions {
+                // The recording's seconds at this speed.
+                seconds: a.end.map(|e| e / a.speed),
+                json: a.json,
+                rerun: a.rerun,
+            },
+        );
+    }
+    let to = a.to.clone().context("--to or --solve is required")?;
+    let target = Target::parse(&to).map_err(|e| problems.push(e.to_string())).ok();
+    let (Some(target), true) = (target, problems.is_empty()) else {
+        bail!("{}", problems.join("\n"));
+    };
+    send(&a, &to, target)
+}
+
+/// Sends the recording to `target` as live traffic and prints the send-time jitter.
+fn send(a: &ReplayArgs, to: &str, target: Target) -> Result<()> {
+    match &target {
+        Target::NatNet { data, command: Some(c) } => eprintln!("serving NatNet 3.0 frames to {data}; command port {c} (clients: natnet://{data}?server={c})"),
+        Target::NatNet { data, command: None } => eprintln!("sending NatNet 3.0 frames to {data} (markers named replay_1, replay_2...; add ?server=IP:PORT for a command port that names them)"),
+        Target::Vrpn { device, bind } => eprintln!("serving {device} as a VRPN tracker on TCP and UDP {bind} (clients: {device}@{bind} or {device}@tcp://{bind})"),
+        Target::Osc(_) | Target::Vmc(_) => {}
+    }
+    let rec = Recording::load_with(&a.file, a.bvh_scale)?;
+    let subset: Option<Vec<String>> = a
+        .markers
+        .as_ref()
+        .map(|m| m.split(',').map(|s| s.trim().to_owned()).collect());
+    if let Some(sub) = &subset {
+        let unknown: Vec<&String> = sub.iter().filter(|m| !rec.labels.contains(m)).collect();
+        if !unknown.is_empty() {
+            bail!(
+                "{}: no such labels: {:?} (it has {})",
+                a.file.display(),
+                unknown,
+                rec.labels.join(", ")
+            );
+        }
+    }
+    let opts = ReplayOptions {
+        speed: a.speed,
+        looping: a.looping,
+        start_s: a.start,
+        end_s: a.end,
+        markers: subset,
+        dropout: a.dropout_percent / 100.0,
+        noise_m: a.noise_mm * 1e-3,
+        seed: a.seed,
+    };
+    if !a.json {
+        eprintln!(
+            "replaying {} ({} markers, {} frames at {} Hz) to {to}{}",
+            a.file.display(),
+            rec.labels.len(),
+            rec.frames.len(),
+            rec.rate_hz,
+            if a.looping {
+                ", looping; Ctrl-C stops"
+            } else {
+                ""
+            }
+        );
+    }
+    let stop = ctrl_c_flag()?;
+    let stats = replay(&rec, target, &opts, &SystemClock::new(), 0.01, &stop)
+        .with_context(|| format!("sending to {to}"))?;
+    if a.json {
+        println!("{}", serde_json::to_string(&stats)?);
+    } else {
+        println!(
+            "sent {} packets ({} bytes, {} errors, {} samples dropped on purpose); send-time jitter ms p50 {:.3} p99 {:.3} max {:.3}",
+            stats.packets, stats.bytes, stats.send_errors, stats.samples_dropped,
+            stats.jitter_ms_p50, stats.jitter_ms_p99, stats.jitter_ms_max
+        );
+    }
+    Ok(())
+}
+
+/// The stage `--solve CHARACTER` runs: the recording as a replay input, validated like a
+/// stage file.
+fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::StageConfig> {
+    use toml::{Table, Value};
+    let abs = |p: &Path| -> Result<Value> {
+        let p = std::fs::canonicalize(p).with_context(|| format!("{}", p.display()))?;
+        Ok(Value::String(p.to_string_lossy().into_owned()))
+    };
+    let mut ch = Table::new();
+    match character {
+        "hand" | "body" => ch.insert("procedural".into(), Value::String(character.into())),
+        path => ch.insert("path".into(), abs(Path::new(path))?),
+    };
+    let mut input = Table::new();
+    input.insert("type".into(), Value::String("replay".into()));
+    input.insert("path".into(), abs(&a.file)?);
+    input.insert("speed".into(), Value::Float(a.speed));
+    input.insert("loop".into(), Value::Boolean(a.looping));
+    input.insert("bvh_scale".into(), Value::Float(a.bvh_scale));
+    let method = a.method.as_str();
+    let mut stage = toml::toml! {
+        [solver]
+        method = method
+
+        [outputs.stream]
+        tcp = (a.stream.to_string())
+    };
+    stage.insert("character".into(), Value::Table(ch));
+    stage.insert("inputs".into(), Value::Array(vec![Value::Table(input)]));
+    Ok(rigless::config::parse_stage(
+        &toml::to_string(&stage)?,
+        "replay --solve flags",
+    )?)
+}

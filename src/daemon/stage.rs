@@ -1,0 +1,695 @@
+//! The stage: a whole live rigless, in-process, built from a [`StageConfig`]. It binds
+//! the character (or loads its bake cache), serves the vertex stream, opens the inputs,
+//! starts the session recorder and the Rerun sink, and runs the solver thread at its
+//! rate on the clock it is given; [`Stage::stop`] and [`Stage::join`] shut it down in
+//! order (loop, inputs, recorder, stream clients told goodbye, Rerun flushed).
+//!
+//! `rigless run`, `demo` and `replay --solve`, the live benchmark and the tests all start
+//! stages through [`Stage::start`]; none builds the wiring itself. On a
+//! [`ManualClock`](crate::runtime::clock::ManualClock) a stage runs as fast as it
+//! computes and deterministically: inputs that pace themselves and the loop take turns
+//! in time order.
+
+use super::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
+use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
+use crate::character::file::{load_character, CharacterError};
+use crate::character::procedural::Character;
+use crate::config::StageConfig;
+use crate::input::{ChannelSink, Input, InputError, OpenContext, PinTarget, SourceCounters};
+use crate::markers::buffer::MarkerBuffer;
+use crate::output::frame::DeformedFrame;
+use crate::output::rerun_sink::{self, InputSeries, RerunOptions, RerunStats, RerunTarget};
+use crate::output::scene::Scene;
+use crate::output::stream::{StreamServer, StreamStats};
+use crate::replay::session::{run_recorder, SessionHeader, SessionWriter};
+use crate::rig::bind::{BindError, BindStage, Rig};
+use crate::rig::cache::{load_or_bind, LoadOrBindError};
+use crate::runtime::clock::Clock;
+use crate::runtime::slot::{LatestSlot, PinSlot};
+use crate::solve::frame::Solver;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+/// Inputs that pace themselves send their first frame this long after the stage has
+/// opened everything, seconds on the stage's clock (the threads start in the meantime).
+pub const START_DELAY_S: f64 = 0.05;
+/// The loop ticks this long after the paced inputs send each frame (at the same rate),
+/// seconds, so that a frame's samples are in the channel when the tick drains it.
+pub const LOOP_PHASE_S: f64 = 0.0002;
+
+/// How a stage is started, besides its config.
+#[derive(Default)]
+pub struct StartOptions<'a> {
+    /// Stop this many seconds after the first tick (default: when every input has
+    /// ended, or on [`Stage::stop`]).
+    pub stop_after_secs: Option<f64>,
+    /// Hears the progress of binding a character file (stage, fraction done).
+    pub progress: Option<&'a mut dyn FnMut(BindStage, f64)>,
+    /// Also publish every frame here (an in-process reader: it gets the newest frame).
+    pub frames: Option<Arc<LatestSlot<DeformedFrame>>>,
+}
+
+/// Why a stage could not start, or ended badly.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    #[error("binding the procedural {name}: {source}")]
+    Procedural { name: String, source: BindError },
+    #[error("the stage names no character")]
+    NoCharacter,
+    #[error(transparent)]
+    Character(#[from] CharacterError),
+    #[error(transparent)]
+    Rig(#[from] LoadOrBindError),
+    #[error("starting the vertex stream: {0}")]
+    Stream(std::io::Error),
+    #[error("setting up the {method:?} solver for {character}: {source}")]
+    Solver {
+        method: crate::solve::config::SolverMethod,
+        character: String,
+        source: crate::solve::harmonic::HarmonicError,
+    },
+    #[error("input {index} ({kind}): {source}")]
+    Input {
+        index: usize,
+        kind: &'static str,
+        source: InputError,
+    },
+    #[error("the session file {path}: {source}")]
+    Recorder {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("starting the Rerun recording: {0}")]
+    Rerun(#[from] rerun_sink::RerunError),
+    #[error("starting the {name} thread: {source}")]
+    Thread {
+        name: &'static str,
+        source: std::io::Error,
+    },
+    #[error("the {0} thread panicked")]
+    Panicked(&'static str),
+}
+
+/// What a started stage is, for the user (the CLI prints it).
+#[derive(Clone, Debug)]
+pub struct StageInfo {
+    /// The character's name.
+    pub character: String,
+    pub mesh_vertices: usize,
+    pub markers: usize,
+    pub control_vertices: usize,
+    /// Seconds from the start to a bound character.
+    pub bind_s: f64,
+    /// For a character file: its path and where its rig came from (cache or bound).
+    pub rig_source: Option<String>,
+    /// Where the vertex stream listens.
+    pub stream_tcp: Option<SocketAddr>,
+    pub stream_ws: Option<SocketAddr>,
+    /// Each input: its kind, what was opened, and its warnings.
+    pub inputs: Vec<InputInfo>,
+    /// The session file being recorded, and its flush interval, seconds.
+    pub recording: Option<(PathBuf, f64)>,
+    /// Where the Rerun recording goes (off when none).
+    pub rerun: RerunTarget,
+    /// Why the Rerun target differs from the one asked for, if it does.
+    pub rerun_note: Option<String>,
+    /// When paced inputs start and when the loop first ticks, seconds on the clock.
+    pub start_s: f64,
+    pub loop_start_s: f64,
+}
+
+/// One input of a started stage.
+#[derive(Clone, Debug)]
+pub struct InputInfo {
+    pub kind: &'static str,
+    /// What was opened (`osc input listening on udp://...`).
+    pub opened: String,
+    pub warnings: Vec<String>,
+    pub local_addr: Option<SocketAddr>,
+}
+
+/// Why a stage stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopCause {
+    /// [`Stage::stop`] (Ctrl-C in the CLI).
+    Stopped,
+    /// `stop_after_secs` passed.
+    TimeLimit,
+    /// Every input ended.
+    InputsEnded,
+}
+
+impl StopCause {
+    /// What clients are told in the stream's goodbye.
+    pub fn reason(self) -> &'static str {
+        match self {
+            StopCause::Stopped => "shutting down",
+            StopCause::TimeLimit => "time limit reached",
+            StopCause::InputsEnded => "session ended",
+        }
+    }
+}
+
+/// What a stage did, once joined.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    /// The loop's final status.
+    pub status: LoopStatus,
+    pub stopped: StopCause,
+    /// Samples the inputs sent into the channel, and dropped at a full channel.
+    pub source_samples: u64,
+    pub source_dropped: u64,
+    /// Each input's closing line (what it received), or its error.
+    pub inputs: Vec<String>,
+    pub stream: StreamSummary,
+    /// The session file and the samples written to it.
+    pub recorded: Option<(PathBuf, u64)>,
+    pub rerun: Option<RerunSummary>,
+}
+
+/// What the vertex stream did.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct StreamSummary {
+    pub connections: u64,
+    pub frames_sent: u64,
+    pub frames_skipped: u64,
+    pub write_errors: u64,
+}
+
+/// What the Rerun sink did.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct RerunSummary {
+    pub frames_logged: u64,
+    /// Frames the sink fell behind on (replaced in its slot before it took them).
+    pub frames_skipped: u64,
+    /// Log calls the SDK refused.
+    pub log_errors: u64,
+}
+
+/// A running stage.
+pub struct Stage {
+    info: StageInfo,
+    stop: Arc<AtomicBool>,
+    stop_requested: AtomicBool,
+    status: Arc<LatestSlot<LoopStatus>>,
+    solver: JoinHandle<LoopStatus>,
+    sources: Vec<JoinHandle<Result<String, InputError>>>,
+    counters: Vec<Arc<SourceCounters>>,
+    recorder: Option<(PathBuf, JoinHandle<std::io::Result<u64>>)>,
+    server: Option<StreamServer>,
+    stream_stats: Arc<StreamStats>,
+    rerun: Option<RunningRerun>,
+    time_limited: bool,
+}
+
+struct RunningRerun {
+    thread: JoinHandle<()>,
+    stop: Arc<AtomicBool>,
+    stats: Arc<RerunStats>,
+    slot: Arc<LatestSlot<DeformedFrame>>,
+}
+
+/// A bound character: the rig, its name, and the procedural character if it is one.
+struct Bound {
+    rig: Arc<Rig>,
+    name: String,
+    procedural: Option<Arc<Character>>,
+    rig_source: Option<String>,
+}
+
+fn bind_character(
+    cfg: &StageConfig,
+    base_dir: &Path,
+    progress: &mut dyn FnMut(BindStage, f64),
+) -> Result<Bound, StageError> {
+    if let Some(p) = &cfg.character.procedural {
+        let (ch, bind) = match p.as_str() {
+            "body" => (demo_body(), body_bind_params()),
+            _ => (demo_hand(), hand_bind_params()),
+        };
+        let rig = Rig::bind(&ch, &bind).map_err(|source| StageError::Procedural {
+            name: p.clone(),
+            source,
+        })?;
+        return Ok(Bound {
+            rig: Arc::new(rig),
+            name: ch.name.clone(),
+            procedural: Some(Arc::new(ch)),
+            rig_source: None,
+        });
+    }
+    let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
+    let loaded = load_character(&path)?;
+    let (rig, source) = load_or_bind(&path, &loaded, false, progress)?;
+    Ok(Bound {
+        rig: Arc::new(rig),
+        name: loaded.character.name.clone(),
+        procedural: None,
+        rig_source: Some(format!("{}: {source}", path.display())),
+    })
+}
+
+/// A Rerun target that can be honoured here: `spawn` needs the `rerun` viewer on PATH;
+/// without it the recording is saved to `fallback` (and the note says so).
+fn usable_rerun_target(t: RerunTarget, fallback: PathBuf) -> (RerunTarget, Option<String>) {
+    let on_path = std::env::var_os("PATH")
+        .is_some_and(|paths| std::env::split_paths(&paths).any(|d| d.join("rerun").is_file()));
+    match t {
+        RerunTarget::Spawn if !on_path => {
+            let note = format!(
+                "no Rerun viewer on PATH: saving to {0} instead; open it with: rerun {0}",
+                fallback.display()
+            );
+            (RerunTarget::Save(fallback), Some(note))
+        }
+        t => (t, None),
+    }
+}
+
+/// Spawns a named thread that paces itself on `clock` (attached before it starts,
+/// detached when it ends, even by a panic).
+fn spawn_paced<T: Send + 'static>(
+    name: &'static str,
+    clock: &Arc<dyn Clock>,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> Result<JoinHandle<T>, StageError> {
+    struct Detach(Arc<dyn Clock>);
+    impl Drop for Detach {
+        fn drop(&mut self) {
+            self.0.detach();
+        }
+    }
+    clock.attach();
+    let guard = Detach(Arc::clone(clock));
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            let _detach_on_exit = guard;
+            f()
+        })
+        .map_err(|source| StageError::Thread { name, source })
+}
+
+fn spawn<T: Send + 'static>(
+    name: &'static str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> Result<JoinHandle<T>, StageError> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(f)
+        .map_err(|source| StageError::Thread { name, source })
+}
+
+impl Stage {
+    /// Starts the stage `cfg` describes on `clock`; relative paths in it are taken from
+    /// `base_dir`.
+    pub fn start(
+        cfg: &StageConfig,
+        base_dir: &Path,
+        clock: Arc<dyn Clock>,
+    ) -> Result<Self, StageError> {
+        Self::start_with(cfg, base_dir, clock, StartOptions::default())
+    }
+
+    /// [`Self::start`] with options.
+    pub fn start_with(
+        cfg: &StageConfig,
+        base_dir: &Path,
+        clock: Arc<dyn Clock>,
+        mut opts: StartOptions<'_>,
+    ) -> Result<Self, StageError> {
+        let t0 = std::time::Instant::now();
+        let bound = bind_character(
+            cfg,
+            base_dir,
+            opts.progress.as_deref_mut().unwrap_or(&mut |_, _| {}),
+        )?;
+        let bind_s = t0.elapsed().as_secs_f64();
+        let rig = Arc::clone(&bound.rig);
+        let rate_hz = cfg.solver.rate_hz;
+        let solver = Solver::try_new(Arc::clone(&rig), cfg.solver.params()).map_err(|source| {
+            StageError::Solver {
+                method: cfg.solver.method,
+                character: bound.name.clone(),
+                source,
+            }
+        })?;
+        let scene = Scene::of_rig(&rig, &bound.name, rate_hz).with_tied(solver.harmonic_tied());
+
+        // Sinks: the stream, Rerun's slot, an in-process reader's slot.
+        let stream_slot = Arc::new(LatestSlot::new());
+        let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
+        let server = if tcp.is_some() || ws.is_some() {
+            Some(
+                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot))
+                    .map_err(StageError::Stream)?,
+            )
+        } else {
+            None
+        };
+        let (rerun_target, rerun_note) = usable_rerun_target(
+            cfg.outputs.rerun.target(base_dir),
+            base_dir.join(format!("rigless-{}.rrd", bound.name)),
+        );
+        let rerun_slot = Arc::new(LatestSlot::new());
+        let mut slots = vec![stream_slot];
+        if rerun_target != RerunTarget::Off {
+            slots.push(Arc::clone(&rerun_slot));
+        }
+        slots.extend(opts.frames.take());
+
+        let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
+        let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
+        let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
+        if rerun_target != RerunTarget::Off && cfg.outputs.rerun.control_mesh {
+            pipeline = pipeline.with_control_mesh();
+        }
+        if rerun_target != RerunTarget::Off && cfg.outputs.rerun.harmonic_field {
+            pipeline = pipeline.with_harmonic_field();
+        }
+
+        let stop = Arc::new(AtomicBool::new(false));
+        let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
+            Some(path) => {
+                let (rec_tx, handle) = start_recorder(cfg, &path, &rig, &clock)?;
+                pipeline = pipeline.with_recorder(rec_tx);
+                Some((path, handle))
+            }
+            None => None,
+        };
+        let pins = cfg
+            .inputs
+            .iter()
+            .any(|i| matches!(i, crate::input::config::InputConfig::Glove(_)))
+            .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
+        if let Some(p) = &pins {
+            pipeline = pipeline.with_pins(Arc::clone(p));
+        }
+
+        let ctx = OpenContext {
+            base_dir,
+            markers: Some(&rig.marker_names),
+            skeleton: Some(&rig.skeleton),
+            procedural: bound.procedural.as_ref(),
+        };
+        let opened = open_inputs(cfg, &ctx)?;
+        let start_s = clock.now_s() + START_DELAY_S;
+        let loop_start_s = start_s + LOOP_PHASE_S;
+        let inputs_end_s = opened
+            .iter()
+            .try_fold(start_s, |end, i| i.duration_s().map(|d| end.max(start_s + d)));
+        let infos: Vec<InputInfo> = opened
+            .iter()
+            .map(|i| InputInfo {
+                kind: i.kind(),
+                opened: i.opened(),
+                warnings: i.warnings(),
+                local_addr: i.local_addr(),
+            })
+            .collect();
+        let mut counters = Vec::new();
+        let mut sources = Vec::new();
+        for input in opened {
+            let c = Arc::new(SourceCounters::default());
+            counters.push(Arc::clone(&c));
+            let pins = pins.as_ref().map(|slot| PinTarget {
+                slot: Arc::clone(slot),
+                rig: Arc::clone(&rig),
+            });
+            let mut sink = ChannelSink::new(tx.clone(), c, pins);
+            let (paced, kind) = (input.is_paced(), input.kind());
+            let (clock2, stop2) = (Arc::clone(&clock), Arc::clone(&stop));
+            let run = move || input.run(&*clock2, start_s, &stop2, &mut sink);
+            sources.push(if paced {
+                spawn_paced(kind, &clock, run)?
+            } else {
+                spawn(kind, run)?
+            });
+        }
+        drop(tx);
+
+        let rerun = start_rerun(cfg, &rerun_target, scene, &infos, &counters, rerun_slot)?;
+        let end_s = match opts.stop_after_secs {
+            Some(s) => Some(loop_start_s + s),
+            None => inputs_end_s,
+        };
+        let params = LoopParams {
+            start_s: loop_start_s,
+            rate_hz,
+            deadline_fraction: cfg.solver.deadline_fraction,
+            end_s,
+            status_interval_s: 1.0,
+        };
+        let status = Arc::new(LatestSlot::new());
+        let solver = {
+            let (clock2, stop, status) = (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&status));
+            spawn_paced("solver", &clock, move || {
+                let last = run_loop(&mut pipeline, &*clock2, params, &stop, &status);
+                // The inputs end with the loop (a paced input then sends nothing more).
+                stop.store(true, Ordering::Relaxed);
+                pipeline.flush_to_recorder();
+                last
+            })?
+        };
+        let stream_stats = server
+            .as_ref()
+            .map_or_else(|| Arc::new(StreamStats::default()), |s| Arc::clone(s.stats()));
+        let info = StageInfo {
+            character: bound.name,
+            mesh_vertices: rig.mesh_rest.len(),
+            markers: rig.n_markers,
+            control_vertices: rig.stats.control_vertices,
+            bind_s,
+            rig_source: bound.rig_source,
+            stream_tcp: server.as_ref().and_then(StreamServer::local_addr),
+            stream_ws: server.as_ref().and_then(StreamServer::ws_addr),
+            inputs: infos,
+            recording: recorder
+                .as_ref()
+                .map(|(p, _)| (p.clone(), cfg.recorder.flush_interval_secs)),
+            rerun: rerun_target,
+            rerun_note,
+            start_s,
+            loop_start_s,
+        };
+        Ok(Self {
+            info,
+            stop,
+            stop_requested: AtomicBool::new(false),
+            status,
+            solver,
+            sources,
+            counters,
+            recorder,
+            server,
+            stream_stats,
+            rerun,
+            time_limited: opts.stop_after_secs.is_some(),
+        })
+    }
+
+    /// What was started.
+    pub fn info(&self) -> &StageInfo {
+        &self.info
+    }
+
+    /// The newest status of the loop (about once a second), if one came since the last
+    /// call.
+    pub fn status(&self) -> Option<Arc<LoopStatus>> {
+        self.status.take()
+    }
+
+    /// Stream clients connected now.
+    pub fn stream_clients(&self) -> u64 {
+        self.stream_stats.clients.load(Ordering::Relaxed)
+    }
+
+    /// The stream server's counters.
+    pub fn stream_stats(&self) -> &Arc<StreamStats> {
+        &self.stream_stats
+    }
+
+    /// Each input's counters, in the config's order.
+    pub fn input_counters(&self) -> &[Arc<SourceCounters>] {
+        &self.counters
+    }
+
+    /// Whether the loop has ended (by itself, or after [`Self::stop`]).
+    pub fn is_finished(&self) -> bool {
+        self.solver.is_finished()
+    }
+
+    /// Asks the loop and the inputs to stop; [`Self::join`] then shuts down.
+    pub fn stop(&self) {
+        self.stop_requested.store(true, Ordering::Relaxed);
+        self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// Waits for the loop to end, then shuts the rest down in order: the inputs, the
+    /// recorder (every sample that arrived is written), the stream (clients are told
+    /// why), Rerun (flushed).
+    pub fn join(self) -> Result<Summary, StageError> {
+        let status = self
+            .solver
+            .join()
+            .map_err(|_| StageError::Panicked("solver"))?;
+        self.stop.store(true, Ordering::Relaxed);
+        let stopped = if self.stop_requested.load(Ordering::Relaxed) {
+            StopCause::Stopped
+        } else if self.time_limited {
+            StopCause::TimeLimit
+        } else {
+            StopCause::InputsEnded
+        };
+        let mut inputs = Vec::new();
+        for (s, info) in self.sources.into_iter().zip(&self.info.inputs) {
+            inputs.push(match s.join() {
+                Ok(Ok(line)) => format!("{}: {line}", info.kind),
+                Ok(Err(e)) => format!("{}: {e}", info.kind),
+                Err(_) => format!("{}: the input's thread panicked", info.kind),
+            });
+        }
+        // The pipeline and its recorder channel went with the solver thread.
+        let recorded = match self.recorder {
+            Some((path, handle)) => match handle.join() {
+                Ok(Ok(n)) => Ok(Some((path, n))),
+                Ok(Err(source)) => Err(StageError::Recorder {
+                    path: path.display().to_string(),
+                    source,
+                }),
+                Err(_) => Err(StageError::Panicked("recorder")),
+            },
+            None => Ok(None),
+        };
+        if let Some(s) = self.server {
+            s.shutdown(stopped.reason());
+        }
+        let rerun = match self.rerun {
+            Some(r) => {
+                r.stop.store(true, Ordering::Relaxed);
+                r.thread.join().map_err(|_| StageError::Panicked("rerun"))?;
+                Some(RerunSummary {
+                    frames_logged: r.stats.frames_logged.load(Ordering::Relaxed),
+                    frames_skipped: r.slot.dropped(),
+                    log_errors: r.stats.log_errors.load(Ordering::Relaxed),
+                })
+            }
+            None => None,
+        };
+        let sum = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).sum();
+        let s = &self.stream_stats;
+        Ok(Summary {
+            status,
+            stopped,
+            source_samples: sum(|c| c.samples.load(Ordering::Relaxed)),
+            source_dropped: sum(|c| c.dropped.load(Ordering::Relaxed)),
+            inputs,
+            stream: StreamSummary {
+                connections: s.connections.load(Ordering::Relaxed),
+                frames_sent: s.frames_sent.load(Ordering::Relaxed),
+                frames_skipped: s.frames_skipped.load(Ordering::Relaxed),
+                write_errors: s.write_errors.load(Ordering::Relaxed),
+            },
+            recorded: recorded?,
+            rerun,
+        })
+    }
+}
+
+fn open_inputs(cfg: &StageConfig, ctx: &OpenContext<'_>) -> Result<Vec<Input>, StageError> {
+    cfg.inputs
+        .iter()
+        .enumerate()
+        .map(|(index, c)| {
+            Input::open(c, ctx).map_err(|source| StageError::Input {
+                index,
+                kind: c.kind(),
+                source,
+            })
+        })
+        .collect()
+}
+
+/// Creates the session file and starts the recorder thread; returns the channel the
+/// loop copies samples into.
+fn start_recorder(
+    cfg: &StageConfig,
+    path: &Path,
+    rig: &Rig,
+    clock: &Arc<dyn Clock>,
+) -> Result<
+    (
+        crossbeam_channel::Sender<crate::markers::MarkerSample>,
+        JoinHandle<std::io::Result<u64>>,
+    ),
+    StageError,
+> {
+    let io = |source| StageError::Recorder {
+        path: path.display().to_string(),
+        source,
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    let file = std::fs::File::create(path).map_err(io)?;
+    let header = SessionHeader {
+        marker_names: rig.marker_names.clone(),
+        rate_hz: cfg.solver.rate_hz,
+        started_unix_s: clock.unix_s(0.0),
+        inputs: cfg.inputs.iter().map(|i| i.describe()).collect(),
+    };
+    let writer =
+        SessionWriter::new(file, &header, cfg.recorder.flush_interval_secs, 0.0).map_err(io)?;
+    let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity * 4);
+    let clock = Arc::clone(clock);
+    let handle = spawn("recorder", move || {
+        run_recorder(writer, &rx, &|| clock.now_s())
+    })?;
+    Ok((tx, handle))
+}
+
+/// Starts the Rerun sink when its target is not off.
+fn start_rerun(
+    cfg: &StageConfig,
+    target: &RerunTarget,
+    scene: Scene,
+    infos: &[InputInfo],
+    counters: &[Arc<SourceCounters>],
+    slot: Arc<LatestSlot<DeformedFrame>>,
+) -> Result<Option<RunningRerun>, StageError> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let stats = Arc::new(RerunStats::default());
+    let series = infos
+        .iter()
+        .zip(counters)
+        .enumerate()
+        .map(|(k, (i, c))| InputSeries {
+            name: format!("{k}_{}", i.kind),
+            counters: Arc::clone(c),
+        })
+        .collect();
+    let r = &cfg.outputs.rerun;
+    let thread = rerun_sink::start(
+        &RerunOptions {
+            target: target.clone(),
+            mesh_every: r.mesh_every,
+            control_mesh: r.control_mesh,
+            harmonic_field: r.harmonic_field,
+        },
+        scene,
+        series,
+        Arc::clone(&slot),
+        Arc::clone(&stop),
+        Arc::clone(&stats),
+    )?;
+    Ok(thread.map(|thread| RunningRerun {
+        thread,
+        stop,
+        stats,
+        slot,
+    }))
+}
