@@ -32,4 +32,5 @@ pub mod output;
 pub mod protocol;
 pub mod replay;
 pub mod rig;
+pub mod runtime;
 pub mod solve;

@@ -5,9 +5,9 @@
 
 use super::recording::Recording;
 use crate::daemon::clock::Clock;
-use crate::input::synthetic::Rng;
 use crate::input::InputUrl;
 use crate::protocol::osc::encode_native;
+use crate::runtime::rng::Rng;
 use glam::DVec3;
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 use std::net::{SocketAddr, UdpSocket};

@@ -1,0 +1,4 @@
+//! Ground floor: what every layer uses at run time: the clock, latest-value slots, a
+//! seeded random generator.
+
+pub mod rng;
