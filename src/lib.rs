@@ -26,6 +26,7 @@ pub mod bench;
 pub mod character;
 pub mod config;
 pub mod daemon;
+pub mod geom;
 pub mod input;
 pub mod markers;
 pub mod output;
