@@ -245,9 +245,9 @@ fn a_rigid_rotation_of_all_markers_rotates_the_mesh_exactly_from_a_cold_start() 
 #[test]
 fn harmonic_segments_with_a_marker_cluster_turn_with_their_markers() {
     use glam::DQuat;
+    use rigless::geom::polar::rotation_angle_between;
     use rigless::solve::frame::Method;
     use rigless::solve::harmonic::HarmonicParams;
-    use rigless::solve::polar::rotation_angle_between;
     let (ch, rig) = setup();
     let mut solver = Solver::try_new(
         Arc::clone(&rig),

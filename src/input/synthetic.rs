@@ -9,6 +9,7 @@ use crate::character::demo::Motion;
 use crate::character::procedural::{skin_pose, Character};
 use crate::markers::MarkerSample;
 use crate::runtime::clock::Clock;
+use crate::runtime::rng::Rng;
 use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -42,24 +43,6 @@ impl Default for SyntheticParams {
             max_gap_secs: 1.0,
             seed: 1,
         }
-    }
-}
-
-/// xorshift64*: a small deterministic generator (the sessions must be reproducible).
-#[derive(Clone, Debug)]
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-
-    /// Uniform in `[0, 1)`.
-    pub fn next_f64(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
     }
 }
 

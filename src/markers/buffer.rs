@@ -24,7 +24,7 @@
 //! place. Time is passed in; nothing here reads a clock.
 
 use super::{FillState, MarkerFrame, MarkerSample};
-use crate::solve::polar::rotation_of;
+use crate::geom::polar::rotation_of;
 use glam::{DMat3, DVec3};
 
 /// Gap filling and gating settings (the `[buffer]` table of a stage config).

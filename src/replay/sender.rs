@@ -4,10 +4,10 @@
 //! dropouts and noise. Send times are measured against the file's clock (jitter).
 
 use super::recording::Recording;
-use crate::runtime::clock::Clock;
-use crate::input::synthetic::Rng;
 use crate::protocol::osc::{encode_native, time_tag_of_unix};
 use crate::protocol::url::{Endpoint, UrlError};
+use crate::runtime::clock::Clock;
+use crate::runtime::rng::Rng;
 use glam::DVec3;
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 use std::net::{SocketAddr, UdpSocket};

@@ -1,7 +1,8 @@
 //! Ground floor: what every layer uses at run time. The clock (system or manual, time
-//! passed in so tests drive it), the latest-value slots between threads, and the socket
-//! waits of the network inputs and senders.
+//! passed in so tests drive it), the latest-value slots between threads, the socket
+//! waits of the network inputs and senders, and a seeded random generator.
 
 pub mod clock;
 pub mod net;
+pub mod rng;
 pub mod slot;

@@ -23,7 +23,7 @@
 //! `b_i = Σ_j w_ij (R_i + R_j)(v_i − v_j)`. The matrix is factored once.
 
 use super::factor::{FactorError, FactorKind, SparseCholesky};
-use super::polar::{extract_rotation, extract_rotations4};
+use crate::geom::polar::{extract_rotation, extract_rotations4};
 use crate::rig::tetmesh::TetMesh;
 use glam::{DMat3, DQuat, DVec3};
 
@@ -597,7 +597,7 @@ mod tests {
         assert!(st
             .quats
             .iter()
-            .all(|r| crate::solve::polar::rotation_angle_between(*r, q) < 1e-9));
+            .all(|r| crate::geom::polar::rotation_angle_between(*r, q) < 1e-9));
         // The rigid pose is a fixed point of the alternation.
         let (iters, _, reason) = sys.iterate(&mut st, 10, 1e-9);
         assert_eq!(reason, StopReason::Converged);

@@ -21,8 +21,8 @@
 use super::arap::{ArapState, StopReason, CONVERGENCE_ABS_FLOOR};
 use super::harmonic::{HarmonicError, HarmonicParams, HarmonicRig, HarmonicState, SegmentClusters};
 use super::ik::{IkParams, IkReport, IkState};
-use super::polar::{extract_rotation, rotation_angle_between};
 use crate::character::skeleton::clamp_to_limits;
+use crate::geom::polar::{extract_rotation, rotation_angle_between};
 use crate::markers::MarkerFrame;
 use crate::rig::bind::Rig;
 use crate::rig::green::GreenScratch;

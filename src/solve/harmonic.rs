@@ -182,7 +182,7 @@ impl SegmentClusters {
                 continue;
             }
             let mut q = rot[j];
-            super::polar::extract_rotation(&a, &mut q);
+            crate::geom::polar::extract_rotation(&a, &mut q);
             rot[j] = q;
             pos[j] = c_now - q * (c_rest - *joint_rest);
             set += 1;

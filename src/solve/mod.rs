@@ -7,4 +7,3 @@ pub mod factor;
 pub mod frame;
 pub mod harmonic;
 pub mod ik;
-pub mod polar;

@@ -241,7 +241,7 @@ mod tests {
     fn one_warm_step_is_exact_enough() {
         // A = R S with S symmetric positive definite (stretch up to 30 %, shear): the polar
         // factor is exactly R. Warm starts 0 to 0.1 rad away, as in the ARAP local step.
-        let mut rng = crate::input::synthetic::Rng::new(7);
+        let mut rng = crate::runtime::rng::Rng::new(7);
         let mut u = move || rng.next_f64() * 2.0 - 1.0;
         let mut worst = 0.0f64;
         let mut single = 0;

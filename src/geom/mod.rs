@@ -1,0 +1,3 @@
+//! Ground floor: small geometry used by every layer (rotations, the lattice, ...).
+
+pub mod polar;
