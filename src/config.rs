@@ -227,7 +227,11 @@ fn cross_section_problems(c: &StageConfig, lines: &Lines, problems: &mut Vec<Str
             )),
             Some(ch) => {
                 let ok = motions_of(ch);
-                if let Some(m) = s.motion.as_ref().filter(|m| !ok.is_empty() && !ok.contains(&m.as_str())) {
+                if let Some(m) = s
+                    .motion
+                    .as_ref()
+                    .filter(|m| !ok.is_empty() && !ok.contains(&m.as_str()))
+                {
                     problems.push(lines.at(
                         &format!("{at}.motion"),
                         format!("the {ch} has no motion {m:?} (it has {ok:?})"),
@@ -274,13 +278,28 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         outputs: section(&table, "outputs", &lines, &mut problems),
         recorder: section(&table, "recorder", &lines, &mut problems),
     };
-    add_problems("character", config.character.problems(), &lines, &mut problems);
+    add_problems(
+        "character",
+        config.character.problems(),
+        &lines,
+        &mut problems,
+    );
     add_problems("solver", config.solver.problems(), &lines, &mut problems);
     add_problems("buffer", config.buffer.problems(), &lines, &mut problems);
     add_problems("outputs", config.outputs.problems(), &lines, &mut problems);
-    add_problems("recorder", config.recorder.problems(), &lines, &mut problems);
+    add_problems(
+        "recorder",
+        config.recorder.problems(),
+        &lines,
+        &mut problems,
+    );
     for (i, input) in config.inputs.iter().enumerate() {
-        add_problems(&format!("inputs[{i}]"), input.problems(), &lines, &mut problems);
+        add_problems(
+            &format!("inputs[{i}]"),
+            input.problems(),
+            &lines,
+            &mut problems,
+        );
     }
     cross_section_problems(&config, &lines, &mut problems);
     if problems.is_empty() {

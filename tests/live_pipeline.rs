@@ -4,14 +4,14 @@
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::character::procedural::skin_pose;
-use rigless::runtime::clock::{Clock, ManualClock};
 use rigless::daemon::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
-use rigless::runtime::slot::LatestSlot;
 use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
 use rigless::markers::FillState;
 use rigless::output::frame::DeformedFrame;
 use rigless::rig::bind::Rig;
+use rigless::runtime::clock::{Clock, ManualClock};
+use rigless::runtime::slot::LatestSlot;
 use rigless::solve::frame::{Solver, SolverParams};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

@@ -1,12 +1,12 @@
 //! Replay to OSC, then receive with the OSC input over loopback: sample by sample, what
 //! arrives is the recording (to f32), occlusions included.
 
-use rigless::runtime::clock::SystemClock;
 use rigless::input::osc::{bind, run, OscStats};
 use rigless::protocol::osc::OscMapping;
 use rigless::replay::bundled::bundled;
 use rigless::replay::recording::Recording;
 use rigless::replay::sender::{replay, ReplayOptions, Target};
+use rigless::runtime::clock::SystemClock;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 

@@ -64,7 +64,12 @@ fn a_whole_stage_runs_on_a_manual_clock_exactly_and_deterministically() {
     let hand = demo_hand();
     let pose = Motion::FingerPlay.pose(&hand.skeleton, 2.0);
     let mut truth = vec![glam::DVec3::ZERO; hand.vertices.len()];
-    skin_pose(&hand, &pose, &mut truth, &mut vec![glam::DVec3::ZERO; hand.markers.len()]);
+    skin_pose(
+        &hand,
+        &pose,
+        &mut truth,
+        &mut vec![glam::DVec3::ZERO; hand.markers.len()],
+    );
     let ys = hand.vertices.iter().map(|v| v.y);
     let height = ys.clone().fold(f64::MIN, f64::max) - ys.fold(f64::MAX, f64::min);
     let mean_err = last
@@ -82,7 +87,10 @@ fn a_whole_stage_runs_on_a_manual_clock_exactly_and_deterministically() {
     // The same stage again: the same frames, bit for bit.
     let (again, last2) = run_manual(HAND_STAGE, 2.0, dir.path());
     assert_eq!(again.status.frames, 241);
-    assert!(last2.vertices_m == last.vertices_m, "a manual clock is deterministic");
+    assert!(
+        last2.vertices_m == last.vertices_m,
+        "a manual clock is deterministic"
+    );
 }
 
 #[test]
@@ -93,6 +101,7 @@ fn the_recorder_keeps_every_sample_a_manual_stage_received() {
     let (path, written) = summary.recorded.expect("a recording");
     assert_eq!(path, dir.path().join("take.rlsession"));
     // 121 frames of 8 samples, every one written.
+    assert_eq!(summary.source_dropped, 0);
     assert_eq!(written, 121 * 8);
     let rec = rigless::replay::recording::Recording::load_with(&path, 1.0).unwrap();
     assert_eq!(rec.labels.len(), 8);

@@ -5,13 +5,13 @@
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::daemon::pipeline::Pipeline;
-use rigless::output::scene::Scene;
-use rigless::runtime::slot::LatestSlot;
 use rigless::input::synthetic::{SyntheticParams, SyntheticSession};
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
+use rigless::output::scene::Scene;
 use rigless::output::stream::StreamServer;
 use rigless::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
 use rigless::rig::bind::Rig;
+use rigless::runtime::slot::LatestSlot;
 use rigless::solve::frame::{Solver, SolverParams};
 use std::io::Read;
 use std::net::TcpStream;

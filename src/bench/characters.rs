@@ -237,9 +237,21 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::Benc
     // Frame p99 targets (ms) of the two methods; the harmonic method's is the body's.
     let walk = Motion::Body(BodyMotion::Walk);
     let cases = [
-        (&hand, hand_bind_params(), Motion::FingerPlay, Some(1.0), None),
+        (
+            &hand,
+            hand_bind_params(),
+            Motion::FingerPlay,
+            Some(1.0),
+            None,
+        ),
         (&body, body_bind_params(), walk, Some(4.0), Some(3.0)),
-        (&body, body_bind_params(), Motion::Body(BodyMotion::Reach), Some(4.0), Some(3.0)),
+        (
+            &body,
+            body_bind_params(),
+            Motion::Body(BodyMotion::Reach),
+            Some(4.0),
+            Some(3.0),
+        ),
         (&body50k, body_bind_params(), walk, None, Some(15.0)),
     ];
     if !json {
@@ -253,7 +265,10 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::Benc
     for (ch, bind, motion, arap_target_ms, harmonic_target_ms) in cases {
         for (method, target_ms) in [
             (Method::Arap, arap_target_ms),
-            (Method::Harmonic(HarmonicParams::default()), harmonic_target_ms),
+            (
+                Method::Harmonic(HarmonicParams::default()),
+                harmonic_target_ms,
+            ),
         ] {
             let params = SolverParams {
                 method,
@@ -292,4 +307,3 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::Benc
     }
     Ok(())
 }
-

@@ -114,7 +114,12 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::Benc
             writeln!(
                 out,
                 "{:<12} {:>3} markers {:>5} bytes  decode µs median {:.2} (p10 {:.2}, p90 {:.2})",
-                r.codec, r.markers, r.packet_bytes, r.decode_us_median, r.decode_us_p10, r.decode_us_p90
+                r.codec,
+                r.markers,
+                r.packet_bytes,
+                r.decode_us_median,
+                r.decode_us_p10,
+                r.decode_us_p90
             )?;
         }
     }

@@ -5,9 +5,9 @@
 
 use super::BenchError;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
-use std::path::Path;
 use crate::markers::{FillState, MarkerFrame, MarkerSample};
 use glam::DVec3;
+use std::path::Path;
 
 /// Marker trajectories at a fixed rate: `frames[f][k]`, metres, NaN where missing.
 #[derive(Clone, Debug)]
@@ -275,7 +275,6 @@ pub fn suite(data: &Path, json: bool, out: &mut dyn std::io::Write) -> Result<()
     }
     Ok(())
 }
-
 
 #[cfg(test)]
 mod tests {

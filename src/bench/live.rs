@@ -184,7 +184,9 @@ pub fn run_live(case: &LiveCase) -> Result<LiveRecord, BenchError> {
         std::thread::sleep(Duration::from_millis(2));
     }
     let rss_start_mib = rss_mib();
-    let summary = stage.join().map_err(|e| BenchError::case("live stage", e))?;
+    let summary = stage
+        .join()
+        .map_err(|e| BenchError::case("live stage", e))?;
     let rss_end_mib = rss_mib();
     drop(silent_conns);
     let seen = measurer.join().unwrap_or_default();

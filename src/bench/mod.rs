@@ -49,7 +49,9 @@ pub enum BenchError {
     Write(#[from] std::io::Error),
     #[error("encoding a record: {0}")]
     Json(#[from] serde_json::Error),
-    #[error("{dir} not found: the {suite} suite needs the shared benchmark data (pass --data DIR)")]
+    #[error(
+        "{dir} not found: the {suite} suite needs the shared benchmark data (pass --data DIR)"
+    )]
     NoData { suite: &'static str, dir: String },
     #[error("{case}: {source}")]
     Case {

@@ -12,9 +12,8 @@ use std::sync::Arc;
 /// The suite: one case of `seconds`.
 pub fn suite(seconds: f64, json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError> {
     let name = "hand_finger_play";
-    let bytes = bundled(name).ok_or_else(|| {
-        BenchError::case(name, std::io::Error::other("not a bundled session"))
-    })?;
+    let bytes = bundled(name)
+        .ok_or_else(|| BenchError::case(name, std::io::Error::other("not a bundled session")))?;
     let rec = Recording::from_c3d(name, bytes).map_err(|e| BenchError::case(name, e))?;
     // A receiving socket that reads nothing: the kernel drops what overflows.
     let sink = std::net::UdpSocket::bind("127.0.0.1:0")?;

@@ -189,7 +189,10 @@ fn print_started(stage: &Stage, json: bool) {
 
 fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
     if json {
-        println!("{}", serde_json::json!({ "status": st, "clients": clients }));
+        println!(
+            "{}",
+            serde_json::json!({ "status": st, "clients": clients })
+        );
         return;
     }
     let [m, p, r, h] = st.fill_now;

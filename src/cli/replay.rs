@@ -30,7 +30,11 @@ pub struct ReplayArgs {
     stream: SocketAddr,
     /// With --solve: Rerun: off, spawn, connect=HOST:PORT or save=PATH.rrd (as on
     /// `rigless run`).
-    #[arg(long, value_name = "off|spawn|connect=ADDR|save=PATH", requires = "solve")]
+    #[arg(
+        long,
+        value_name = "off|spawn|connect=ADDR|save=PATH",
+        requires = "solve"
+    )]
     rerun: Option<RerunTarget>,
     /// Playback speed (1 = the file's timing).
     #[arg(long, default_value_t = 1.0)]
@@ -71,7 +75,10 @@ fn flag_problems(a: &ReplayArgs) -> Vec<String> {
         problems.push(format!("--speed must be in (0, 100], got {}", a.speed));
     }
     if !(a.start.is_finite() && a.start >= 0.0) {
-        problems.push(format!("--start must be zero or more seconds, got {}", a.start));
+        problems.push(format!(
+            "--start must be zero or more seconds, got {}",
+            a.start
+        ));
     }
     if a.end.is_some_and(|e| !(e.is_finite() && e > a.start)) {
         problems.push(format!("--end must be after --start ({} s)", a.start));
@@ -83,7 +90,10 @@ fn flag_problems(a: &ReplayArgs) -> Vec<String> {
         ));
     }
     if !(a.noise_mm.is_finite() && a.noise_mm >= 0.0) {
-        problems.push(format!("--noise-mm must be zero or more, got {}", a.noise_mm));
+        problems.push(format!(
+            "--noise-mm must be zero or more, got {}",
+            a.noise_mm
+        ));
     }
     if !(a.bvh_scale.is_finite() && a.bvh_scale > 0.0) {
         problems.push(format!("--bvh-scale must be positive, got {}", a.bvh_scale));
@@ -113,7 +123,9 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         );
     }
     let to = a.to.clone().context("--to or --solve is required")?;
-    let target = Target::parse(&to).map_err(|e| problems.push(e.to_string())).ok();
+    let target = Target::parse(&to)
+        .map_err(|e| problems.push(e.to_string()))
+        .ok();
     let (Some(target), true) = (target, problems.is_empty()) else {
         bail!("{}", problems.join("\n"));
     };

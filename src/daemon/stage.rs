@@ -270,25 +270,34 @@ fn usable_rerun_target(t: RerunTarget, fallback: PathBuf) -> (RerunTarget, Optio
     }
 }
 
-/// Spawns a named thread that paces itself on `clock` (attached before it starts,
-/// detached when it ends, even by a panic).
+/// A thread's place among those that pace themselves on a clock: taken before any of
+/// them starts (so that a manual clock waits for all of them), given back when the thread
+/// ends, even by a panic.
+struct Attached(Arc<dyn Clock>);
+
+impl Attached {
+    fn new(clock: &Arc<dyn Clock>) -> Self {
+        clock.attach();
+        Self(Arc::clone(clock))
+    }
+}
+
+impl Drop for Attached {
+    fn drop(&mut self) {
+        self.0.detach();
+    }
+}
+
+/// Spawns a named thread that paces itself on the clock `place` was taken on.
 fn spawn_paced<T: Send + 'static>(
     name: &'static str,
-    clock: &Arc<dyn Clock>,
+    place: Attached,
     f: impl FnOnce() -> T + Send + 'static,
 ) -> Result<JoinHandle<T>, StageError> {
-    struct Detach(Arc<dyn Clock>);
-    impl Drop for Detach {
-        fn drop(&mut self) {
-            self.0.detach();
-        }
-    }
-    clock.attach();
-    let guard = Detach(Arc::clone(clock));
     std::thread::Builder::new()
         .name(name.into())
         .spawn(move || {
-            let _detach_on_exit = guard;
+            let _detach_on_exit = place;
             f()
         })
         .map_err(|source| StageError::Thread { name, source })
@@ -399,9 +408,9 @@ impl Stage {
         let opened = open_inputs(cfg, &ctx)?;
         let start_s = clock.now_s() + START_DELAY_S;
         let loop_start_s = start_s + LOOP_PHASE_S;
-        let inputs_end_s = opened
-            .iter()
-            .try_fold(start_s, |end, i| i.duration_s().map(|d| end.max(start_s + d)));
+        let inputs_end_s = opened.iter().try_fold(start_s, |end, i| {
+            i.duration_s().map(|d| end.max(start_s + d))
+        });
         let infos: Vec<InputInfo> = opened
             .iter()
             .map(|i| InputInfo {
@@ -411,6 +420,8 @@ impl Stage {
                 local_addr: i.local_addr(),
             })
             .collect();
+        // The loop's place on the clock is taken before any input starts.
+        let loop_place = Attached::new(&clock);
         let mut counters = Vec::new();
         let mut sources = Vec::new();
         for input in opened {
@@ -425,7 +436,7 @@ impl Stage {
             let (clock2, stop2) = (Arc::clone(&clock), Arc::clone(&stop));
             let run = move || input.run(&*clock2, start_s, &stop2, &mut sink);
             sources.push(if paced {
-                spawn_paced(kind, &clock, run)?
+                spawn_paced(kind, Attached::new(&clock), run)?
             } else {
                 spawn(kind, run)?
             });
@@ -446,8 +457,9 @@ impl Stage {
         };
         let status = Arc::new(LatestSlot::new());
         let solver = {
-            let (clock2, stop, status) = (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&status));
-            spawn_paced("solver", &clock, move || {
+            let (clock2, stop, status) =
+                (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&status));
+            spawn_paced("solver", loop_place, move || {
                 let last = run_loop(&mut pipeline, &*clock2, params, &stop, &status);
                 // The inputs end with the loop (a paced input then sends nothing more).
                 stop.store(true, Ordering::Relaxed);
@@ -455,9 +467,10 @@ impl Stage {
                 last
             })?
         };
-        let stream_stats = server
-            .as_ref()
-            .map_or_else(|| Arc::new(StreamStats::default()), |s| Arc::clone(s.stats()));
+        let stream_stats = server.as_ref().map_or_else(
+            || Arc::new(StreamStats::default()),
+            |s| Arc::clone(s.stats()),
+        );
         let info = StageInfo {
             character: bound.name,
             mesh_vertices: rig.mesh_rest.len(),

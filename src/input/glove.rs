@@ -9,10 +9,10 @@
 use super::config::{endpoint_of, GloveInputConfig, GLOVE_SCHEMES};
 use super::{InputError, InputSink, PacketStats};
 use crate::character::skeleton::{compose, Skeleton, SwingTwist};
+use crate::protocol::glove::{decode_line, GloveReading, LineFramer, FINGERS};
 use crate::protocol::url::{Endpoint, GlovePort};
 use crate::runtime::clock::unix_now;
 use crate::runtime::net::is_wait;
-use crate::protocol::glove::{decode_line, GloveFormat, GloveReading, LineFramer, FINGERS};
 use glam::{DQuat, DVec3};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

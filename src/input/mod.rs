@@ -68,10 +68,7 @@ pub enum InputError {
         source: config::InputUrlError,
     },
     #[error("binding {url}: {source}")]
-    Bind {
-        url: String,
-        source: std::io::Error,
-    },
+    Bind { url: String, source: std::io::Error },
     #[error(transparent)]
     Recording(#[from] crate::replay::recording::RecordingError),
     #[error("no bundled session {name:?}")]
@@ -91,10 +88,7 @@ pub enum InputError {
     #[error("{url}: the glove cannot drive this character:\n  {}", problems.join("\n  "))]
     GloveMap { url: String, problems: Vec<String> },
     #[error("{url}: cannot open its command socket: {source}")]
-    CommandSocket {
-        url: String,
-        source: std::io::Error,
-    },
+    CommandSocket { url: String, source: std::io::Error },
 }
 
 /// One packet of an input (or one frame of a recording), decoded.
@@ -121,8 +115,7 @@ pub trait InputSink {
     fn frame(&mut self, frame: &InputFrame<'_>) -> bool;
     /// One data-glove reading received at `receive_unix_s`, with the glove's map onto
     /// the character's joints. Returns false as [`Self::frame`] does.
-    fn glove(&mut self, receive_unix_s: f64, reading: &GloveReading, map: &glove::HandMap)
-        -> bool;
+    fn glove(&mut self, receive_unix_s: f64, reading: &GloveReading, map: &glove::HandMap) -> bool;
 }
 
 /// An opened input, ready to run.
@@ -350,12 +343,7 @@ impl InputSink for ChannelSink {
         true
     }
 
-    fn glove(
-        &mut self,
-        receive_unix_s: f64,
-        reading: &GloveReading,
-        map: &glove::HandMap,
-    ) -> bool {
+    fn glove(&mut self, receive_unix_s: f64, reading: &GloveReading, map: &glove::HandMap) -> bool {
         if let Some(PinTarget { slot, rig }) = &self.pins {
             let first = |j: usize| rig.ik.angle_params(j);
             slot.write(|pins| map.write_pins(reading, &first, pins));

@@ -17,13 +17,13 @@ use super::config::{endpoint_of, NatNetInputConfig, NATNET_SCHEMES};
 use super::{InputError, InputFrame, InputSink};
 use crate::markers::index::MarkerIndex;
 use crate::markers::MarkerSample;
-use crate::protocol::url::Endpoint;
-use crate::runtime::clock::{unix_now, Clock};
-use crate::runtime::net::is_wait;
 use crate::protocol::natnet::{
     decode, encode_connect, encode_keepalive, encode_request_modeldef, Description, Message,
     MocapFrame, ServerInfo, Version,
 };
+use crate::protocol::url::Endpoint;
+use crate::runtime::clock::{unix_now, Clock};
+use crate::runtime::net::is_wait;
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

@@ -36,9 +36,8 @@ impl ReplayInput {
     pub fn open(cfg: &ReplayInputConfig, ctx: &OpenContext<'_>) -> Result<Self, InputError> {
         let rec = match (&cfg.session, &cfg.path) {
             (Some(name), _) => {
-                let bytes = bundled(name).ok_or_else(|| InputError::NoSuchSession {
-                    name: name.clone(),
-                })?;
+                let bytes = bundled(name)
+                    .ok_or_else(|| InputError::NoSuchSession { name: name.clone() })?;
                 Recording::from_c3d(name, bytes)?
             }
             (None, Some(p)) => Recording::load_with(&ctx.base_dir.join(p), cfg.bvh_scale)?,
@@ -129,30 +128,38 @@ impl ReplayInput {
         let period = 1.0 / rec.rate_hz;
         let mut batch = Vec::new();
         let mut sent = 0usize;
-        play_paced(clock, start_s, period / p.speed, n, p.looping, stop, &mut |i, t| {
-            let source_t = i as f64 * period;
-            batch.clear();
-            for (pos, m) in rec.frames[i % n].iter().zip(&self.map.marker_of_label) {
-                if let Some(k) = m {
-                    batch.push(MarkerSample {
-                        marker: *k,
-                        time_s: t,
-                        source_time_s: source_t,
-                        position_m: *pos,
-                        occluded: !pos.is_finite(),
-                    });
+        play_paced(
+            clock,
+            start_s,
+            period / p.speed,
+            n,
+            p.looping,
+            stop,
+            &mut |i, t| {
+                let source_t = i as f64 * period;
+                batch.clear();
+                for (pos, m) in rec.frames[i % n].iter().zip(&self.map.marker_of_label) {
+                    if let Some(k) = m {
+                        batch.push(MarkerSample {
+                            marker: *k,
+                            time_s: t,
+                            source_time_s: source_t,
+                            position_m: *pos,
+                            occluded: !pos.is_finite(),
+                        });
+                    }
                 }
-            }
-            sent += 1;
-            sink.frame(&InputFrame {
-                time_s: t,
-                receive_unix_s: clock.unix_s(t),
-                source_time_s: Some(source_t),
-                frame: Some(i as i64),
-                samples: &batch,
-                names: &self.names,
-            })
-        });
+                sent += 1;
+                sink.frame(&InputFrame {
+                    time_s: t,
+                    receive_unix_s: clock.unix_s(t),
+                    source_time_s: Some(source_t),
+                    frame: Some(i as i64),
+                    samples: &batch,
+                    names: &self.names,
+                })
+            },
+        );
         format!("{sent} frames of {} played", rec.name)
     }
 }

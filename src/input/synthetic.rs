@@ -223,19 +223,27 @@ impl SyntheticInput {
             .collect();
         let mut batch = Vec::new();
         let mut sent = 0usize;
-        play_paced(clock, start_s, period, frames, self.looping, stop, &mut |n, t| {
-            batch.clear();
-            self.session.frame(n % frames, t, &mut batch);
-            sent += 1;
-            sink.frame(&InputFrame {
-                time_s: t,
-                receive_unix_s: clock.unix_s(t),
-                source_time_s: batch.first().map(|s| s.source_time_s),
-                frame: Some(n as i64),
-                samples: &batch,
-                names: &names,
-            })
-        });
+        play_paced(
+            clock,
+            start_s,
+            period,
+            frames,
+            self.looping,
+            stop,
+            &mut |n, t| {
+                batch.clear();
+                self.session.frame(n % frames, t, &mut batch);
+                sent += 1;
+                sink.frame(&InputFrame {
+                    time_s: t,
+                    receive_unix_s: clock.unix_s(t),
+                    source_time_s: batch.first().map(|s| s.source_time_s),
+                    frame: Some(n as i64),
+                    samples: &batch,
+                    names: &names,
+                })
+            },
+        );
         format!("{sent} synthetic frames played")
     }
 }

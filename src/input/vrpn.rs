@@ -18,14 +18,14 @@ use super::{InputError, InputFrame, InputSink};
 use crate::markers::index::MarkerIndex;
 use crate::markers::MarkerSample;
 use crate::protocol::url::{Endpoint, VrpnMode};
-use crate::runtime::clock::Clock;
-use crate::runtime::net::is_wait;
-use std::collections::{BTreeMap, HashMap};
 use crate::protocol::vrpn::{
     cookie, decode_message, description_payload, encode_connection_request, encode_message,
     parse_pos_quat, udp_description, Message, Names, PosQuat, StreamReader, VrpnError, PING, PONG,
     POS_QUAT, SENDER_DESCRIPTION, TYPE_DESCRIPTION, UDP_DESCRIPTION,
 };
+use crate::runtime::clock::Clock;
+use crate::runtime::net::is_wait;
+use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

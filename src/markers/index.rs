@@ -138,7 +138,11 @@ mod tests {
         assert_eq!(index.get("lfhd"), Some(2), "an exact match wins");
         assert_eq!(index.get("Bob:RFHD"), Some(1));
         assert_eq!(index.get(" rfhd "), Some(1));
-        assert_eq!(index.get("Bob:LFHD"), Some(0), "first of a shared loose name");
+        assert_eq!(
+            index.get("Bob:LFHD"),
+            Some(0),
+            "first of a shared loose name"
+        );
         assert_eq!(index.get("C7"), None);
     }
 

@@ -387,22 +387,26 @@ impl Logger {
     ) -> Self {
         stats.check(rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP()));
         // The triangles never change: logged once, static; frames carry positions only.
-        stats.check(rec.log_static(
-            "character/mesh",
-            &::rerun::Mesh3D::update_fields().with_triangle_indices(
-                scene
-                    .triangles
-                    .iter()
-                    .map(|t| ::rerun::components::TriangleIndices::from(*t)),
+        stats.check(
+            rec.log_static(
+                "character/mesh",
+                &::rerun::Mesh3D::update_fields().with_triangle_indices(
+                    scene
+                        .triangles
+                        .iter()
+                        .map(|t| ::rerun::components::TriangleIndices::from(*t)),
+                ),
             ),
-        ));
+        );
         if opts.harmonic_field && !scene.tied.is_empty() {
-            stats.check(rec.log_static(
-                "character/correspondences",
-                &::rerun::Points3D::update_fields()
-                    .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
-                    .with_radii([::rerun::Radius::new_ui_points(2.0)]),
-            ));
+            stats.check(
+                rec.log_static(
+                    "character/correspondences",
+                    &::rerun::Points3D::update_fields()
+                        .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
+                        .with_radii([::rerun::Radius::new_ui_points(2.0)]),
+                ),
+            );
         }
         let harmonic_field = opts.harmonic_field && !scene.tied.is_empty();
         let labels = scene
@@ -450,30 +454,33 @@ impl Logger {
             }
             stats.check(rec.log("character/mesh", &mesh));
             if field {
-                stats.check(rec.log(
-                    "character/correspondences",
-                    &::rerun::Points3D::update_fields().with_positions(
-                        self.scene
-                            .tied
-                            .iter()
-                            .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
-                            .map(|p| p.to_array()),
+                stats.check(
+                    rec.log(
+                        "character/correspondences",
+                        &::rerun::Points3D::update_fields().with_positions(
+                            self.scene
+                                .tied
+                                .iter()
+                                .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
+                                .map(|p| p.to_array()),
+                        ),
                     ),
-                ));
+                );
             }
             if self.control_mesh && !f.control_m.is_empty() {
                 let p = &f.control_m;
-                stats.check(rec.log(
-                    "character/control_mesh",
-                    &::rerun::LineStrips3D::new(
-                        self.scene
-                            .control_edges
-                            .iter()
-                            .map(|&[a, b]| [p[a as usize].to_array(), p[b as usize].to_array()]),
-                    )
-                    .with_radii([::rerun::Radius::new_ui_points(0.5)])
-                    .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
-                ));
+                stats.check(
+                    rec.log(
+                        "character/control_mesh",
+                        &::rerun::LineStrips3D::new(
+                            self.scene.control_edges.iter().map(|&[a, b]| {
+                                [p[a as usize].to_array(), p[b as usize].to_array()]
+                            }),
+                        )
+                        .with_radii([::rerun::Radius::new_ui_points(0.5)])
+                        .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
+                    ),
+                );
             }
         }
         for w in &mut self.inputs {
@@ -482,16 +489,18 @@ impl Logger {
         let present: Vec<usize> = (0..f.markers_m.len())
             .filter(|&k| f.markers_m[k].is_finite())
             .collect();
-        stats.check(rec.log(
-            "character/markers",
-            &::rerun::Points3D::new(present.iter().map(|&k| f.markers_m[k].to_array()))
-                .with_colors(present.iter().map(|&k| {
-                    let [r, g, b, a] = fill_color(f.marker_states[k]);
-                    ::rerun::Color::from_unmultiplied_rgba(r, g, b, a)
-                }))
-                .with_labels(present.iter().map(|&k| self.labels[k].clone()))
-                .with_radii([0.006f32]),
-        ));
+        stats.check(
+            rec.log(
+                "character/markers",
+                &::rerun::Points3D::new(present.iter().map(|&k| f.markers_m[k].to_array()))
+                    .with_colors(present.iter().map(|&k| {
+                        let [r, g, b, a] = fill_color(f.marker_states[k]);
+                        ::rerun::Color::from_unmultiplied_rgba(r, g, b, a)
+                    }))
+                    .with_labels(present.iter().map(|&k| self.labels[k].clone()))
+                    .with_radii([0.006f32]),
+            ),
+        );
         if !f.joints_m.is_empty() {
             // One strip per bone, red where its parent joint exceeds its limits by more
             // than 0.5° (the quality target) on the solved mesh.
@@ -509,11 +518,13 @@ impl Logger {
                     });
                 }
             }
-            stats.check(rec.log(
-                "character/skeleton",
-                &::rerun::LineStrips3D::new(self.strips.iter().cloned())
-                    .with_colors(self.strip_colors.iter().copied()),
-            ));
+            stats.check(
+                rec.log(
+                    "character/skeleton",
+                    &::rerun::LineStrips3D::new(self.strips.iter().cloned())
+                        .with_colors(self.strip_colors.iter().copied()),
+                ),
+            );
         }
         if self.scene.rest_volume_m3 != 0.0 {
             // Relative change of the enclosed volume.

@@ -176,12 +176,7 @@ fn natnet<'a>(
     for kv in options {
         match kv.split_once('=') {
             Some(("server", v)) => {
-                server = Some(with_default_port(
-                    url,
-                    v,
-                    NATNET_COMMAND_PORT,
-                    "IP[:PORT]",
-                )?)
+                server = Some(with_default_port(url, v, NATNET_COMMAND_PORT, "IP[:PORT]")?)
             }
             Some(("version", v)) => {
                 let (a, b) = v.split_once('.').unwrap_or((v, "0"));
@@ -253,12 +248,15 @@ fn glove<'a>(
         max_value: DEFAULT_MAX_VALUE,
     };
     let positive = |key: &'static str, v: &str| {
-        v.parse().ok().filter(|&b: &u32| b > 0).ok_or(UrlError::BadValue {
-            url: url.to_owned(),
-            key,
-            value: v.to_owned(),
-            expected: "a positive whole number",
-        })
+        v.parse()
+            .ok()
+            .filter(|&b: &u32| b > 0)
+            .ok_or(UrlError::BadValue {
+                url: url.to_owned(),
+                key,
+                value: v.to_owned(),
+                expected: "a positive whole number",
+            })
     };
     for kv in options {
         match kv.split_once('=') {

@@ -47,7 +47,9 @@ pub const NATNET_SET: &str = "replay";
 pub enum TargetError {
     #[error(transparent)]
     Url(#[from] UrlError),
-    #[error("{url:?}: a recording holds markers, not glove readings: it cannot replay to glove://")]
+    #[error(
+        "{url:?}: a recording holds markers, not glove readings: it cannot replay to glove://"
+    )]
     Glove { url: String },
 }
 
@@ -505,7 +507,11 @@ pub fn replay(
             markers.push((rec.labels[k].as_str(), p));
         }
         let bytes = match &target {
-            Target::Osc(_) => encode_native(n as i64, time_tag_of_unix(clock.unix_s(scheduled)), &markers),
+            Target::Osc(_) => encode_native(
+                n as i64,
+                time_tag_of_unix(clock.unix_s(scheduled)),
+                &markers,
+            ),
             Target::Vmc(_) => encode_vmc(i as f64 * period, &markers),
             Target::Vrpn { .. } => encode_vrpn(clock.unix_s(scheduled), &markers),
             Target::NatNet { .. } => encode_natnet(n, i as f64 * period, &markers)

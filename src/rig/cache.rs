@@ -158,7 +158,9 @@ impl std::fmt::Display for RigSource {
                 write!(f, "loaded {} in {seconds:.3} s", path.display())
             }
             RigSource::Bound { miss, written } => {
-                let why = miss.as_ref().map_or("--force".to_owned(), ToString::to_string);
+                let why = miss
+                    .as_ref()
+                    .map_or("--force".to_owned(), ToString::to_string);
                 write!(f, "bound ({why}); wrote {}", written.display())
             }
         }
@@ -195,12 +197,13 @@ pub fn load_or_bind(
         (true, _) => None,
         (false, Err(miss)) => Some(miss),
     };
-    let rig = Rig::bind_with_progress(&loaded.character, &loaded.bind, progress).map_err(
-        |source| LoadOrBindError::Bind {
-            path: path.display().to_string(),
-            source,
-        },
-    )?;
+    let rig =
+        Rig::bind_with_progress(&loaded.character, &loaded.bind, progress).map_err(|source| {
+            LoadOrBindError::Bind {
+                path: path.display().to_string(),
+                source,
+            }
+        })?;
     let written = store(path, &rig, loaded.inputs_hash)?;
     Ok((rig, RigSource::Bound { miss, written }))
 }

@@ -17,8 +17,9 @@ pub trait Clock: Send + Sync {
     /// The instant a solve due at `t_s` must stop by (real time: the solver reads
     /// `Instant::now()`). A manual clock gives no deadline that can pass.
     fn deadline_at(&self, t_s: f64) -> Instant;
-    /// A thread is about to pace itself on this clock (call it before spawning the
-    /// thread, then [`Self::detach`] when it ends). The system clock ignores it.
+    /// A thread is about to pace itself on this clock: call it for every such thread
+    /// before starting any of them (a manual clock moves as soon as every attached thread
+    /// waits), then [`Self::detach`] when each ends. The system clock ignores it.
     fn attach(&self) {}
     /// A thread that paced itself on this clock has ended.
     fn detach(&self) {}
@@ -160,11 +161,7 @@ impl Clock for ManualClock {
             self.inner.1.notify_all();
         }
         while s.now_s < t_s {
-            s = self
-                .inner
-                .1
-                .wait(s)
-                .unwrap_or_else(|e| e.into_inner());
+            s = self.inner.1.wait(s).unwrap_or_else(|e| e.into_inner());
         }
         if let Some(i) = s.waiting.iter().position(|w| *w == t_s) {
             s.waiting.swap_remove(i);

@@ -118,7 +118,10 @@ impl SolverConfig {
                 format!("must be in (0, 1], got {}", self.deadline_fraction),
             );
         }
-        for (key, v) in [("rest_prior", self.rest_prior), ("prev_prior", self.prev_prior)] {
+        for (key, v) in [
+            ("rest_prior", self.rest_prior),
+            ("prev_prior", self.prev_prior),
+        ] {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                 push(key, format!("must be in [0, 1], got {v}"));
             }
