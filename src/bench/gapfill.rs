@@ -141,7 +141,7 @@ const GAPS_S: [f64; 7] = [0.01, 0.025, 0.05, 0.1, 0.2, 0.5, 1.0];
 fn synthetic_sets() -> Vec<Trajectories> {
     use crate::character::body::BodyMotion;
     use crate::character::demo::{demo_body, demo_hand, Motion};
-    use crate::input::synthetic::{SyntheticParams, SyntheticSession};
+    use crate::character::session::{SyntheticParams, SyntheticSession};
     use std::sync::Arc;
     let mut sets = Vec::new();
     for (ch, motion) in [

@@ -8,6 +8,7 @@ pub mod demo;
 pub mod file;
 pub mod mesh;
 pub mod procedural;
+pub mod session;
 pub mod skeleton;
 
 use glam::DVec3;

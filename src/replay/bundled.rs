@@ -6,7 +6,7 @@
 use super::c3d::{write_c3d, C3dError, Processor};
 use crate::character::body::BodyMotion;
 use crate::character::demo::{demo_body, demo_hand, Motion};
-use crate::input::synthetic::{SyntheticParams, SyntheticSession};
+use crate::character::session::{SyntheticParams, SyntheticSession};
 use std::sync::Arc;
 
 /// One bundled session.
