@@ -339,7 +339,6 @@ impl Stage {
         )?;
         let bind_s = t0.elapsed().as_secs_f64();
         let rig = Arc::clone(&bound.rig);
-        let rate_hz = cfg.solver.rate_hz;
         let solver = Solver::try_new(Arc::clone(&rig), cfg.solver.params()).map_err(|source| {
             StageError::Solver {
                 method: cfg.solver.method,
@@ -347,41 +346,11 @@ impl Stage {
                 source,
             }
         })?;
-        let scene = Scene::of_rig(&rig, &bound.name, rate_hz).with_tied(solver.harmonic_tied());
-
-        // Sinks: the stream, Rerun's slot, an in-process reader's slot.
-        let stream_slot = Arc::new(LatestSlot::new());
-        let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
-        let server = if tcp.is_some() || ws.is_some() {
-            Some(
-                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot))
-                    .map_err(StageError::Stream)?,
-            )
-        } else {
-            None
-        };
-        let (rerun_target, rerun_note) = usable_rerun_target(
-            cfg.outputs.rerun.target(base_dir),
-            base_dir.join(format!("rigless-{}.rrd", bound.name)),
-        );
-        let rerun_slot = Arc::new(LatestSlot::new());
-        let mut slots = vec![stream_slot];
-        if rerun_target != RerunTarget::Off {
-            slots.push(Arc::clone(&rerun_slot));
-        }
-        slots.extend(opts.frames.take());
-
+        let scene = Scene::of_rig(&rig, &bound.name, cfg.solver.rate_hz)
+            .with_tied(solver.harmonic_tied());
+        let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take())?;
         let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
-        let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
-        let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
-        if rerun_target != RerunTarget::Off && cfg.outputs.rerun.control_mesh {
-            pipeline = pipeline.with_control_mesh();
-        }
-        if rerun_target != RerunTarget::Off && cfg.outputs.rerun.harmonic_field {
-            pipeline = pipeline.with_harmonic_field();
-        }
-
-        let stop = Arc::new(AtomicBool::new(false));
+        let (mut pipeline, pins) = assemble(cfg, solver, rx, &sinks);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
             Some(path) => {
                 let (rec_tx, handle) = start_recorder(cfg, &path, &rig, &clock)?;
@@ -390,14 +359,6 @@ impl Stage {
             }
             None => None,
         };
-        let pins = cfg
-            .inputs
-            .iter()
-            .any(|i| matches!(i, crate::input::config::InputConfig::Glove(_)))
-            .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
-        if let Some(p) = &pins {
-            pipeline = pipeline.with_pins(Arc::clone(p));
-        }
 
         let ctx = OpenContext {
             base_dir,
@@ -408,49 +369,29 @@ impl Stage {
         let opened = open_inputs(cfg, &ctx)?;
         let start_s = clock.now_s() + START_DELAY_S;
         let loop_start_s = start_s + LOOP_PHASE_S;
-        let inputs_end_s = opened.iter().try_fold(start_s, |end, i| {
-            i.duration_s().map(|d| end.max(start_s + d))
-        });
-        let infos: Vec<InputInfo> = opened
-            .iter()
-            .map(|i| InputInfo {
-                kind: i.kind(),
-                opened: i.opened(),
-                warnings: i.warnings(),
-                local_addr: i.local_addr(),
-            })
-            .collect();
-        // The loop's place on the clock is taken before any input starts.
-        let loop_place = Attached::new(&clock);
-        let mut counters = Vec::new();
-        let mut sources = Vec::new();
-        for input in opened {
-            let c = Arc::new(SourceCounters::default());
-            counters.push(Arc::clone(&c));
-            let pins = pins.as_ref().map(|slot| PinTarget {
-                slot: Arc::clone(slot),
-                rig: Arc::clone(&rig),
-            });
-            let mut sink = ChannelSink::new(tx.clone(), c, pins);
-            let (paced, kind) = (input.is_paced(), input.kind());
-            let (clock2, stop2) = (Arc::clone(&clock), Arc::clone(&stop));
-            let run = move || input.run(&*clock2, start_s, &stop2, &mut sink);
-            sources.push(if paced {
-                spawn_paced(kind, Attached::new(&clock), run)?
-            } else {
-                spawn(kind, run)?
-            });
-        }
-        drop(tx);
-
-        let rerun = start_rerun(cfg, &rerun_target, scene, &infos, &counters, rerun_slot)?;
         let end_s = match opts.stop_after_secs {
             Some(s) => Some(loop_start_s + s),
-            None => inputs_end_s,
+            None => opened.iter().try_fold(start_s, |end, i| {
+                i.duration_s().map(|d| end.max(start_s + d))
+            }),
         };
+        let infos: Vec<InputInfo> = opened.iter().map(InputInfo::of).collect();
+        // The loop's place on the clock is taken before any input starts.
+        let loop_place = Attached::new(&clock);
+        let stop = Arc::new(AtomicBool::new(false));
+        let running = spawn_inputs(opened, &tx, &clock, start_s, &stop, &pins, &rig)?;
+        drop(tx);
+        let rerun = start_rerun(
+            cfg,
+            &sinks.rerun_target,
+            scene,
+            &infos,
+            &running.counters,
+            Arc::clone(&sinks.rerun_slot),
+        )?;
         let params = LoopParams {
             start_s: loop_start_s,
-            rate_hz,
+            rate_hz: cfg.solver.rate_hz,
             deadline_fraction: cfg.solver.deadline_fraction,
             end_s,
             status_interval_s: 1.0,
@@ -467,10 +408,7 @@ impl Stage {
                 last
             })?
         };
-        let stream_stats = server.as_ref().map_or_else(
-            || Arc::new(StreamStats::default()),
-            |s| Arc::clone(s.stats()),
-        );
+        let server = sinks.server;
         let info = StageInfo {
             character: bound.name,
             mesh_vertices: rig.mesh_rest.len(),
@@ -484,8 +422,8 @@ impl Stage {
             recording: recorder
                 .as_ref()
                 .map(|(p, _)| (p.clone(), cfg.recorder.flush_interval_secs)),
-            rerun: rerun_target,
-            rerun_note,
+            rerun: sinks.rerun_target,
+            rerun_note: sinks.rerun_note,
             start_s,
             loop_start_s,
         };
@@ -495,11 +433,14 @@ impl Stage {
             stop_requested: AtomicBool::new(false),
             status,
             solver,
-            sources,
-            counters,
+            sources: running.threads,
+            counters: running.counters,
             recorder,
+            stream_stats: server.as_ref().map_or_else(
+                || Arc::new(StreamStats::default()),
+                |s| Arc::clone(s.stats()),
+            ),
             server,
-            stream_stats,
             rerun,
             time_limited: opts.stop_after_secs.is_some(),
         })
@@ -611,6 +552,140 @@ impl Stage {
             rerun,
         })
     }
+}
+
+impl InputInfo {
+    fn of(i: &Input) -> Self {
+        Self {
+            kind: i.kind(),
+            opened: i.opened(),
+            warnings: i.warnings(),
+            local_addr: i.local_addr(),
+        }
+    }
+}
+
+/// Where frames go: the vertex stream's server, Rerun's slot (used when its target is
+/// not off), an in-process reader's slot.
+struct Sinks {
+    server: Option<StreamServer>,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    rerun_target: RerunTarget,
+    rerun_note: Option<String>,
+    rerun_slot: Arc<LatestSlot<DeformedFrame>>,
+}
+
+impl Sinks {
+    /// Starts the stream server (when the config has an address) and decides the Rerun
+    /// target.
+    fn start(
+        cfg: &StageConfig,
+        base_dir: &Path,
+        scene: &Scene,
+        reader: Option<Arc<LatestSlot<DeformedFrame>>>,
+    ) -> Result<Self, StageError> {
+        let stream_slot = Arc::new(LatestSlot::new());
+        let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
+        let server = if tcp.is_some() || ws.is_some() {
+            Some(
+                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot))
+                    .map_err(StageError::Stream)?,
+            )
+        } else {
+            None
+        };
+        let (rerun_target, rerun_note) = usable_rerun_target(
+            cfg.outputs.rerun.target(base_dir),
+            base_dir.join(format!("rigless-{}.rrd", scene.character)),
+        );
+        let rerun_slot = Arc::new(LatestSlot::new());
+        let mut slots = vec![stream_slot];
+        if rerun_target != RerunTarget::Off {
+            slots.push(Arc::clone(&rerun_slot));
+        }
+        slots.extend(reader);
+        Ok(Self {
+            server,
+            slots,
+            rerun_target,
+            rerun_note,
+            rerun_slot,
+        })
+    }
+}
+
+/// The loop's pipeline: the solver, the marker buffer, the channel's receiving end and
+/// the sinks' slots, with what Rerun asked for; and the glove pin slot when the stage has
+/// a glove.
+fn assemble(
+    cfg: &StageConfig,
+    solver: Solver,
+    rx: crossbeam_channel::Receiver<crate::markers::MarkerSample>,
+    sinks: &Sinks,
+) -> (Pipeline, Option<Arc<PinSlot>>) {
+    let rig = Arc::clone(solver.rig());
+    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
+    let mut pipeline = Pipeline::new(solver, buffer, rx, sinks.slots.clone());
+    let rerun = &cfg.outputs.rerun;
+    if sinks.rerun_target != RerunTarget::Off && rerun.control_mesh {
+        pipeline = pipeline.with_control_mesh();
+    }
+    if sinks.rerun_target != RerunTarget::Off && rerun.harmonic_field {
+        pipeline = pipeline.with_harmonic_field();
+    }
+    let pins = cfg
+        .inputs
+        .iter()
+        .any(|i| matches!(i, crate::input::config::InputConfig::Glove(_)))
+        .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
+    if let Some(p) = &pins {
+        pipeline = pipeline.with_pins(Arc::clone(p));
+    }
+    (pipeline, pins)
+}
+
+/// The inputs' threads and counters.
+struct RunningInputs {
+    threads: Vec<JoinHandle<Result<String, InputError>>>,
+    counters: Vec<Arc<SourceCounters>>,
+}
+
+/// Starts a thread per input, each with its sink into the channel (and the pin slot);
+/// paced inputs take their place on the clock before any starts.
+fn spawn_inputs(
+    opened: Vec<Input>,
+    tx: &crossbeam_channel::Sender<crate::markers::MarkerSample>,
+    clock: &Arc<dyn Clock>,
+    start_s: f64,
+    stop: &Arc<AtomicBool>,
+    pins: &Option<Arc<PinSlot>>,
+    rig: &Arc<Rig>,
+) -> Result<RunningInputs, StageError> {
+    let places: Vec<Option<Attached>> = opened
+        .iter()
+        .map(|i| i.is_paced().then(|| Attached::new(clock)))
+        .collect();
+    let mut running = RunningInputs {
+        threads: Vec::new(),
+        counters: Vec::new(),
+    };
+    for (input, place) in opened.into_iter().zip(places) {
+        let c = Arc::new(SourceCounters::default());
+        running.counters.push(Arc::clone(&c));
+        let pins = pins.as_ref().map(|slot| PinTarget {
+            slot: Arc::clone(slot),
+            rig: Arc::clone(rig),
+        });
+        let mut sink = ChannelSink::new(tx.clone(), c, pins);
+        let kind = input.kind();
+        let (clock, stop) = (Arc::clone(clock), Arc::clone(stop));
+        let run = move || input.run(&*clock, start_s, &stop, &mut sink);
+        running.threads.push(match place {
+            Some(place) => spawn_paced(kind, place, run)?,
+            None => spawn(kind, run)?,
+        });
+    }
+    Ok(running)
 }
 
 fn open_inputs(cfg: &StageConfig, ctx: &OpenContext<'_>) -> Result<Vec<Input>, StageError> {
