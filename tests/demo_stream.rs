@@ -186,15 +186,3 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
     assert!(s.samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
     assert!(s.samples.len() >= 8 * 120);
 }
-
-/// `solver.method = "harmonic"` in a stage: the daemon streams the body deformed by the
-/// second method.
-#[test]
-fn a_stage_runs_the_harmonic_method() {
-    let (_dir, _stage, run) = start_body_stage("method = \"harmonic\"\nrate_hz = 60", "walk", "3");
-    let s = &client_summary(&run.addr, &["--frames", "30"]);
-    // Walking, too: the mesh follows the posture.
-    assert_body_frames(s);
-    let (ok, lines) = run.finish();
-    assert!(ok, "{lines:?}");
-}

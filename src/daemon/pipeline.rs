@@ -384,21 +384,27 @@ pub fn run_loop(
     status: &LatestSlot<LoopStatus>,
 ) -> LoopStatus {
     let period = 1.0 / params.rate_hz;
-    let mut next = params.start_s;
+    // Tick `k` is due at `start_s + k · period` (computed, not accumulated, so a long run
+    // does not drift); the end is reached when the next tick is past it by more than
+    // rounding.
+    let due = |k: u64| params.start_s + k as f64 * period;
+    let past_end = |t: f64| params.end_s.is_some_and(|e| t > e + 1e-9 * period.max(1.0));
+    let mut k = 0u64;
     let mut overruns = 0u64;
     // The first tick covers the period before it, so rates come out exact.
-    let mut last_status = next - period;
-    loop {
-        if stop.load(Ordering::Relaxed) || params.end_s.is_some_and(|e| next > e) {
-            break;
+    let mut last_status = due(0) - period;
+    while !stop.load(Ordering::Relaxed) && !past_end(due(k)) {
+        clock.sleep_until(due(k));
+        let late = clock.now_s() - due(k);
+        if late > period {
+            let behind = (late / period).floor() as u64;
+            overruns += behind;
+            k += behind;
+            if past_end(due(k)) {
+                break;
+            }
         }
-        clock.sleep_until(next);
-        let now = clock.now_s();
-        if now - next > period {
-            let behind = ((now - next) / period).floor();
-            overruns += behind as u64;
-            next += behind * period;
-        }
+        let next = due(k);
         p.tick(
             next,
             clock.deadline_at(next + period * params.deadline_fraction),
@@ -408,7 +414,7 @@ pub fn run_loop(
             status.publish(Arc::new(p.status(next - last_status, overruns)));
             last_status = next;
         }
-        next += period;
+        k += 1;
     }
     p.status((clock.now_s() - last_status).max(1e-9), overruns)
 }
