@@ -1,3 +1,4 @@
 //! Ground floor: small geometry used by every layer (rotations, the lattice, ...).
 
+pub mod lattice;
 pub mod polar;

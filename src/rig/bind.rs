@@ -11,10 +11,11 @@
 //! are free to move apart, while each finger stays connected to its parent segment.
 
 use super::green::GreenEmbedding;
-use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, Grid, KUHN};
+use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
+use crate::geom::lattice::{Grid, KUHN};
 use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
 use crate::solve::factor::FactorError;
 use crate::solve::ik::IkModel;
