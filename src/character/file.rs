@@ -32,10 +32,10 @@
 //! stream to the asset it already has. Seams are welded only for the checks and the
 //! lattice; every file vertex gets its own Green coordinates.
 
+use super::bind_params::BindParams;
 use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
 use super::skeleton::{Joint, JointLimits, Skeleton};
 use super::{Character, Correspondence, MarkerDef};
-use crate::rig::bind::BindParams;
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
 use std::collections::BTreeMap;

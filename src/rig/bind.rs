@@ -13,6 +13,7 @@
 use super::green::GreenEmbedding;
 use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
+use crate::character::bind_params::BindParams;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
@@ -21,23 +22,6 @@ use crate::solve::factor::FactorError;
 use crate::solve::ik::IkModel;
 use glam::DVec3;
 use std::collections::HashMap;
-
-/// Binding parameters.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct BindParams {
-    /// Lattice cell edge in metres.
-    pub cell_size_m: f64,
-    /// Spacing of skeleton samples along each segment, in metres.
-    pub skeleton_step_m: f64,
-    /// Shape weight `w_l`.
-    pub w_shape: f64,
-    /// Marker weight `w_u`.
-    pub w_marker: f64,
-    /// Skeleton weight `w_d`.
-    pub w_skeleton: f64,
-    /// A marker farther than this from every control tet is an error, in metres.
-    pub max_marker_distance_m: f64,
-}
 
 /// The stages of binding, in order (for progress reports).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
