@@ -3,6 +3,7 @@
 
 pub mod bind;
 pub mod cache;
+pub mod factor;
 pub mod green;
 pub mod lattice;
 pub mod tetmesh;

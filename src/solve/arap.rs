@@ -22,8 +22,8 @@
 //! `L` the weighted graph Laplacian (`L_ii = Σ_j w_ij`, `L_ij = −w_ij`) and
 //! `b_i = Σ_j w_ij (R_i + R_j)(v_i − v_j)`. The matrix is factored once.
 
-use super::factor::{FactorError, FactorKind, SparseCholesky};
 use crate::geom::polar::{extract_rotation, extract_rotations4};
+use crate::rig::factor::{FactorError, FactorKind, SparseCholesky};
 use crate::rig::tetmesh::TetMesh;
 use glam::{DMat3, DQuat, DVec3};
 

@@ -2,7 +2,6 @@
 //! its quality figures. No I/O, no locks, no logging: results come back in a report.
 
 pub mod arap;
-pub mod factor;
 pub mod frame;
 pub mod harmonic;
 pub mod ik;
