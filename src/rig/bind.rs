@@ -10,6 +10,7 @@
 //! So two fingers that pass through the same cells get separate copies of those cells and
 //! are free to move apart, while each finger stays connected to its parent segment.
 
+use super::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use super::factor::FactorError;
 use super::green::GreenEmbedding;
 use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
@@ -18,7 +19,6 @@ use crate::character::bind_params::BindParams;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
-use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
 use crate::solve::ik::IkModel;
 use glam::DVec3;
 use std::collections::HashMap;
