@@ -13,13 +13,13 @@
 use super::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use super::factor::FactorError;
 use super::green::GreenEmbedding;
+use super::ik_model::IkModel;
 use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
-use crate::solve::ik::IkModel;
 use glam::DVec3;
 use std::collections::HashMap;
 
