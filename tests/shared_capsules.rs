@@ -1,8 +1,8 @@
 //! Golden test on the real TetGen capsules of `../shared/data/tetmesh` (skipped, with the
 //! reason printed, when the shared data folder is absent).
 
+use rigless::rig::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use rigless::rig::tetmesh::read_capsule;
-use rigless::solve::arap::{ArapOperator, ArapSystem, LinearRows};
 use std::path::Path;
 
 #[test]

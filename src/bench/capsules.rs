@@ -4,9 +4,9 @@
 //! figures in that folder's README.
 
 use super::Spread;
+use crate::rig::arap_system::{ArapOperator, ArapSystem, LinearRows};
+use crate::rig::factor::FactorError;
 use crate::rig::tetmesh::{read_capsule, TetMeshError};
-use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
-use crate::solve::factor::FactorError;
 use std::path::Path;
 use std::time::Instant;
 

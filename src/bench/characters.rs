@@ -4,12 +4,13 @@
 //! truth every frame.
 
 use super::Spread;
+use crate::character::bind_params::BindParams;
 pub use crate::character::demo::{
     body_bind_params, demo_body, demo_hand, hand_bind_params, Motion,
 };
 use crate::character::procedural::{mesh_volume, skin_pose, Character};
 use crate::markers::MarkerFrame;
-use crate::rig::bind::{BindError, BindParams, Rig};
+use crate::rig::bind::{BindError, Rig};
 use crate::solve::frame::{Method, SolveReport, Solver, SolverParams};
 use crate::solve::harmonic::HarmonicError;
 

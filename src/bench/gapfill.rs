@@ -6,6 +6,7 @@
 use super::BenchError;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::{FillState, MarkerFrame, MarkerSample};
+use crate::runtime::stats::percentile;
 use glam::DVec3;
 use std::path::Path;
 
@@ -102,6 +103,7 @@ pub fn measure(
             }
         }
         let n = errs.len().max(1) as f64;
+        // Sorted once here: the mean below sums them in this order.
         errs.sort_by(f64::total_cmp);
         let mean = |s: (f64, usize)| {
             if s.1 == 0 {
@@ -118,10 +120,7 @@ pub fn measure(
             gaps,
             samples: errs.len(),
             error_mm_mean: errs.iter().sum::<f64>() / n,
-            error_mm_p95: errs
-                .get(((errs.len().max(1) - 1) as f64 * 0.95).round() as usize)
-                .copied()
-                .unwrap_or(f64::NAN),
+            error_mm_p95: percentile(&mut errs, 0.95),
             predicted_mm_mean: mean(by_state[FillState::Predicted as usize]),
             rigid_mm_mean: mean(by_state[FillState::RigidFilled as usize]),
             held_mm_mean: mean(by_state[FillState::Held as usize]),

@@ -10,6 +10,7 @@ pub mod gapfill;
 pub mod live;
 pub mod replay;
 
+use crate::runtime::stats::percentile;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -105,14 +106,7 @@ pub struct Spread {
 impl Spread {
     pub fn of(samples: &[Duration]) -> Self {
         let mut ms: Vec<f64> = samples.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-        ms.sort_by(f64::total_cmp);
-        let q = |p: f64| {
-            if ms.is_empty() {
-                f64::NAN
-            } else {
-                ms[((ms.len() - 1) as f64 * p).round() as usize]
-            }
-        };
+        let mut q = |p: f64| percentile(&mut ms, p);
         Self {
             median_ms: q(0.5),
             p10_ms: q(0.1),

@@ -2,10 +2,10 @@
 //! and the body at their standard resolutions, their binding parameters, and their
 //! motions.
 
+use super::bind_params::BindParams;
 use super::body::{body, body_pose, BodyMotion};
 use super::procedural::{hand, hand_pose, Character, HandMotion, Pose};
 use super::skeleton::Skeleton;
-use crate::rig::bind::BindParams;
 
 /// Binding parameters for the procedural hand.
 pub fn hand_bind_params() -> BindParams {

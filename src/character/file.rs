@@ -32,10 +32,11 @@
 //! stream to the asset it already has. Seams are welded only for the checks and the
 //! lattice; every file vertex gets its own Green coordinates.
 
+use super::bind_params::BindParams;
 use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
 use super::skeleton::{Joint, JointLimits, Skeleton};
 use super::{Character, Correspondence, MarkerDef};
-use crate::rig::bind::BindParams;
+use crate::geom::axes::y_up_from_z_up;
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -332,12 +333,12 @@ pub fn build(
         let p = p * s;
         match up {
             UpAxis::Y => p,
-            UpAxis::Z => DVec3::new(p.x, p.z, -p.y),
+            UpAxis::Z => y_up_from_z_up(p),
         }
     };
     let to_world_dir = |d: DVec3| match up {
         UpAxis::Y => d,
-        UpAxis::Z => DVec3::new(d.x, d.z, -d.y),
+        UpAxis::Z => y_up_from_z_up(d),
     };
     let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| to_world(p)).collect();
     if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {

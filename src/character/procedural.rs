@@ -10,7 +10,7 @@
 //! Frame: metres, Y up; the hand points +Y, palm facing +Z, thumb towards −X.
 
 use super::skeleton::{Joint, JointLimits, Skeleton};
-use crate::rig::lattice::{Grid, KUHN};
+use crate::geom::lattice::{Grid, KUHN};
 use glam::{DQuat, DVec3};
 use std::collections::HashMap;
 

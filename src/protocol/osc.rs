@@ -8,6 +8,7 @@
 //! pattern senders are converted by their [`OscMapping`]'s scale and up axis; VMC's
 //! left-handed Unity frame (Y up, metres) by negating Z.
 
+use crate::geom::axes::y_up_from_z_up;
 use glam::DVec3;
 use rosc::{OscBundle, OscMessage, OscPacket, OscType};
 
@@ -226,7 +227,7 @@ impl OscMapping {
     fn to_world(&self, p: DVec3) -> DVec3 {
         let p = p * self.scale;
         if self.z_up {
-            DVec3::new(p.x, p.z, -p.y)
+            y_up_from_z_up(p)
         } else {
             p
         }

@@ -15,6 +15,7 @@
 //! then the data: per frame, per point `x y z residual` (f32, or i16 scaled by
 //! POINT:SCALE), then the analog samples.
 
+use crate::geom::axes::{y_up_from_z_up, z_up_from_y_up};
 use glam::DVec3;
 
 const BLOCK: usize = 512;
@@ -464,7 +465,7 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
                 if y_up {
                     p
                 } else {
-                    DVec3::new(p.x, p.z, -p.y)
+                    y_up_from_z_up(p)
                 }
             } else {
                 DVec3::NAN
@@ -599,7 +600,7 @@ pub fn write_c3d(
     for f in frames {
         for p in f {
             let (vals, residual) = if p.is_finite() {
-                let c = DVec3::new(p.x, -p.z, p.y) * 1e3;
+                let c = z_up_from_y_up(*p) * 1e3;
                 ([c.x as f32, c.y as f32, c.z as f32], 0.0f32)
             } else {
                 ([0.0f32; 3], -1.0f32)

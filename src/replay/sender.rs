@@ -8,6 +8,7 @@ use crate::protocol::osc::{encode_native, time_tag_of_unix};
 use crate::protocol::url::{Endpoint, UrlError};
 use crate::runtime::clock::Clock;
 use crate::runtime::rng::Rng;
+use crate::runtime::stats::percentile;
 use glam::DVec3;
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 use std::net::{SocketAddr, UdpSocket};
@@ -528,12 +529,13 @@ pub fn replay(
         jitter.push((sent_at - scheduled).abs() * 1e3);
         n += 1;
     }
-    jitter.sort_by(f64::total_cmp);
-    let q = |p: f64| {
-        jitter
-            .get(((jitter.len().max(1) - 1) as f64 * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
+    // No packet sent: zero jitter.
+    let mut q = |p: f64| {
+        if jitter.is_empty() {
+            0.0
+        } else {
+            percentile(&mut jitter, p)
+        }
     };
     stats.jitter_ms_p50 = q(0.5);
     stats.jitter_ms_p99 = q(0.99);

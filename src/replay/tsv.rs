@@ -4,6 +4,7 @@
 //! (right-handed: `(x, y, z)` becomes `(x, z, -y)`). Missing samples (`NaN`, empty fields,
 //! or an exact `0 0 0` as older exports write) become NaN.
 
+use crate::geom::axes::y_up_from_z_up;
 use glam::DVec3;
 
 /// Most markers a file may declare (a bound on allocation before any frame is read).
@@ -126,7 +127,7 @@ pub fn parse_tsv(text: &str) -> Result<TsvRecording, TsvError> {
             let p = if c == [0.0; 3] || c.iter().any(|v| !v.is_finite()) {
                 DVec3::NAN
             } else {
-                DVec3::new(c[0], c[2], -c[1]) * 1e-3
+                y_up_from_z_up(DVec3::new(c[0], c[1], c[2])) * 1e-3
             };
             row.push(p);
         }

@@ -10,33 +10,18 @@
 //! So two fingers that pass through the same cells get separate copies of those cells and
 //! are free to move apart, while each finger stays connected to its parent segment.
 
+use super::arap_system::{ArapOperator, ArapSystem, LinearRows};
+use super::factor::FactorError;
 use super::green::GreenEmbedding;
-use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, Grid, KUHN};
+use super::ik_model::IkModel;
+use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
+use crate::character::bind_params::BindParams;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
-use crate::solve::arap::{ArapOperator, ArapSystem, LinearRows};
-use crate::solve::factor::FactorError;
-use crate::solve::ik::IkModel;
+use crate::geom::lattice::{Grid, KUHN};
 use glam::DVec3;
 use std::collections::HashMap;
-
-/// Binding parameters.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct BindParams {
-    /// Lattice cell edge in metres.
-    pub cell_size_m: f64,
-    /// Spacing of skeleton samples along each segment, in metres.
-    pub skeleton_step_m: f64,
-    /// Shape weight `w_l`.
-    pub w_shape: f64,
-    /// Marker weight `w_u`.
-    pub w_marker: f64,
-    /// Skeleton weight `w_d`.
-    pub w_skeleton: f64,
-    /// A marker farther than this from every control tet is an error, in metres.
-    pub max_marker_distance_m: f64,
-}
 
 /// The stages of binding, in order (for progress reports).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,6 +1,7 @@
 //! Ground floor: what every layer uses at run time. The clock (system or manual, time
 //! passed in so tests drive it), the latest-value slots between threads, the socket
-//! waits of the network inputs and senders, and a seeded random generator.
+//! waits of the network inputs and senders, a seeded random generator, and percentiles
+//! of measurements.
 
 pub mod clock;
 pub mod net;

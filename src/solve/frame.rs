@@ -283,7 +283,7 @@ impl Solver {
     }
 
     /// Joint angles that override the marker fit from the next frame on: one entry per
-    /// posture parameter (see [`crate::solve::ik::IkModel::angle_params`]), radians, NaN
+    /// posture parameter (see [`crate::rig::ik_model::IkModel::angle_params`]), radians, NaN
     /// where the fit decides. The angles are clamped to the joint limits; the skeleton
     /// samples then carry the pinned joints' positions to the control mesh (the paper's
     /// skeleton joints as control inputs). Entries beyond the parameter count are ignored.

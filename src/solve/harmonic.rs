@@ -33,9 +33,9 @@
 //! Allocation-free per frame. With identity rotations at the rest positions the rebuild
 //! returns the rest mesh, since `b = L r`.
 
-use super::factor::{FactorError, FactorKind, SparseCholesky};
 use crate::character::skeleton::Skeleton;
 use crate::character::Correspondence;
+use crate::rig::factor::{FactorError, FactorKind, SparseCholesky};
 use glam::{DMat3, DQuat, DVec3};
 
 /// Settings of the correspondence set-up.
