@@ -469,12 +469,9 @@ on = true
     fn the_solver_method_is_chosen_in_the_stage() {
         let stage = "[character]\nprocedural = \"hand\"\n[solver]\nmethod = \"harmonic\"\nharmonic_margin = 0.1\n[[inputs]]\ntype = \"synthetic\"\n";
         let cfg = parse_stage(stage, "s.toml").unwrap();
-        assert_eq!(
-            cfg.solver.method(),
-            crate::solve::frame::Method::Harmonic(crate::solve::harmonic::HarmonicParams {
-                margin: 0.1
-            })
-        );
+        let params = cfg.solver.params();
+        assert_eq!(params.method, crate::solve::frame::Method::Harmonic);
+        assert_eq!(params.harmonic.margin, 0.1);
         let bad = stage.replace("0.1", "0.7");
         let err = parse_stage(&bad, "s.toml").unwrap_err().to_string();
         assert!(

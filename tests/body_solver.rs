@@ -56,12 +56,11 @@ fn the_body_walks_and_reaches_within_the_quality_targets() {
 #[test]
 fn the_harmonic_method_follows_the_body_within_the_quality_targets() {
     use rigless::solve::frame::Method;
-    use rigless::solve::harmonic::HarmonicParams;
     for motion in [BodyMotion::Walk, BodyMotion::Reach] {
         let rec = play(
             motion,
             SolverParams {
-                method: Method::Harmonic(HarmonicParams::default()),
+                method: Method::Harmonic,
                 ..SolverParams::default()
             },
             |_, _| {},

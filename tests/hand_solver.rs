@@ -247,12 +247,11 @@ fn harmonic_segments_with_a_marker_cluster_turn_with_their_markers() {
     use glam::DQuat;
     use rigless::geom::polar::rotation_angle_between;
     use rigless::solve::frame::Method;
-    use rigless::solve::harmonic::HarmonicParams;
     let (ch, rig) = setup();
     let mut solver = Solver::try_new(
         Arc::clone(&rig),
         SolverParams {
-            method: Method::Harmonic(HarmonicParams::default()),
+            method: Method::Harmonic,
             ..tight()
         },
     )

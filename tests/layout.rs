@@ -47,7 +47,12 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// The top-level module a file of `src/` belongs to (`None` for lib.rs, main.rs, cli/).
 fn module_of(file: &Path) -> Option<String> {
     let rel = file.strip_prefix(src()).unwrap();
-    let first = rel.components().next()?.as_os_str().to_string_lossy().into_owned();
+    let first = rel
+        .components()
+        .next()?
+        .as_os_str()
+        .to_string_lossy()
+        .into_owned();
     let name = first.trim_end_matches(".rs").to_owned();
     (!["lib", "main", "cli"].contains(&name.as_str())).then_some(name)
 }
@@ -87,7 +92,11 @@ fn folders_import_only_the_floors_below_them() {
             }
         }
     }
-    assert!(wrong.is_empty(), "imports against the layout:\n{}", wrong.join("\n"));
+    assert!(
+        wrong.is_empty(),
+        "imports against the layout:\n{}",
+        wrong.join("\n")
+    );
 }
 
 #[test]

@@ -4,8 +4,8 @@
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::character::procedural::skin_pose;
-use rigless::daemon::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
 use rigless::character::session::{SyntheticParams, SyntheticSession};
+use rigless::daemon::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
 use rigless::markers::FillState;
 use rigless::output::frame::DeformedFrame;

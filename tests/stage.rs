@@ -73,7 +73,10 @@ fn a_whole_stage_runs_on_a_manual_clock_exactly_and_deterministically() {
     let ys = hand.vertices.iter().map(|v| v.y);
     let height = ys.clone().fold(f64::MIN, f64::max) - ys.fold(f64::MAX, f64::min);
     let mean_err = mean_distance(&last.vertices_m, &truth);
-    println!("hand at 2 s: mean vertex error {:.3} % of the height", 100.0 * mean_err / height);
+    println!(
+        "hand at 2 s: mean vertex error {:.3} % of the height",
+        100.0 * mean_err / height
+    );
     assert!(
         mean_err < 0.02 * height,
         "mean vertex error {:.2} % of the height",
@@ -115,14 +118,23 @@ fn body_walk(method: &str) -> (Arc<DeformedFrame>, Vec<glam::DVec3>, f64) {
     let pose = Motion::Body(rigless::character::body::BodyMotion::Walk)
         .pose(&body.skeleton, last.source_time_s);
     let mut truth = vec![glam::DVec3::ZERO; body.vertices.len()];
-    skin_pose(&body, &pose, &mut truth, &mut vec![glam::DVec3::ZERO; body.markers.len()]);
+    skin_pose(
+        &body,
+        &pose,
+        &mut truth,
+        &mut vec![glam::DVec3::ZERO; body.markers.len()],
+    );
     let ys = body.vertices.iter().map(|v| v.y);
     let height = ys.clone().fold(f64::MIN, f64::max) - ys.fold(f64::MAX, f64::min);
     (last, truth, height)
 }
 
 fn mean_distance(a: &[glam::Vec3], b: &[glam::DVec3]) -> f64 {
-    a.iter().zip(b).map(|(a, b)| (a.as_dvec3() - *b).length()).sum::<f64>() / b.len() as f64
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a.as_dvec3() - *b).length())
+        .sum::<f64>()
+        / b.len() as f64
 }
 
 #[test]
@@ -136,7 +148,11 @@ fn a_stage_solves_with_the_method_its_config_names() {
     for (name, f) in [("arap", &arap), ("harmonic", &harmonic)] {
         let e = mean_distance(&f.vertices_m, &truth) / height;
         println!("{name}: mean vertex error {:.3} % of the height", e * 100.0);
-        assert!(e < 0.02, "{name}: mean vertex error {:.2} % of the height", e * 100.0);
+        assert!(
+            e < 0.02,
+            "{name}: mean vertex error {:.2} % of the height",
+            e * 100.0
+        );
     }
     // And they are two different deformations: the harmonic method has no control mesh
     // and no iterations, and its surface differs from ARAP's by millimetres.

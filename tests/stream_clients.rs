@@ -4,8 +4,8 @@
 
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
-use rigless::daemon::pipeline::Pipeline;
 use rigless::character::session::{SyntheticParams, SyntheticSession};
+use rigless::daemon::pipeline::Pipeline;
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
 use rigless::output::scene::Scene;
 use rigless::output::stream::StreamServer;

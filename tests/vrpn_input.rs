@@ -112,7 +112,11 @@ fn a_vrpn_tracker_drives_the_daemon() {
     // to the wrong sensor would move the mesh by centimetres.
     let hand = rigless::character::demo::demo_hand();
     for (k, m) in hand.markers.iter().enumerate() {
-        assert!((last.markers_m[k].as_dvec3() - m.rest).length() < 1e-5, "marker {}", m.name);
+        assert!(
+            (last.markers_m[k].as_dvec3() - m.rest).length() < 1e-5,
+            "marker {}",
+            m.name
+        );
     }
     let worst = last
         .vertices_m
@@ -120,6 +124,9 @@ fn a_vrpn_tracker_drives_the_daemon() {
         .zip(&hand.vertices)
         .map(|(v, r)| (v.as_dvec3() - *r).length())
         .fold(0.0, f64::max);
-    println!("largest vertex distance from the rest pose: {:.4} mm", worst * 1e3);
+    println!(
+        "largest vertex distance from the rest pose: {:.4} mm",
+        worst * 1e3
+    );
     assert!(worst < 5e-4, "the hand is {worst} m from its rest pose");
 }

@@ -109,10 +109,7 @@ pub fn run_character(
     let mut ik_t = Vec::with_capacity(frames);
     let mut rec = CharacterRecord {
         suite: "characters",
-        method: match solver_params.method {
-            Method::Arap => "arap",
-            Method::Harmonic(_) => "harmonic",
-        },
+        method: solver_params.method.name(),
         character: ch.name.clone(),
         motion: motion.name().into(),
         frames,
@@ -223,7 +220,6 @@ pub fn run_character(
 /// triangles, 10 s at 120 Hz each, through both methods; one line per run.
 pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::BenchError> {
     use crate::character::body::BodyMotion;
-    use crate::solve::harmonic::HarmonicParams;
     let run = CharacterRun {
         seconds: 10.0,
         rate_hz: 120.0,
@@ -266,10 +262,7 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::Benc
     for (ch, bind, motion, arap_target_ms, harmonic_target_ms) in cases {
         for (method, target_ms) in [
             (Method::Arap, arap_target_ms),
-            (
-                Method::Harmonic(HarmonicParams::default()),
-                harmonic_target_ms,
-            ),
+            (Method::Harmonic, harmonic_target_ms),
         ] {
             let params = SolverParams {
                 method,

@@ -7,6 +7,7 @@ use rigless::output::rerun_sink::RerunTarget;
 use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
 use rigless::replay::sender::{replay, ReplayOptions, Target};
 use rigless::runtime::clock::SystemClock;
+use rigless::solve::frame::Method;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
@@ -23,8 +24,13 @@ pub struct ReplayArgs {
     solve: Option<String>,
     /// With --solve: the deformation method, `arap` (volumetric ARAP and Green
     /// coordinates) or `harmonic` (harmonic rotation fields and a Poisson rebuild).
-    #[arg(long, default_value = "arap", value_parser = ["arap", "harmonic"], requires = "solve")]
-    method: String,
+    #[arg(
+        long,
+        value_name = "arap|harmonic",
+        default_value = "arap",
+        requires = "solve"
+    )]
+    method: Method,
     /// With --solve: where the vertex stream listens (TCP; port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:7878", requires = "solve")]
     stream: SocketAddr,
@@ -214,7 +220,7 @@ fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::Stage
     input.insert("speed".into(), Value::Float(a.speed));
     input.insert("loop".into(), Value::Boolean(a.looping));
     input.insert("bvh_scale".into(), Value::Float(a.bvh_scale));
-    let method = a.method.as_str();
+    let method = a.method.name();
     let mut stage = toml::toml! {
         [solver]
         method = method

@@ -13,6 +13,7 @@ use crate::protocol::vertex_stream::StopCode;
 use crate::rig::bind::Rig;
 use crate::runtime::clock::Clock;
 use crate::runtime::slot::{LatestSlot, PinSlot};
+use crate::runtime::stats::percentile;
 use crate::solve::arap::StopReason;
 use crate::solve::frame::{SolveReport, Solver, TRACE_LEN};
 use crossbeam_channel::{Receiver, Sender};
@@ -324,13 +325,12 @@ impl Pipeline {
     /// `interval_s` come from the loop. Sorts copies of the time windows: it allocates,
     /// once per status interval (a second), never per frame.
     pub fn status(&mut self, interval_s: f64, overruns: u64) -> LoopStatus {
+        // 0 before the first frame (a status line shows no time rather than NaN).
         let pct = |v: &[f64], q: f64| {
-            let mut sorted = v.to_vec();
-            sorted.sort_by(f64::total_cmp);
-            if sorted.is_empty() {
+            if v.is_empty() {
                 0.0
             } else {
-                sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+                percentile(&mut v.to_vec(), q)
             }
         };
         let mut fill_now = [0usize; 4];

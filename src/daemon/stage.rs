@@ -65,9 +65,9 @@ pub enum StageError {
     Rig(#[from] LoadOrBindError),
     #[error("starting the vertex stream: {0}")]
     Stream(std::io::Error),
-    #[error("setting up the {method:?} solver for {character}: {source}")]
+    #[error("setting up the {} solver for {character}: {source}", .method.name())]
     Solver {
-        method: crate::solve::config::SolverMethod,
+        method: crate::solve::frame::Method,
         character: String,
         source: crate::solve::harmonic::HarmonicError,
     },
@@ -75,7 +75,7 @@ pub enum StageError {
     Input {
         index: usize,
         kind: &'static str,
-        source: InputError,
+        source: Box<InputError>,
     },
     #[error("the session file {path}: {source}")]
     Recorder {
@@ -346,8 +346,8 @@ impl Stage {
                 source,
             }
         })?;
-        let scene = Scene::of_rig(&rig, &bound.name, cfg.solver.rate_hz)
-            .with_tied(solver.harmonic_tied());
+        let scene =
+            Scene::of_rig(&rig, &bound.name, cfg.solver.rate_hz).with_tied(solver.harmonic_tied());
         let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take())?;
         let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
         let (mut pipeline, pins) = assemble(cfg, solver, rx, &sinks);
@@ -696,7 +696,7 @@ fn open_inputs(cfg: &StageConfig, ctx: &OpenContext<'_>) -> Result<Vec<Input>, S
             Input::open(c, ctx).map_err(|source| StageError::Input {
                 index,
                 kind: c.kind(),
-                source,
+                source: Box::new(source),
             })
         })
         .collect()

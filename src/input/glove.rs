@@ -183,7 +183,7 @@ impl HandMap {
     }
 
     /// Writes a reading's angles as posture pins (`first` gives each joint's first
-    /// parameter, as [`crate::solve::ik::IkModel::angle_params`]); joints without a value
+    /// parameter, as [`crate::rig::ik_model::IkModel::angle_params`]); joints without a value
     /// keep their pins.
     pub fn write_pins(
         &self,

@@ -128,7 +128,7 @@ enum Source {
     Osc(osc::OscInput),
     NatNet(natnet::NatNetInput),
     Vrpn(vrpn::VrpnInput),
-    Glove(glove::GloveInput),
+    Glove(Box<glove::GloveInput>),
     Replay(replay::ReplayInput),
     Synthetic(synthetic::SyntheticInput),
 }
@@ -141,7 +141,9 @@ impl Input {
             InputConfig::Osc(c) => Source::Osc(osc::OscInput::open(c, ctx.index())?),
             InputConfig::NatNet(c) => Source::NatNet(natnet::NatNetInput::open(c, ctx.index())?),
             InputConfig::Vrpn(c) => Source::Vrpn(vrpn::VrpnInput::open(c, ctx.index())?),
-            InputConfig::Glove(c) => Source::Glove(glove::GloveInput::open(c, ctx.skeleton)?),
+            InputConfig::Glove(c) => {
+                Source::Glove(Box::new(glove::GloveInput::open(c, ctx.skeleton)?))
+            }
             InputConfig::Replay(c) => Source::Replay(replay::ReplayInput::open(c, ctx)?),
             InputConfig::Synthetic(c) => {
                 Source::Synthetic(synthetic::SyntheticInput::open(c, ctx.procedural)?)

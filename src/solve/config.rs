@@ -2,13 +2,15 @@
 //! the frame solver's method and settings, each key documented, unknown keys refused,
 //! with the section's own checks ([`SolverConfig::problems`]).
 
+use super::frame::Method;
+
 /// `[solver]`: the fixed-rate loop and the frame solver.
 #[derive(Clone, Debug, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolverConfig {
     /// Deformation method: `"arap"` (volumetric ARAP and Green coordinates, the default)
     /// or `"harmonic"` (harmonic rotation fields and a Poisson rebuild, de Aguiar et al.).
-    pub method: SolverMethod,
+    pub method: Method,
     /// Harmonic method: share of each bone's length, at each end, left free of
     /// correspondences (larger: softer bends).
     pub harmonic_margin: f64,
@@ -33,33 +35,10 @@ pub struct SolverConfig {
     pub volume_gain: f64,
 }
 
-/// `solver.method`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SolverMethod {
-    #[default]
-    Arap,
-    Harmonic,
-}
-
-impl SolverConfig {
-    /// The solver's method with its settings.
-    pub fn method(&self) -> super::frame::Method {
-        match self.method {
-            SolverMethod::Arap => super::frame::Method::Arap,
-            SolverMethod::Harmonic => {
-                super::frame::Method::Harmonic(super::harmonic::HarmonicParams {
-                    margin: self.harmonic_margin,
-                })
-            }
-        }
-    }
-}
-
 impl Default for SolverConfig {
     fn default() -> Self {
         Self {
-            method: SolverMethod::Arap,
+            method: Method::Arap,
             harmonic_margin: super::harmonic::HarmonicParams::default().margin,
             rate_hz: 120.0,
             max_iterations: 30,
@@ -77,7 +56,10 @@ impl SolverConfig {
     /// The frame solver's settings.
     pub fn params(&self) -> super::frame::SolverParams {
         super::frame::SolverParams {
-            method: self.method(),
+            method: self.method,
+            harmonic: super::harmonic::HarmonicParams {
+                margin: self.harmonic_margin,
+            },
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
             ik: super::ik::IkParams {

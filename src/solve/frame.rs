@@ -31,14 +31,47 @@ use glam::{DMat3, DQuat, DVec3};
 use std::sync::Arc;
 use std::time::Instant;
 
-/// Which deformation follows the skeleton step.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Which deformation follows the skeleton step (`solver.method` in a stage, `--method`
+/// on the command line).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Method {
     /// Volumetric ARAP on the control mesh, then Green coordinates (Le Naour et al.).
+    #[default]
     Arap,
     /// Harmonic rotation fields and a Poisson rebuild on the full mesh (de Aguiar et al.,
     /// [`super::harmonic`]), driven by the fitted posture's joint rotations.
-    Harmonic(HarmonicParams),
+    Harmonic,
+}
+
+impl std::str::FromStr for Method {
+    type Err = UnknownMethod;
+
+    /// `arap` or `harmonic`.
+    fn from_str(s: &str) -> Result<Self, UnknownMethod> {
+        match s {
+            "arap" => Ok(Method::Arap),
+            "harmonic" => Ok(Method::Harmonic),
+            _ => Err(UnknownMethod { name: s.to_owned() }),
+        }
+    }
+}
+
+/// A method name that is neither `arap` nor `harmonic`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown method {name:?} (expected arap or harmonic)")]
+pub struct UnknownMethod {
+    pub name: String,
+}
+
+impl Method {
+    /// `"arap"` or `"harmonic"`, as configs and reports name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Arap => "arap",
+            Method::Harmonic => "harmonic",
+        }
+    }
 }
 
 /// Solver settings.
@@ -46,6 +79,8 @@ pub enum Method {
 pub struct SolverParams {
     /// The deformation method.
     pub method: Method,
+    /// The harmonic method's settings (unused by ARAP).
+    pub harmonic: HarmonicParams,
     /// Iteration cap per frame.
     pub max_iterations: usize,
     /// Relative change of `0.5·rrms + 0.5·bone_length_error` below which a frame is done.
@@ -63,6 +98,7 @@ impl Default for SolverParams {
     fn default() -> Self {
         Self {
             method: Method::Arap,
+            harmonic: HarmonicParams::default(),
             max_iterations: 30,
             tolerance: 1e-3,
             ik: IkParams::default(),
@@ -167,12 +203,12 @@ impl Solver {
     pub fn try_new(rig: Arc<Rig>, params: SolverParams) -> Result<Self, HarmonicError> {
         let harmonic = match params.method {
             Method::Arap => None,
-            Method::Harmonic(h) => {
+            Method::Harmonic => {
                 let hr = HarmonicRig::new(
                     &rig.mesh_rest,
                     &rig.triangles,
                     &rig.skeleton,
-                    &h,
+                    &params.harmonic,
                     &rig.correspondences,
                 )?;
                 let st = hr.new_state();
