@@ -476,21 +476,86 @@ pub fn build(
     mesh: MeshData,
 ) -> Result<(Character, BindParams), Vec<CharacterProblem>> {
     let mut problems = Vec::new();
-    let s = spec.mesh.units.metres();
-    let up = spec.mesh.up;
-    let to_world = |p: DVec3| {
-        let p = p * s;
-        match up {
-            UpAxis::Y => p,
-            UpAxis::Z => DVec3::new(p.x, p.z, -p.y),
+    let frame = WorldFrame::of(&spec.mesh);
+    let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
+    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
+    check_surface(&mesh, &vertices, weld_tol, &mut problems);
+    let sk = &spec.skeleton;
+    let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
+        skin_joints(sk, &mesh, frame, &mut problems)
+    } else {
+        listed_joints(sk, &mesh, frame, &mut problems)
+    };
+    check_tree(&joints, &mut problems);
+    apply_limits(sk, &mut joints, &skin_x_axis, &mut problems);
+    let skeleton = finish_skeleton(joints, &mut problems);
+    let markers = place_markers(&spec.markers, skeleton.as_ref(), &mut problems);
+    let params = bind_params(&spec.bind, height, &mut problems);
+    let correspondences = correspondences(
+        &spec.correspondences,
+        skeleton.as_ref(),
+        mesh.triangles.len(),
+        &mut problems,
+    );
+    match (problems.is_empty(), skeleton) {
+        (true, Some(skeleton)) => Ok((
+            Character {
+                name,
+                vertices,
+                triangles: mesh.triangles,
+                skeleton,
+                markers,
+                skin: None,
+                correspondences,
+            },
+            params,
+        )),
+        _ => Err(problems),
+    }
+}
+
+/// The mesh file's units and up axis: how its points and directions reach the world
+/// frame (metres, Y up).
+#[derive(Clone, Copy, Debug)]
+struct WorldFrame {
+    /// Metres per file unit.
+    metres: f64,
+    up: UpAxis,
+}
+
+impl WorldFrame {
+    /// The frame `[mesh]` describes.
+    fn of(mesh: &MeshSpec) -> Self {
+        WorldFrame {
+            metres: mesh.units.metres(),
+            up: mesh.up,
         }
-    };
-    let to_world_dir = |d: DVec3| match up {
-        UpAxis::Y => d,
-        UpAxis::Z => DVec3::new(d.x, d.z, -d.y),
-    };
-    let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| to_world(p)).collect();
-    if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
+    }
+
+    /// A point of the mesh file in the world frame: scaled to metres, then turned Y up.
+    fn point(self, p: DVec3) -> DVec3 {
+        self.direction(p * self.metres)
+    }
+
+    /// A direction of the mesh file in the world frame (turned Y up, not scaled).
+    fn direction(self, d: DVec3) -> DVec3 {
+        match self.up {
+            UpAxis::Y => d,
+            UpAxis::Z => DVec3::new(d.x, d.z, -d.y),
+        }
+    }
+}
+
+/// The mesh's vertices in the world frame and the character's height (metres); a
+/// non-finite vertex, or (when all are finite) a mesh with no height, is a problem.
+fn world_vertices(
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<DVec3>, f64) {
+    let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| frame.point(p)).collect();
+    let non_finite = vertices.iter().position(|v| !v.is_finite());
+    if let Some(i) = non_finite {
         problems.push(CharacterProblem::NonFiniteVertex {
             vertex: i,
             position: mesh.positions[i],
@@ -501,151 +566,195 @@ pub fn build(
         |(a, b), v| (a.min(*v), b.max(*v)),
     );
     let height = (hi.y - lo.y).max(0.0);
-    if problems.is_empty() && height <= 0.0 {
+    if non_finite.is_none() && height <= 0.0 {
         problems.push(CharacterProblem::NoHeight);
     }
-    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
-    let (map, _) = weld(&vertices, weld_tol);
+    (vertices, height)
+}
+
+/// Checks that the mesh, its world-frame `vertices` welded within `weld_tol` metres, is
+/// a closed, manifold, consistently oriented surface.
+fn check_surface(
+    mesh: &MeshData,
+    vertices: &[DVec3],
+    weld_tol: f64,
+    problems: &mut Vec<CharacterProblem>,
+) {
+    let (map, _) = weld(vertices, weld_tol);
     let welded_tris: Vec<[u32; 3]> = mesh
         .triangles
         .iter()
         .map(|t| t.map(|i| map[i as usize]))
         .collect();
     let issues = surface_issues(&welded_tris);
-    if !issues.is_clean() {
-        // An edge of welded vertices, as the first file vertex of each.
-        let at = |e: Option<(u32, u32)>| {
-            e.map(|(a, b)| {
-                let first = |w: u32| map.iter().position(|&m| m == w).unwrap_or(0);
-                (first(a), first(b))
-            })
-        };
-        if issues.open_edges > 0 {
-            problems.push(CharacterProblem::OpenMesh {
-                edges: issues.open_edges,
-                example: at(issues.open_example),
-            });
-        }
-        if issues.non_manifold_edges > 0 {
-            problems.push(CharacterProblem::NonManifoldMesh {
-                edges: issues.non_manifold_edges,
-                example: at(issues.non_manifold_example),
-            });
-        }
-        if issues.inconsistent_edges > 0 {
-            problems.push(CharacterProblem::InconsistentOrientation {
-                edges: issues.inconsistent_edges,
-            });
+    if issues.is_clean() {
+        return;
+    }
+    // An edge of welded vertices, as the first file vertex of each.
+    let at = |e: Option<(u32, u32)>| {
+        e.map(|(a, b)| {
+            let first = |w: u32| map.iter().position(|&m| m == w).unwrap_or(0);
+            (first(a), first(b))
+        })
+    };
+    if issues.open_edges > 0 {
+        problems.push(CharacterProblem::OpenMesh {
+            edges: issues.open_edges,
+            example: at(issues.open_example),
+        });
+    }
+    if issues.non_manifold_edges > 0 {
+        problems.push(CharacterProblem::NonManifoldMesh {
+            edges: issues.non_manifold_edges,
+            example: at(issues.non_manifold_example),
+        });
+    }
+    if issues.inconsistent_edges > 0 {
+        problems.push(CharacterProblem::InconsistentOrientation {
+            edges: issues.inconsistent_edges,
+        });
+    }
+}
+
+/// The joints of the glTF skin, parents first (`skeleton.parents` overriding the file's
+/// hierarchy), at their bind-pose positions; with each joint's bind-pose X axis in the
+/// world frame (the default bend axis).
+fn skin_joints(
+    sk: &SkeletonSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    if mesh.skin_joints.is_empty() {
+        problems.push(CharacterProblem::NoSkin);
+    }
+    if !sk.joints.is_empty() {
+        problems.push(CharacterProblem::JointsWithSkin);
+    }
+    let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
+    for (child, parent) in &sk.parents {
+        for n in [child, parent] {
+            if !names.contains(&n.as_str()) {
+                problems.push(CharacterProblem::UnknownSkinJoint { name: n.clone() });
+            }
         }
     }
-    // Skeleton.
-    let sk = &spec.skeleton;
-    let use_skin = sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty());
-    let mut joints: Vec<Joint> = Vec::new();
-    let mut skin_x_axis: Vec<Option<DVec3>> = Vec::new();
-    if use_skin {
-        if mesh.skin_joints.is_empty() {
-            problems.push(CharacterProblem::NoSkin);
+    // Parent by name overrides the file's hierarchy; order parents first.
+    let parent_of = |k: usize| -> Option<usize> {
+        match sk.parents.get(&mesh.skin_joints[k].name) {
+            Some(p) => names.iter().position(|n| *n == p.as_str()),
+            None => mesh.skin_joints[k].parent,
         }
-        if !sk.joints.is_empty() {
-            problems.push(CharacterProblem::JointsWithSkin);
-        }
-        let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
-        for (child, parent) in &sk.parents {
-            for n in [child, parent] {
-                if !names.contains(&n.as_str()) {
-                    problems.push(CharacterProblem::UnknownSkinJoint { name: n.clone() });
-                }
+    };
+    let n = mesh.skin_joints.len();
+    let mut order = Vec::with_capacity(n);
+    let mut placed = vec![false; n];
+    for _ in 0..n {
+        for k in 0..n {
+            if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
+                placed[k] = true;
+                order.push(k);
             }
         }
-        // Parent by name overrides the file's hierarchy; order parents first.
-        let parent_of = |k: usize| -> Option<usize> {
-            match sk.parents.get(&mesh.skin_joints[k].name) {
-                Some(p) => names.iter().position(|n| *n == p.as_str()),
-                None => mesh.skin_joints[k].parent,
-            }
-        };
-        let n = mesh.skin_joints.len();
-        let mut order = Vec::with_capacity(n);
-        let mut placed = vec![false; n];
-        for _ in 0..n {
-            for k in 0..n {
-                if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
-                    placed[k] = true;
-                    order.push(k);
-                }
-            }
-        }
-        if order.len() < n {
-            problems.push(CharacterProblem::ParentCycle);
-        }
-        let mut slot = vec![usize::MAX; n];
-        for (i, &k) in order.iter().enumerate() {
-            slot[k] = i;
-            let sj = &mesh.skin_joints[k];
-            let m: DMat4 = sj.world_from_joint;
-            joints.push(Joint {
-                name: sj.name.clone(),
-                parent: parent_of(k).map(|p| slot[p]),
-                rest: to_world(m.w_axis.truncate()),
-                limits: None,
-                bend_axis: DVec3::X,
-            });
-            skin_x_axis.push(Some(to_world_dir(m.x_axis.truncate()).normalize_or_zero()));
-        }
-    } else {
-        if !sk.parents.is_empty() {
-            problems.push(CharacterProblem::ParentsWithoutSkin);
-        }
-        for (i, j) in sk.joints.iter().enumerate() {
-            let parent = match &j.parent {
-                None => None,
-                Some(p) => match sk.joints[..i].iter().position(|o| &o.name == p) {
-                    Some(pi) => Some(pi),
-                    None => {
-                        problems.push(CharacterProblem::ParentNotListedBefore {
-                            joint: j.name.clone(),
-                            parent: p.clone(),
-                        });
-                        None
-                    }
-                },
-            };
-            let rest = match (&j.rest_m, &j.rest_vertices) {
-                (Some(r), None) => DVec3::from_array(*r),
-                (None, Some(ids)) if !ids.is_empty() => {
-                    let src = &mesh.source_positions;
-                    match ids.iter().find(|&&v| v >= src.len()) {
-                        Some(bad) => {
-                            problems.push(CharacterProblem::RestVertexOutOfRange {
-                                joint: j.name.clone(),
-                                vertex: *bad,
-                                vertex_count: src.len(),
-                            });
-                            DVec3::ZERO
-                        }
-                        None => {
-                            ids.iter().map(|&v| to_world(src[v])).sum::<DVec3>() / ids.len() as f64
-                        }
-                    }
-                }
-                _ => {
-                    problems.push(CharacterProblem::RestPosition {
+    }
+    if order.len() < n {
+        problems.push(CharacterProblem::ParentCycle);
+    }
+    let mut joints = Vec::with_capacity(order.len());
+    let mut skin_x_axis = Vec::with_capacity(order.len());
+    let mut slot = vec![usize::MAX; n];
+    for (i, &k) in order.iter().enumerate() {
+        slot[k] = i;
+        let sj = &mesh.skin_joints[k];
+        let m: DMat4 = sj.world_from_joint;
+        joints.push(Joint {
+            name: sj.name.clone(),
+            parent: parent_of(k).map(|p| slot[p]),
+            rest: frame.point(m.w_axis.truncate()),
+            limits: None,
+            bend_axis: DVec3::X,
+        });
+        skin_x_axis.push(Some(
+            frame.direction(m.x_axis.truncate()).normalize_or_zero(),
+        ));
+    }
+    (joints, skin_x_axis)
+}
+
+/// The joints listed in `skeleton.joints`, in their order, with no default bend axes.
+fn listed_joints(
+    sk: &SkeletonSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    if !sk.parents.is_empty() {
+        problems.push(CharacterProblem::ParentsWithoutSkin);
+    }
+    let mut joints = Vec::with_capacity(sk.joints.len());
+    for (i, j) in sk.joints.iter().enumerate() {
+        let parent = match &j.parent {
+            None => None,
+            Some(p) => match sk.joints[..i].iter().position(|o| &o.name == p) {
+                Some(pi) => Some(pi),
+                None => {
+                    problems.push(CharacterProblem::ParentNotListedBefore {
                         joint: j.name.clone(),
+                        parent: p.clone(),
+                    });
+                    None
+                }
+            },
+        };
+        let rest = listed_rest(j, mesh, frame, problems);
+        joints.push(Joint {
+            name: j.name.clone(),
+            parent,
+            rest,
+            limits: None,
+            bend_axis: DVec3::X,
+        });
+    }
+    let skin_x_axis = vec![None; joints.len()];
+    (joints, skin_x_axis)
+}
+
+/// A listed joint's rest position, world frame: `rest_m`, or the mean of its
+/// `rest_vertices` of the mesh file (zero when neither, or both, are usable).
+fn listed_rest(
+    j: &JointSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> DVec3 {
+    match (&j.rest_m, &j.rest_vertices) {
+        (Some(r), None) => DVec3::from_array(*r),
+        (None, Some(ids)) if !ids.is_empty() => {
+            let src = &mesh.source_positions;
+            match ids.iter().find(|&&v| v >= src.len()) {
+                Some(bad) => {
+                    problems.push(CharacterProblem::RestVertexOutOfRange {
+                        joint: j.name.clone(),
+                        vertex: *bad,
+                        vertex_count: src.len(),
                     });
                     DVec3::ZERO
                 }
-            };
-            joints.push(Joint {
-                name: j.name.clone(),
-                parent,
-                rest,
-                limits: None,
-                bend_axis: DVec3::X,
+                None => ids.iter().map(|&v| frame.point(src[v])).sum::<DVec3>() / ids.len() as f64,
+            }
+        }
+        _ => {
+            problems.push(CharacterProblem::RestPosition {
+                joint: j.name.clone(),
             });
-            skin_x_axis.push(None);
+            DVec3::ZERO
         }
     }
+}
+
+/// Checks that the joints make one tree with at least one bone (no joints at all is a
+/// problem of its own only when nothing else is wrong).
+fn check_tree(joints: &[Joint], problems: &mut Vec<CharacterProblem>) {
     if joints.is_empty() && problems.is_empty() {
         problems.push(CharacterProblem::NoSkeleton);
     }
@@ -662,7 +771,16 @@ pub fn build(
             joint: joints[0].name.clone(),
         });
     }
-    // Limits.
+}
+
+/// Sets the limits of `skeleton.limits` on their joints, in radians, with their bend
+/// axes (given, or the skin joint's X axis).
+fn apply_limits(
+    sk: &SkeletonSpec,
+    joints: &mut [Joint],
+    skin_x_axis: &[Option<DVec3>],
+    problems: &mut Vec<CharacterProblem>,
+) {
     for (name, l) in &sk.limits {
         let Some(j) = joints.iter().position(|j| &j.name == name) else {
             problems.push(CharacterProblem::LimitsUnknownJoint {
@@ -701,66 +819,48 @@ pub fn build(
             side: r(l.side_deg),
         });
     }
-    // Bend axes perpendicular to the twist axes (where the skeleton is otherwise valid).
-    let skeleton = match Skeleton::new(joints) {
-        Ok(s) => Some(s),
+}
+
+/// The skeleton, if the joints make a valid one, with every bend axis made
+/// perpendicular to its joint's twist axis (a limited joint's bend axis along its bone
+/// is a problem).
+fn finish_skeleton(joints: Vec<Joint>, problems: &mut Vec<CharacterProblem>) -> Option<Skeleton> {
+    let mut s = match Skeleton::new(joints) {
+        Ok(s) => s,
         Err(errs) => {
             problems.extend(errs.into_iter().map(CharacterProblem::Skeleton));
-            None
+            return None;
         }
     };
-    let skeleton = skeleton.map(|mut s| {
-        for j in 0..s.len() {
-            let a = s.twist_axis(j);
-            let b = s.joints[j].bend_axis;
-            let p = b - a * b.dot(a);
-            if s.joints[j].limits.is_some() && p.length() < 1e-3 {
-                problems.push(CharacterProblem::BendAxisAlongBone {
-                    joint: s.joints[j].name.clone(),
-                    axis: b,
-                });
-            }
-            s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+    for j in 0..s.len() {
+        let a = s.twist_axis(j);
+        let b = s.joints[j].bend_axis;
+        let p = b - a * b.dot(a);
+        if s.joints[j].limits.is_some() && p.length() < 1e-3 {
+            problems.push(CharacterProblem::BendAxisAlongBone {
+                joint: s.joints[j].name.clone(),
+                axis: b,
+            });
         }
-        s
-    });
-    // Markers.
-    let mut markers = Vec::new();
-    for (k, m) in spec.markers.iter().enumerate() {
-        if spec.markers[..k].iter().any(|o| o.name == m.name) {
+        s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+    }
+    Some(s)
+}
+
+/// The marker layout of `[[markers]]`, in file order (names unique, positions finite).
+fn place_markers(
+    specs: &[MarkerSpec],
+    skeleton: Option<&Skeleton>,
+    problems: &mut Vec<CharacterProblem>,
+) -> Vec<MarkerDef> {
+    let mut markers = Vec::with_capacity(specs.len());
+    for (k, m) in specs.iter().enumerate() {
+        if specs[..k].iter().any(|o| o.name == m.name) {
             problems.push(CharacterProblem::DuplicateMarker {
                 marker: m.name.clone(),
             });
         }
-        let (rest, joint) = match (&m.position_m, &m.bone, &skeleton) {
-            (Some(p), None, _) => (DVec3::from_array(*p), None),
-            (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
-                Some(j) => {
-                    let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
-                    // A leaf joint's bone is the segment that ends at it.
-                    let carrier = if s.children(j).next().is_none() {
-                        s.joints[j].parent.unwrap_or(j)
-                    } else {
-                        j
-                    };
-                    (s.joints[j].rest + off, Some(carrier))
-                }
-                None => {
-                    problems.push(CharacterProblem::MarkerUnknownBone {
-                        marker: m.name.clone(),
-                        bone: b.clone(),
-                    });
-                    (DVec3::ZERO, None)
-                }
-            },
-            (None, Some(_), None) => (DVec3::ZERO, None),
-            _ => {
-                problems.push(CharacterProblem::MarkerPlacement {
-                    marker: m.name.clone(),
-                });
-                (DVec3::ZERO, None)
-            }
-        };
+        let (rest, joint) = marker_rest(m, skeleton, problems);
         if !rest.is_finite() {
             problems.push(CharacterProblem::MarkerNotFinite {
                 marker: m.name.clone(),
@@ -775,8 +875,51 @@ pub fn build(
     if markers.is_empty() {
         problems.push(CharacterProblem::NoMarkers);
     }
-    // Binding settings.
-    let b = &spec.bind;
+    markers
+}
+
+/// A marker's rest position and the joint whose bone carries it: `position_m` (joint
+/// decided at bind time), or its bone's joint plus `offset_m` (a leaf joint's bone is
+/// its parent's). Zero and no joint when the marker cannot be placed.
+fn marker_rest(
+    m: &MarkerSpec,
+    skeleton: Option<&Skeleton>,
+    problems: &mut Vec<CharacterProblem>,
+) -> (DVec3, Option<usize>) {
+    match (&m.position_m, &m.bone, skeleton) {
+        (Some(p), None, _) => (DVec3::from_array(*p), None),
+        (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
+            Some(j) => {
+                let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
+                // A leaf joint's bone is the segment that ends at it.
+                let carrier = if s.children(j).next().is_none() {
+                    s.joints[j].parent.unwrap_or(j)
+                } else {
+                    j
+                };
+                (s.joints[j].rest + off, Some(carrier))
+            }
+            None => {
+                problems.push(CharacterProblem::MarkerUnknownBone {
+                    marker: m.name.clone(),
+                    bone: b.clone(),
+                });
+                (DVec3::ZERO, None)
+            }
+        },
+        (None, Some(_), None) => (DVec3::ZERO, None),
+        _ => {
+            problems.push(CharacterProblem::MarkerPlacement {
+                marker: m.name.clone(),
+            });
+            (DVec3::ZERO, None)
+        }
+    }
+}
+
+/// The binding settings of `[bind]`, defaults scaled to the character's height
+/// (metres); each must be a positive number, and the cell not absurdly small.
+fn bind_params(b: &BindSpec, height: f64, problems: &mut Vec<CharacterProblem>) -> BindParams {
     let cell = b.cell_size_m.unwrap_or(0.032 * height);
     let params = BindParams {
         cell_size_m: cell,
@@ -807,62 +950,54 @@ pub fn build(
             height_m: height,
         });
     }
-    // Correspondences.
-    let mut correspondences = Vec::new();
-    for (k, c) in spec.correspondences.iter().enumerate() {
-        let (index, name) = (k, c.joint.clone());
-        if spec.correspondences[..k].iter().any(|o| o.joint == c.joint) {
+    params
+}
+
+/// The harmonic method's correspondences of `[[correspondences]]` by joint index (each
+/// joint once, known to the skeleton, with triangles of the mesh's `triangle_count`).
+fn correspondences(
+    specs: &[CorrespondenceSpec],
+    skeleton: Option<&Skeleton>,
+    triangle_count: usize,
+    problems: &mut Vec<CharacterProblem>,
+) -> Vec<Correspondence> {
+    let mut out = Vec::new();
+    for (index, c) in specs.iter().enumerate() {
+        if specs[..index].iter().any(|o| o.joint == c.joint) {
             problems.push(CharacterProblem::CorrespondenceTwice {
                 index,
-                joint: name.clone(),
+                joint: c.joint.clone(),
             });
         }
-        let joint = skeleton
-            .as_ref()
-            .and_then(|s| s.joints.iter().position(|j| j.name == c.joint));
+        let joint = skeleton.and_then(|s| s.joints.iter().position(|j| j.name == c.joint));
         if skeleton.is_some() && joint.is_none() {
             problems.push(CharacterProblem::CorrespondenceUnknownJoint {
                 index,
-                joint: name.clone(),
+                joint: c.joint.clone(),
             });
         }
         if c.triangles.is_empty() {
             problems.push(CharacterProblem::CorrespondenceEmpty {
                 index,
-                joint: name.clone(),
+                joint: c.joint.clone(),
             });
         }
-        let n = mesh.triangles.len();
-        if let Some(&t) = c.triangles.iter().find(|&&t| t >= n) {
+        if let Some(&t) = c.triangles.iter().find(|&&t| t >= triangle_count) {
             problems.push(CharacterProblem::CorrespondenceTriangleOutOfRange {
                 index,
-                joint: name,
+                joint: c.joint.clone(),
                 triangle: t,
-                triangle_count: n,
+                triangle_count,
             });
         }
         if let Some(joint) = joint {
-            correspondences.push(Correspondence {
+            out.push(Correspondence {
                 joint,
                 triangles: c.triangles.iter().map(|&t| t as u32).collect(),
             });
         }
     }
-    match (problems.is_empty(), skeleton) {
-        (true, Some(skeleton)) => Ok((
-            Character {
-                name,
-                vertices,
-                triangles: mesh.triangles,
-                skeleton,
-                markers,
-                skin: None,
-                correspondences,
-            },
-            params,
-        )),
-        _ => Err(problems),
-    }
+    out
 }
 
 /// Writes a character as `DIR/NAME.obj` and a character file `DIR/NAME.toml` that loads
