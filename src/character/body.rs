@@ -33,6 +33,7 @@ impl BodyMotion {
     }
 }
 
+/// Joint limits from degrees: twist `±twist`, bend and side `(min, max)`.
 fn lim(twist: f64, bend: (f64, f64), side: (f64, f64)) -> Option<JointLimits> {
     Some(JointLimits {
         twist: (-twist * DEG, twist * DEG),
@@ -44,134 +45,236 @@ fn lim(twist: f64, bend: (f64, f64), side: (f64, f64)) -> Option<JointLimits> {
 /// Builds the procedural body: meshed on a lattice of `mesh_cell_m` and simplified to
 /// about `target_triangles` (20,000 gives about 10,000 vertices).
 pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
-    let arm_l = DVec3::new(0.5, -(0.75f64).sqrt(), 0.0); // 30° from the side
+    let skeleton = body_skeleton();
+    let shapes = body_shapes(&skeleton);
+    let sdf = |q: DVec3| body_sdf(&shapes, q);
+    let (fine_v, fine_t) = marching_tets(
+        &sdf,
+        DVec3::new(-0.62, -0.03, -0.2),
+        DVec3::new(0.62, 1.81, 0.25),
+        mesh_cell_m,
+    );
+    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
+    let skin = skin_by_distance(&vertices, &shapes, 0.03);
+    let markers = body_markers(&skeleton, &sdf);
+    Character {
+        name: "body".into(),
+        vertices,
+        triangles,
+        skeleton,
+        markers,
+        skin: Some(skin),
+        correspondences: Vec::new(),
+    }
+}
+
+/// The body's 24 joints: trunk and head, then the left arm and leg, then the right.
+fn body_skeleton() -> Skeleton {
     let mut joints: Vec<Joint> = Vec::new();
-    let mut add = |name: &str, parent: Option<usize>, rest: DVec3, limits, bend_axis: DVec3| {
-        joints.push(Joint {
-            name: name.into(),
-            parent,
-            rest,
-            limits,
-            bend_axis,
-        });
-        joints.len() - 1
-    };
+    let (pelvis, chest) = add_trunk(&mut joints);
+    for side in [1.0, -1.0] {
+        add_arm(&mut joints, chest, side);
+        add_leg(&mut joints, pelvis, side);
+    }
+    Skeleton::new(joints).expect("procedural body skeleton is valid")
+}
+
+/// Appends a joint to `joints` and returns its index.
+fn add_joint(
+    joints: &mut Vec<Joint>,
+    name: &str,
+    parent: Option<usize>,
+    rest: DVec3,
+    limits: Option<JointLimits>,
+    bend_axis: DVec3,
+) -> usize {
+    joints.push(Joint {
+        name: name.into(),
+        parent,
+        rest,
+        limits,
+        bend_axis,
+    });
+    joints.len() - 1
+}
+
+/// `v` on the given side: mirrored across X = 0 for the right (`side` −1).
+fn mirror(v: DVec3, side: f64) -> DVec3 {
+    DVec3::new(v.x * side, v.y, v.z)
+}
+
+/// The joint-name suffix of a side: `"l"` for +1, `"r"` for −1.
+fn side_suffix(side: f64) -> &'static str {
+    if side > 0.0 {
+        "l"
+    } else {
+        "r"
+    }
+}
+
+/// Appends the trunk and head (pelvis to head_top); returns the pelvis and the chest.
+fn add_trunk(joints: &mut Vec<Joint>) -> (usize, usize) {
     let x = DVec3::X;
-    let pelvis = add("pelvis", None, DVec3::new(0.0, 0.95, 0.0), None, x);
-    let spine = add(
+    let pelvis = add_joint(joints, "pelvis", None, DVec3::new(0.0, 0.95, 0.0), None, x);
+    let spine = add_joint(
+        joints,
         "spine",
         Some(pelvis),
         DVec3::new(0.0, 1.10, -0.01),
         lim(30.0, (-25.0, 40.0), (-25.0, 25.0)),
         x,
     );
-    let chest = add(
+    let chest = add_joint(
+        joints,
         "chest",
         Some(spine),
         DVec3::new(0.0, 1.30, -0.01),
         lim(25.0, (-20.0, 30.0), (-20.0, 20.0)),
         x,
     );
-    let neck = add(
+    let neck = add_joint(
+        joints,
         "neck",
         Some(chest),
         DVec3::new(0.0, 1.50, -0.01),
         lim(50.0, (-40.0, 50.0), (-35.0, 35.0)),
         x,
     );
-    let head = add(
+    let head = add_joint(
+        joints,
         "head",
         Some(neck),
         DVec3::new(0.0, 1.59, 0.0),
         lim(30.0, (-30.0, 30.0), (-20.0, 20.0)),
         x,
     );
-    add("head_top", Some(head), DVec3::new(0.0, 1.75, 0.0), None, x);
-    for side in [1.0, -1.0] {
-        let s = |v: DVec3| DVec3::new(v.x * side, v.y, v.z);
-        let l = if side > 0.0 { "l" } else { "r" };
-        let d = DVec3::new(arm_l.x * side, arm_l.y, 0.0);
-        // Flexion raises the arm forwards: about d × Z.
-        let flex = d.cross(DVec3::Z).normalize();
-        let clav = add(
-            &format!("clavicle_{l}"),
-            Some(chest),
-            s(DVec3::new(0.03, 1.44, 0.0)),
-            lim(10.0, (-10.0, 10.0), (-15.0, 15.0)),
-            DVec3::Z,
-        );
-        let shoulder = s(DVec3::new(0.18, 1.43, -0.01));
-        let elbow = shoulder + d * 0.28;
-        let wrist = elbow + d * 0.26;
-        let sh = add(
-            &format!("shoulder_{l}"),
-            Some(clav),
-            shoulder,
-            lim(80.0, (-60.0, 170.0), (-70.0, 70.0)),
-            flex,
-        );
-        let el = add(
-            &format!("elbow_{l}"),
-            Some(sh),
-            elbow,
-            lim(80.0, (0.0, 145.0), (-5.0, 5.0)),
-            flex,
-        );
-        let wr = add(
-            &format!("wrist_{l}"),
-            Some(el),
-            wrist,
-            lim(15.0, (-70.0, 80.0), (-30.0, 30.0)),
-            flex,
-        );
-        add(
-            &format!("hand_end_{l}"),
-            Some(wr),
-            wrist + d * 0.18,
-            None,
-            flex,
-        );
-        // Legs: hip flexion brings the thigh forwards (about −X), the knee bends back.
-        let hip = add(
-            &format!("hip_{l}"),
-            Some(pelvis),
-            s(DVec3::new(0.09, 0.90, 0.0)),
-            lim(40.0, (-20.0, 120.0), (-30.0, 45.0)),
-            -x,
-        );
-        let knee = add(
-            &format!("knee_{l}"),
-            Some(hip),
-            s(DVec3::new(0.10, 0.50, 0.01)),
-            lim(10.0, (0.0, 140.0), (-3.0, 3.0)),
-            x,
-        );
-        let ankle = add(
-            &format!("ankle_{l}"),
-            Some(knee),
-            s(DVec3::new(0.10, 0.09, -0.01)),
-            lim(15.0, (-30.0, 40.0), (-20.0, 20.0)),
-            x,
-        );
-        add(
-            &format!("toe_{l}"),
-            Some(ankle),
-            s(DVec3::new(0.10, 0.03, 0.15)),
-            None,
-            x,
-        );
-    }
-    let skeleton = Skeleton::new(joints).expect("procedural body skeleton is valid");
-    let j = |name: &str| {
-        skeleton
-            .joints
-            .iter()
-            .position(|jt| jt.name == name)
-            .expect("body joint")
-    };
-    let p = |name: &str| skeleton.joints[j(name)].rest;
-    let cap = |a: DVec3, b: DVec3, ra: f64, rb: f64| Shape::Capsule(Capsule { a, b, ra, rb });
-    // Flesh: (owner joint, shape).
+    add_joint(
+        joints,
+        "head_top",
+        Some(head),
+        DVec3::new(0.0, 1.75, 0.0),
+        None,
+        x,
+    );
+    (pelvis, chest)
+}
+
+/// Appends one side's arm (clavicle to hand_end), 30° from the side, on the chest.
+fn add_arm(joints: &mut Vec<Joint>, chest: usize, side: f64) {
+    let arm_l = DVec3::new(0.5, -(0.75f64).sqrt(), 0.0); // 30° from the side
+    let s = |v: DVec3| mirror(v, side);
+    let l = side_suffix(side);
+    let d = DVec3::new(arm_l.x * side, arm_l.y, 0.0);
+    // Flexion raises the arm forwards: about d × Z.
+    let flex = d.cross(DVec3::Z).normalize();
+    let clav = add_joint(
+        joints,
+        &format!("clavicle_{l}"),
+        Some(chest),
+        s(DVec3::new(0.03, 1.44, 0.0)),
+        lim(10.0, (-10.0, 10.0), (-15.0, 15.0)),
+        DVec3::Z,
+    );
+    let shoulder = s(DVec3::new(0.18, 1.43, -0.01));
+    let elbow = shoulder + d * 0.28;
+    let wrist = elbow + d * 0.26;
+    let sh = add_joint(
+        joints,
+        &format!("shoulder_{l}"),
+        Some(clav),
+        shoulder,
+        lim(80.0, (-60.0, 170.0), (-70.0, 70.0)),
+        flex,
+    );
+    let el = add_joint(
+        joints,
+        &format!("elbow_{l}"),
+        Some(sh),
+        elbow,
+        lim(80.0, (0.0, 145.0), (-5.0, 5.0)),
+        flex,
+    );
+    let wr = add_joint(
+        joints,
+        &format!("wrist_{l}"),
+        Some(el),
+        wrist,
+        lim(15.0, (-70.0, 80.0), (-30.0, 30.0)),
+        flex,
+    );
+    add_joint(
+        joints,
+        &format!("hand_end_{l}"),
+        Some(wr),
+        wrist + d * 0.18,
+        None,
+        flex,
+    );
+}
+
+/// Appends one side's leg (hip to toe) on the pelvis.
+fn add_leg(joints: &mut Vec<Joint>, pelvis: usize, side: f64) {
+    let x = DVec3::X;
+    let s = |v: DVec3| mirror(v, side);
+    let l = side_suffix(side);
+    // Legs: hip flexion brings the thigh forwards (about −X), the knee bends back.
+    let hip = add_joint(
+        joints,
+        &format!("hip_{l}"),
+        Some(pelvis),
+        s(DVec3::new(0.09, 0.90, 0.0)),
+        lim(40.0, (-20.0, 120.0), (-30.0, 45.0)),
+        -x,
+    );
+    let knee = add_joint(
+        joints,
+        &format!("knee_{l}"),
+        Some(hip),
+        s(DVec3::new(0.10, 0.50, 0.01)),
+        lim(10.0, (0.0, 140.0), (-3.0, 3.0)),
+        x,
+    );
+    let ankle = add_joint(
+        joints,
+        &format!("ankle_{l}"),
+        Some(knee),
+        s(DVec3::new(0.10, 0.09, -0.01)),
+        lim(15.0, (-30.0, 40.0), (-20.0, 20.0)),
+        x,
+    );
+    add_joint(
+        joints,
+        &format!("toe_{l}"),
+        Some(ankle),
+        s(DVec3::new(0.10, 0.03, 0.15)),
+        None,
+        x,
+    );
+}
+
+/// Index of the body joint named `name`.
+fn joint_index(sk: &Skeleton, name: &str) -> usize {
+    sk.joints
+        .iter()
+        .position(|jt| jt.name == name)
+        .expect("body joint")
+}
+
+/// Rest position of the body joint named `name`.
+fn rest(sk: &Skeleton, name: &str) -> DVec3 {
+    sk.joints[joint_index(sk, name)].rest
+}
+
+/// A tapered capsule shape from `a` (radius `ra`) to `b` (radius `rb`).
+fn cap(a: DVec3, b: DVec3, ra: f64, rb: f64) -> Shape {
+    Shape::Capsule(Capsule { a, b, ra, rb })
+}
+
+/// The flesh as (owner joint, shape): the five trunk and head pieces first (they blend
+/// broadly in [`body_sdf`]), then each side's limbs, left first.
+fn body_shapes(skeleton: &Skeleton) -> Vec<(usize, Shape)> {
+    let j = |name: &str| joint_index(skeleton, name);
+    let p = |name: &str| rest(skeleton, name);
     let mut shapes: Vec<(usize, Shape)> = vec![
         (
             j("pelvis"),
@@ -207,76 +310,105 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         ),
     ];
     for l in ["l", "r"] {
-        let n = |b: &str| format!("{b}_{l}");
-        shapes.extend([
-            (
-                j(&n("clavicle")),
-                cap(p(&n("clavicle")), p(&n("shoulder")), 0.05, 0.055),
-            ),
-            (
-                j(&n("shoulder")),
-                cap(p(&n("shoulder")), p(&n("elbow")), 0.052, 0.04),
-            ),
-            (
-                j(&n("elbow")),
-                cap(p(&n("elbow")), p(&n("wrist")), 0.04, 0.028),
-            ),
-            (
-                j(&n("wrist")),
-                cap(
-                    p(&n("wrist")),
-                    p(&n("hand_end")) - (p(&n("hand_end")) - p(&n("wrist"))) * 0.15,
-                    0.03,
-                    0.026,
-                ),
-            ),
-            (j(&n("hip")), cap(p(&n("hip")), p(&n("knee")), 0.085, 0.055)),
-            (
-                j(&n("knee")),
-                cap(p(&n("knee")), p(&n("ankle")), 0.052, 0.035),
-            ),
-            (
-                j(&n("ankle")),
-                cap(
-                    p(&n("ankle")) - DVec3::new(0.0, 0.04, 0.06),
-                    p(&n("toe")),
-                    0.04,
-                    0.03,
-                ),
-            ),
-        ]);
+        shapes.extend(limb_shapes(skeleton, l));
     }
-    let sdf = |q: DVec3| {
-        let mut d = f64::INFINITY;
-        for (k, (_, s)) in shapes.iter().enumerate() {
-            let v = s.sdf(q);
-            // Trunk pieces blend broadly, limbs narrowly.
-            let blend = if k < 5 { 0.04 } else { 0.02 };
-            d = if d.is_infinite() {
-                v
-            } else {
-                super::procedural::smin(d, v, blend)
-            };
-        }
-        d
-    };
-    let (fine_v, fine_t) = marching_tets(
-        &sdf,
-        DVec3::new(-0.62, -0.03, -0.2),
-        DVec3::new(0.62, 1.81, 0.25),
-        mesh_cell_m,
-    );
-    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
-    let skin = skin_by_distance(&vertices, &shapes, 0.03);
-    // Markers: 14 mm balls, so their centres sit 8 mm off the skin.
+    shapes
+}
+
+/// One side's limb flesh (suffix `l`): upper arm to mitten hand, thigh to foot.
+fn limb_shapes(skeleton: &Skeleton, l: &str) -> [(usize, Shape); 7] {
+    let j = |name: &str| joint_index(skeleton, name);
+    let p = |name: &str| rest(skeleton, name);
+    let n = |b: &str| format!("{b}_{l}");
+    [
+        (
+            j(&n("clavicle")),
+            cap(p(&n("clavicle")), p(&n("shoulder")), 0.05, 0.055),
+        ),
+        (
+            j(&n("shoulder")),
+            cap(p(&n("shoulder")), p(&n("elbow")), 0.052, 0.04),
+        ),
+        (
+            j(&n("elbow")),
+            cap(p(&n("elbow")), p(&n("wrist")), 0.04, 0.028),
+        ),
+        (
+            j(&n("wrist")),
+            cap(
+                p(&n("wrist")),
+                p(&n("hand_end")) - (p(&n("hand_end")) - p(&n("wrist"))) * 0.15,
+                0.03,
+                0.026,
+            ),
+        ),
+        (j(&n("hip")), cap(p(&n("hip")), p(&n("knee")), 0.085, 0.055)),
+        (
+            j(&n("knee")),
+            cap(p(&n("knee")), p(&n("ankle")), 0.052, 0.035),
+        ),
+        (
+            j(&n("ankle")),
+            cap(
+                p(&n("ankle")) - DVec3::new(0.0, 0.04, 0.06),
+                p(&n("toe")),
+                0.04,
+                0.03,
+            ),
+        ),
+    ]
+}
+
+/// The body's implicit surface at `q`: the smooth union of the shapes, the trunk pieces
+/// (the first five) blended broadly, limbs narrowly.
+fn body_sdf(shapes: &[(usize, Shape)], q: DVec3) -> f64 {
+    let mut d = f64::INFINITY;
+    for (k, (_, s)) in shapes.iter().enumerate() {
+        let v = s.sdf(q);
+        // Trunk pieces blend broadly, limbs narrowly.
+        let blend = if k < 5 { 0.04 } else { 0.02 };
+        d = if d.is_infinite() {
+            v
+        } else {
+            super::procedural::smin(d, v, blend)
+        };
+    }
+    d
+}
+
+/// Appends a marker carried by `joint`, on the skin where the ray from `from` along
+/// `dir` leaves it: 14 mm balls, so their centres sit 8 mm off the skin.
+fn mark(
+    markers: &mut Vec<MarkerDef>,
+    sdf: &dyn Fn(DVec3) -> f64,
+    name: String,
+    joint: usize,
+    from: DVec3,
+    dir: DVec3,
+) {
+    markers.push(MarkerDef {
+        name,
+        rest: on_skin(sdf, from, dir.normalize(), 0.4, 0.008),
+        joint: Some(joint),
+    });
+}
+
+/// The 36 markers: head, trunk, then each side's hand and foot.
+fn body_markers(skeleton: &Skeleton, sdf: &dyn Fn(DVec3) -> f64) -> Vec<MarkerDef> {
     let mut markers = Vec::new();
-    let mut mark = |name: String, joint: usize, from: DVec3, dir: DVec3| {
-        markers.push(MarkerDef {
-            name,
-            rest: on_skin(&sdf, from, dir.normalize(), 0.4, 0.008),
-            joint: Some(joint),
-        });
-    };
+    head_and_trunk_markers(&mut markers, skeleton, sdf);
+    hand_and_foot_markers(&mut markers, skeleton, sdf);
+    markers
+}
+
+/// Appends the 4 head markers and the 12 trunk markers (shoulders and pelvis included).
+fn head_and_trunk_markers(
+    markers: &mut Vec<MarkerDef>,
+    skeleton: &Skeleton,
+    sdf: &dyn Fn(DVec3) -> f64,
+) {
+    let j = |name: &str| joint_index(skeleton, name);
+    let p = |name: &str| rest(skeleton, name);
     let hc = DVec3::new(0.0, 1.665, 0.01);
     for (name, dir) in [
         ("LFHD", DVec3::new(0.5, 0.3, 1.0)),
@@ -284,7 +416,7 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         ("LBHD", DVec3::new(0.5, 0.3, -1.0)),
         ("RBHD", DVec3::new(-0.5, 0.3, -1.0)),
     ] {
-        mark(name.into(), j("head"), hc, dir);
+        mark(markers, sdf, name.into(), j("head"), hc, dir);
     }
     let trunk = [
         (
@@ -341,8 +473,18 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         ("SACR", "pelvis", DVec3::new(0.0, 0.95, -0.01), -DVec3::Z),
     ];
     for (name, joint, from, dir) in trunk {
-        mark(name.into(), j(joint), from, dir);
+        mark(markers, sdf, name.into(), j(joint), from, dir);
     }
+}
+
+/// Appends each side's 8 markers around the mitten hand and 2 on the foot, left first.
+fn hand_and_foot_markers(
+    markers: &mut Vec<MarkerDef>,
+    skeleton: &Skeleton,
+    sdf: &dyn Fn(DVec3) -> f64,
+) {
+    let j = |name: &str| joint_index(skeleton, name);
+    let p = |name: &str| rest(skeleton, name);
     for (l, side) in [("l", 1.0), ("r", -1.0)] {
         let (w, e) = (p(&format!("wrist_{l}")), p(&format!("hand_end_{l}")));
         let axis = (e - w).normalize();
@@ -364,6 +506,8 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         {
             let dir = DQuat::from_axis_angle(axis, ang * DEG) * across;
             mark(
+                markers,
+                sdf,
                 format!("{up}HND{}", k + 1),
                 j(&format!("wrist_{l}")),
                 w + (e - w) * t,
@@ -372,26 +516,21 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
         }
         let ankle = p(&format!("ankle_{l}"));
         mark(
+            markers,
+            sdf,
             format!("{up}HEE"),
             j(&format!("ankle_{l}")),
             ankle - DVec3::new(0.0, 0.04, 0.0),
             DVec3::new(0.0, -0.3, -1.0),
         );
         mark(
+            markers,
+            sdf,
             format!("{up}TOE"),
             j(&format!("ankle_{l}")),
             p(&format!("toe_{l}")),
             DVec3::new(0.0, 0.3, 1.0),
         );
-    }
-    Character {
-        name: "body".into(),
-        vertices,
-        triangles,
-        skeleton,
-        markers,
-        skin: Some(skin),
-        correspondences: Vec::new(),
     }
 }
 

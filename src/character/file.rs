@@ -34,7 +34,7 @@
 
 use super::bind_params::BindParams;
 use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
-use super::skeleton::{Joint, JointLimits, Skeleton};
+use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
 use glam::{DMat4, DVec3};
@@ -227,8 +227,158 @@ pub enum CharacterError {
     Toml { path: String, message: String },
     #[error("{path}: {source}")]
     Mesh { path: String, source: MeshError },
-    #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, .problems.join("\n  - "))]
-    Invalid { path: String, problems: Vec<String> },
+    #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, join_problems(.problems))]
+    Invalid {
+        path: String,
+        problems: Vec<CharacterProblem>,
+    },
+}
+
+/// The problems' texts, one per line after the first, as [`CharacterError::Invalid`]
+/// lists them.
+fn join_problems(problems: &[CharacterProblem]) -> String {
+    problems
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join("\n  - ")
+}
+
+/// One problem found in a character file (with its mesh); [`build`] reports every one
+/// it finds at once. Joint and marker names are as the file spells them; vertex and
+/// triangle numbers are 0-based in the mesh file's order.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum CharacterProblem {
+    /// `mesh.path` has an extension that is not a mesh format.
+    #[error("mesh.path {path:?}: unknown mesh format {extension:?} (use .glb, .gltf or .obj)")]
+    UnknownMeshFormat { path: PathBuf, extension: String },
+    /// A vertex is NaN or infinite (in the world frame); `position` as the file gives it.
+    #[error("mesh vertex {vertex} is not finite: {position:?}")]
+    NonFiniteVertex { vertex: usize, position: DVec3 },
+    /// Every vertex has the same height.
+    #[error("the mesh has no height (all vertices at one Y)")]
+    NoHeight,
+    /// Edges used by one triangle only, with an example edge (file vertices).
+    #[error("the mesh is open: {edges} edges border a hole{}; the solver needs a closed surface", example_edge(.example))]
+    OpenMesh {
+        edges: usize,
+        example: Option<(usize, usize)>,
+    },
+    /// Edges used by more than two triangles, with an example edge (file vertices).
+    #[error("the mesh is not manifold: {edges} edges are shared by more than two triangles{}", example_edge(.example))]
+    NonManifoldMesh {
+        edges: usize,
+        example: Option<(usize, usize)>,
+    },
+    /// Edges whose two triangles run them in the same direction.
+    #[error("the mesh is not consistently oriented: {edges} edges join flipped triangles")]
+    InconsistentOrientation { edges: usize },
+    /// `skeleton.from_skin = true` for a mesh without a skin.
+    #[error("skeleton.from_skin is true but the mesh has no skin")]
+    NoSkin,
+    /// `skeleton.joints` listed while the skin gives the joints.
+    #[error(
+        "skeleton.joints cannot be listed when the skin is used (set skeleton.from_skin = false)"
+    )]
+    JointsWithSkin,
+    /// `skeleton.parents` names a joint the skin does not have.
+    #[error("skeleton.parents: no skin joint is named {name:?}")]
+    UnknownSkinJoint { name: String },
+    /// `skeleton.parents` makes a joint its own ancestor.
+    #[error("skeleton.parents makes a cycle")]
+    ParentCycle,
+    /// `skeleton.parents` given without a skin.
+    #[error("skeleton.parents applies to skin joints only")]
+    ParentsWithoutSkin,
+    /// A listed joint's parent is not listed before it.
+    #[error("joint {joint:?}: parent {parent:?} is not listed before it")]
+    ParentNotListedBefore { joint: String, parent: String },
+    /// A listed joint's `rest_vertices` names a vertex past the file's last.
+    #[error("joint {joint:?}: rest_vertices names vertex {vertex}, but the mesh file has {vertex_count}")]
+    RestVertexOutOfRange {
+        joint: String,
+        vertex: usize,
+        vertex_count: usize,
+    },
+    /// A listed joint has both or neither of `rest_m` and (non-empty) `rest_vertices`.
+    #[error("joint {joint:?}: give exactly one of rest_m and rest_vertices (non-empty)")]
+    RestPosition { joint: String },
+    /// Neither a skin nor listed joints.
+    #[error("the character has no skeleton: list skeleton.joints or use a glTF file with a skin")]
+    NoSkeleton,
+    /// More than one joint without a parent.
+    #[error("the skeleton has {} roots ({}): give every joint but one a parent", .roots.len(), .roots.join(", "))]
+    SeveralRoots { roots: Vec<String> },
+    /// A skeleton of a single joint.
+    #[error("joint {joint:?} has no bone: a skeleton needs at least two joints")]
+    NoBone { joint: String },
+    /// `skeleton.limits` names a joint the skeleton does not have.
+    #[error("skeleton.limits: no joint is named {joint:?}")]
+    LimitsUnknownJoint { joint: String },
+    /// A limit (`twist_deg`, `bend_deg` or `side_deg`) is not a finite `[min, max]`.
+    #[error("skeleton.limits.{joint}.{which}: [{min}, {max}] is not a range (min ≤ max, finite)")]
+    BadLimitRange {
+        joint: String,
+        which: &'static str,
+        min: f64,
+        max: f64,
+    },
+    /// Limits without a usable bend axis (none given, none from the skin, or zero).
+    #[error(
+        "skeleton.limits.{joint}: bend_axis is required (a non-zero vector) for a listed joint"
+    )]
+    BendAxisRequired { joint: String },
+    /// The skeleton itself is invalid.
+    #[error(transparent)]
+    Skeleton(#[from] SkeletonError),
+    /// A limited joint's bend axis runs along its bone.
+    #[error("joint {joint:?}: bend_axis {axis} is parallel to the bone; give an axis across it")]
+    BendAxisAlongBone { joint: String, axis: DVec3 },
+    /// Two markers share a name.
+    #[error("marker name {marker:?} is used twice")]
+    DuplicateMarker { marker: String },
+    /// A marker's `bone` names a joint the skeleton does not have.
+    #[error("marker {marker:?}: no joint is named {bone:?}")]
+    MarkerUnknownBone { marker: String, bone: String },
+    /// A marker has both or neither of `position_m` and `bone`.
+    #[error("marker {marker:?}: give exactly one of position_m and bone (with offset_m)")]
+    MarkerPlacement { marker: String },
+    /// A marker's rest position is NaN or infinite.
+    #[error("marker {marker:?}: position is not finite")]
+    MarkerNotFinite { marker: String },
+    /// No `[[markers]]`.
+    #[error("the character has no markers ([[markers]])")]
+    NoMarkers,
+    /// A binding setting (`bind.NAME`, given or defaulted) is not a positive number.
+    #[error("{setting} must be a positive number, got {value}")]
+    NotPositive { setting: &'static str, value: f64 },
+    /// `bind.cell_size_m` below 1/400 of the character's height (metres).
+    #[error("bind.cell_size_m {cell_size_m} is below 1/400 of the character's height {height_m:.3} m: the control mesh would be enormous")]
+    CellTooSmall { cell_size_m: f64, height_m: f64 },
+    /// `correspondences[index]` repeats a joint listed before it.
+    #[error("correspondences[{index}] (joint {joint:?}): the joint is listed twice")]
+    CorrespondenceTwice { index: usize, joint: String },
+    /// `correspondences[index]` names a joint the skeleton does not have.
+    #[error("correspondences[{index}] (joint {joint:?}): no joint is named {joint:?}")]
+    CorrespondenceUnknownJoint { index: usize, joint: String },
+    /// `correspondences[index]` has no triangles.
+    #[error("correspondences[{index}] (joint {joint:?}): no triangles")]
+    CorrespondenceEmpty { index: usize, joint: String },
+    /// `correspondences[index]` names a triangle past the mesh's last.
+    #[error("correspondences[{index}] (joint {joint:?}): triangle {triangle} is out of range (the mesh has {triangle_count} triangles)")]
+    CorrespondenceTriangleOutOfRange {
+        index: usize,
+        joint: String,
+        triangle: usize,
+        triangle_count: usize,
+    },
+}
+
+/// `" (e.g. between file vertices A and B)"` for an example edge, or nothing.
+fn example_edge(example: &Option<(usize, usize)>) -> String {
+    example
+        .map(|(a, b)| format!(" (e.g. between file vertices {a} and {b})"))
+        .unwrap_or_default()
 }
 
 /// A loaded character with its binding settings and the bytes that define it.
@@ -285,10 +435,10 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         other => {
             return Err(CharacterError::Invalid {
                 path: shown,
-                problems: vec![format!(
-                    "mesh.path {:?}: unknown mesh format {other:?} (use .glb, .gltf or .obj)",
-                    spec.mesh.path
-                )],
+                problems: vec![CharacterProblem::UnknownMeshFormat {
+                    path: spec.mesh.path.clone(),
+                    extension: other.to_string(),
+                }],
             })
         }
     }
@@ -325,214 +475,318 @@ pub fn build(
     spec: &CharacterFile,
     name: String,
     mesh: MeshData,
-) -> Result<(Character, BindParams), Vec<String>> {
+) -> Result<(Character, BindParams), Vec<CharacterProblem>> {
     let mut problems = Vec::new();
-    let s = spec.mesh.units.metres();
-    let up = spec.mesh.up;
-    let to_world = |p: DVec3| {
-        let p = p * s;
-        match up {
-            UpAxis::Y => p,
-            UpAxis::Z => y_up_from_z_up(p),
+    let frame = WorldFrame::of(&spec.mesh);
+    let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
+    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
+    check_surface(&mesh, &vertices, weld_tol, &mut problems);
+    let sk = &spec.skeleton;
+    let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
+        skin_joints(sk, &mesh, frame, &mut problems)
+    } else {
+        listed_joints(sk, &mesh, frame, &mut problems)
+    };
+    check_tree(&joints, &mut problems);
+    apply_limits(sk, &mut joints, &skin_x_axis, &mut problems);
+    let skeleton = finish_skeleton(joints, &mut problems);
+    let markers = place_markers(&spec.markers, skeleton.as_ref(), &mut problems);
+    let params = bind_params(&spec.bind, height, &mut problems);
+    let correspondences = correspondences(
+        &spec.correspondences,
+        skeleton.as_ref(),
+        mesh.triangles.len(),
+        &mut problems,
+    );
+    match (problems.is_empty(), skeleton) {
+        (true, Some(skeleton)) => Ok((
+            Character {
+                name,
+                vertices,
+                triangles: mesh.triangles,
+                skeleton,
+                markers,
+                skin: None,
+                correspondences,
+            },
+            params,
+        )),
+        _ => Err(problems),
+    }
+}
+
+/// The mesh file's units and up axis: how its points and directions reach the world
+/// frame (metres, Y up).
+#[derive(Clone, Copy, Debug)]
+struct WorldFrame {
+    /// Metres per file unit.
+    metres: f64,
+    up: UpAxis,
+}
+
+impl WorldFrame {
+    /// The frame `[mesh]` describes.
+    fn of(mesh: &MeshSpec) -> Self {
+        WorldFrame {
+            metres: mesh.units.metres(),
+            up: mesh.up,
         }
-    };
-    let to_world_dir = |d: DVec3| match up {
-        UpAxis::Y => d,
-        UpAxis::Z => y_up_from_z_up(d),
-    };
-    let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| to_world(p)).collect();
-    if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
-        problems.push(format!(
-            "mesh vertex {i} is not finite: {:?}",
-            mesh.positions[i]
-        ));
+    }
+
+    /// A point of the mesh file in the world frame: scaled to metres, then turned Y up.
+    fn point(self, p: DVec3) -> DVec3 {
+        self.direction(p * self.metres)
+    }
+
+    /// A direction of the mesh file in the world frame (turned Y up, not scaled).
+    fn direction(self, d: DVec3) -> DVec3 {
+        match self.up {
+            UpAxis::Y => d,
+            UpAxis::Z => y_up_from_z_up(d),
+        }
+    }
+}
+
+/// The mesh's vertices in the world frame and the character's height (metres); a
+/// non-finite vertex, or (when all are finite) a mesh with no height, is a problem.
+fn world_vertices(
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<DVec3>, f64) {
+    let vertices: Vec<DVec3> = mesh.positions.iter().map(|&p| frame.point(p)).collect();
+    let non_finite = vertices.iter().position(|v| !v.is_finite());
+    if let Some(i) = non_finite {
+        problems.push(CharacterProblem::NonFiniteVertex {
+            vertex: i,
+            position: mesh.positions[i],
+        });
     }
     let (lo, hi) = vertices.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(a, b), v| (a.min(*v), b.max(*v)),
     );
     let height = (hi.y - lo.y).max(0.0);
-    if problems.is_empty() && height <= 0.0 {
-        problems.push("the mesh has no height (all vertices at one Y)".into());
+    if non_finite.is_none() && height <= 0.0 {
+        problems.push(CharacterProblem::NoHeight);
     }
-    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
-    let (map, _) = weld(&vertices, weld_tol);
+    (vertices, height)
+}
+
+/// Checks that the mesh, its world-frame `vertices` welded within `weld_tol` metres, is
+/// a closed, manifold, consistently oriented surface.
+fn check_surface(
+    mesh: &MeshData,
+    vertices: &[DVec3],
+    weld_tol: f64,
+    problems: &mut Vec<CharacterProblem>,
+) {
+    let (map, _) = weld(vertices, weld_tol);
     let welded_tris: Vec<[u32; 3]> = mesh
         .triangles
         .iter()
         .map(|t| t.map(|i| map[i as usize]))
         .collect();
     let issues = surface_issues(&welded_tris);
-    if !issues.is_clean() {
-        let at = |e: Option<(u32, u32)>| {
-            e.map(|(a, b)| {
-                let first = |w: u32| map.iter().position(|&m| m == w).unwrap_or(0);
-                format!(
-                    " (e.g. between file vertices {} and {})",
-                    first(a),
-                    first(b)
-                )
-            })
-            .unwrap_or_default()
-        };
-        if issues.open_edges > 0 {
-            problems.push(format!(
-                "the mesh is open: {} edges border a hole{}; the solver needs a closed surface",
-                issues.open_edges,
-                at(issues.open_example)
-            ));
-        }
-        if issues.non_manifold_edges > 0 {
-            problems.push(format!(
-                "the mesh is not manifold: {} edges are shared by more than two triangles{}",
-                issues.non_manifold_edges,
-                at(issues.non_manifold_example)
-            ));
-        }
-        if issues.inconsistent_edges > 0 {
-            problems.push(format!(
-                "the mesh is not consistently oriented: {} edges join flipped triangles",
-                issues.inconsistent_edges
-            ));
+    if issues.is_clean() {
+        return;
+    }
+    // An edge of welded vertices, as the first file vertex of each.
+    let at = |e: Option<(u32, u32)>| {
+        e.map(|(a, b)| {
+            let first = |w: u32| map.iter().position(|&m| m == w).unwrap_or(0);
+            (first(a), first(b))
+        })
+    };
+    if issues.open_edges > 0 {
+        problems.push(CharacterProblem::OpenMesh {
+            edges: issues.open_edges,
+            example: at(issues.open_example),
+        });
+    }
+    if issues.non_manifold_edges > 0 {
+        problems.push(CharacterProblem::NonManifoldMesh {
+            edges: issues.non_manifold_edges,
+            example: at(issues.non_manifold_example),
+        });
+    }
+    if issues.inconsistent_edges > 0 {
+        problems.push(CharacterProblem::InconsistentOrientation {
+            edges: issues.inconsistent_edges,
+        });
+    }
+}
+
+/// The joints of the glTF skin, parents first (`skeleton.parents` overriding the file's
+/// hierarchy), at their bind-pose positions; with each joint's bind-pose X axis in the
+/// world frame (the default bend axis).
+fn skin_joints(
+    sk: &SkeletonSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    if mesh.skin_joints.is_empty() {
+        problems.push(CharacterProblem::NoSkin);
+    }
+    if !sk.joints.is_empty() {
+        problems.push(CharacterProblem::JointsWithSkin);
+    }
+    let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
+    for (child, parent) in &sk.parents {
+        for n in [child, parent] {
+            if !names.contains(&n.as_str()) {
+                problems.push(CharacterProblem::UnknownSkinJoint { name: n.clone() });
+            }
         }
     }
-    // Skeleton.
-    let sk = &spec.skeleton;
-    let use_skin = sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty());
-    let mut joints: Vec<Joint> = Vec::new();
-    let mut skin_x_axis: Vec<Option<DVec3>> = Vec::new();
-    if use_skin {
-        if mesh.skin_joints.is_empty() {
-            problems.push("skeleton.from_skin is true but the mesh has no skin".into());
+    // Parent by name overrides the file's hierarchy; order parents first.
+    let parent_of = |k: usize| -> Option<usize> {
+        match sk.parents.get(&mesh.skin_joints[k].name) {
+            Some(p) => names.iter().position(|n| *n == p.as_str()),
+            None => mesh.skin_joints[k].parent,
         }
-        if !sk.joints.is_empty() {
-            problems.push("skeleton.joints cannot be listed when the skin is used (set skeleton.from_skin = false)".into());
+    };
+    let n = mesh.skin_joints.len();
+    let mut order = Vec::with_capacity(n);
+    let mut placed = vec![false; n];
+    for _ in 0..n {
+        for k in 0..n {
+            if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
+                placed[k] = true;
+                order.push(k);
+            }
         }
-        let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
-        for (child, parent) in &sk.parents {
-            for n in [child, parent] {
-                if !names.contains(&n.as_str()) {
-                    problems.push(format!("skeleton.parents: no skin joint is named {n:?}"));
+    }
+    if order.len() < n {
+        problems.push(CharacterProblem::ParentCycle);
+    }
+    let mut joints = Vec::with_capacity(order.len());
+    let mut skin_x_axis = Vec::with_capacity(order.len());
+    let mut slot = vec![usize::MAX; n];
+    for (i, &k) in order.iter().enumerate() {
+        slot[k] = i;
+        let sj = &mesh.skin_joints[k];
+        let m: DMat4 = sj.world_from_joint;
+        joints.push(Joint {
+            name: sj.name.clone(),
+            parent: parent_of(k).map(|p| slot[p]),
+            rest: frame.point(m.w_axis.truncate()),
+            limits: None,
+            bend_axis: DVec3::X,
+        });
+        skin_x_axis.push(Some(
+            frame.direction(m.x_axis.truncate()).normalize_or_zero(),
+        ));
+    }
+    (joints, skin_x_axis)
+}
+
+/// The joints listed in `skeleton.joints`, in their order, with no default bend axes.
+fn listed_joints(
+    sk: &SkeletonSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    if !sk.parents.is_empty() {
+        problems.push(CharacterProblem::ParentsWithoutSkin);
+    }
+    let mut joints = Vec::with_capacity(sk.joints.len());
+    for (i, j) in sk.joints.iter().enumerate() {
+        let parent = match &j.parent {
+            None => None,
+            Some(p) => match sk.joints[..i].iter().position(|o| &o.name == p) {
+                Some(pi) => Some(pi),
+                None => {
+                    problems.push(CharacterProblem::ParentNotListedBefore {
+                        joint: j.name.clone(),
+                        parent: p.clone(),
+                    });
+                    None
                 }
-            }
-        }
-        // Parent by name overrides the file's hierarchy; order parents first.
-        let parent_of = |k: usize| -> Option<usize> {
-            match sk.parents.get(&mesh.skin_joints[k].name) {
-                Some(p) => names.iter().position(|n| *n == p.as_str()),
-                None => mesh.skin_joints[k].parent,
-            }
+            },
         };
-        let n = mesh.skin_joints.len();
-        let mut order = Vec::with_capacity(n);
-        let mut placed = vec![false; n];
-        for _ in 0..n {
-            for k in 0..n {
-                if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
-                    placed[k] = true;
-                    order.push(k);
-                }
-            }
-        }
-        if order.len() < n {
-            problems.push("skeleton.parents makes a cycle".into());
-        }
-        let mut slot = vec![usize::MAX; n];
-        for (i, &k) in order.iter().enumerate() {
-            slot[k] = i;
-            let sj = &mesh.skin_joints[k];
-            let m: DMat4 = sj.world_from_joint;
-            joints.push(Joint {
-                name: sj.name.clone(),
-                parent: parent_of(k).map(|p| slot[p]),
-                rest: to_world(m.w_axis.truncate()),
-                limits: None,
-                bend_axis: DVec3::X,
-            });
-            skin_x_axis.push(Some(to_world_dir(m.x_axis.truncate()).normalize_or_zero()));
-        }
-    } else {
-        if !sk.parents.is_empty() {
-            problems.push("skeleton.parents applies to skin joints only".into());
-        }
-        for (i, j) in sk.joints.iter().enumerate() {
-            let parent = match &j.parent {
-                None => None,
-                Some(p) => match sk.joints[..i].iter().position(|o| &o.name == p) {
-                    Some(pi) => Some(pi),
-                    None => {
-                        problems.push(format!(
-                            "joint {:?}: parent {p:?} is not listed before it",
-                            j.name
-                        ));
-                        None
-                    }
-                },
-            };
-            let rest = match (&j.rest_m, &j.rest_vertices) {
-                (Some(r), None) => DVec3::from_array(*r),
-                (None, Some(ids)) if !ids.is_empty() => {
-                    let src = &mesh.source_positions;
-                    match ids.iter().find(|&&v| v >= src.len()) {
-                        Some(bad) => {
-                            problems.push(format!(
-                                "joint {:?}: rest_vertices names vertex {bad}, but the mesh file has {}",
-                                j.name,
-                                src.len()
-                            ));
-                            DVec3::ZERO
-                        }
-                        None => {
-                            ids.iter().map(|&v| to_world(src[v])).sum::<DVec3>() / ids.len() as f64
-                        }
-                    }
-                }
-                _ => {
-                    problems.push(format!(
-                        "joint {:?}: give exactly one of rest_m and rest_vertices (non-empty)",
-                        j.name
-                    ));
+        let rest = listed_rest(j, mesh, frame, problems);
+        joints.push(Joint {
+            name: j.name.clone(),
+            parent,
+            rest,
+            limits: None,
+            bend_axis: DVec3::X,
+        });
+    }
+    let skin_x_axis = vec![None; joints.len()];
+    (joints, skin_x_axis)
+}
+
+/// A listed joint's rest position, world frame: `rest_m`, or the mean of its
+/// `rest_vertices` of the mesh file (zero when neither, or both, are usable).
+fn listed_rest(
+    j: &JointSpec,
+    mesh: &MeshData,
+    frame: WorldFrame,
+    problems: &mut Vec<CharacterProblem>,
+) -> DVec3 {
+    match (&j.rest_m, &j.rest_vertices) {
+        (Some(r), None) => DVec3::from_array(*r),
+        (None, Some(ids)) if !ids.is_empty() => {
+            let src = &mesh.source_positions;
+            match ids.iter().find(|&&v| v >= src.len()) {
+                Some(bad) => {
+                    problems.push(CharacterProblem::RestVertexOutOfRange {
+                        joint: j.name.clone(),
+                        vertex: *bad,
+                        vertex_count: src.len(),
+                    });
                     DVec3::ZERO
                 }
-            };
-            joints.push(Joint {
-                name: j.name.clone(),
-                parent,
-                rest,
-                limits: None,
-                bend_axis: DVec3::X,
+                None => ids.iter().map(|&v| frame.point(src[v])).sum::<DVec3>() / ids.len() as f64,
+            }
+        }
+        _ => {
+            problems.push(CharacterProblem::RestPosition {
+                joint: j.name.clone(),
             });
-            skin_x_axis.push(None);
+            DVec3::ZERO
         }
     }
+}
+
+/// Checks that the joints make one tree with at least one bone (no joints at all is a
+/// problem of its own only when nothing else is wrong).
+fn check_tree(joints: &[Joint], problems: &mut Vec<CharacterProblem>) {
     if joints.is_empty() && problems.is_empty() {
-        problems.push(
-            "the character has no skeleton: list skeleton.joints or use a glTF file with a skin"
-                .into(),
-        );
+        problems.push(CharacterProblem::NoSkeleton);
     }
-    let roots: Vec<&str> = joints
+    let roots: Vec<String> = joints
         .iter()
         .filter(|j| j.parent.is_none())
-        .map(|j| j.name.as_str())
+        .map(|j| j.name.clone())
         .collect();
     if roots.len() > 1 {
-        problems.push(format!(
-            "the skeleton has {} roots ({}): give every joint but one a parent",
-            roots.len(),
-            roots.join(", ")
-        ));
+        problems.push(CharacterProblem::SeveralRoots { roots });
     }
     if joints.len() == 1 {
-        problems.push(format!(
-            "joint {:?} has no bone: a skeleton needs at least two joints",
-            joints[0].name
-        ));
+        problems.push(CharacterProblem::NoBone {
+            joint: joints[0].name.clone(),
+        });
     }
-    // Limits.
+}
+
+/// Sets the limits of `skeleton.limits` on their joints, in radians, with their bend
+/// axes (given, or the skin joint's X axis).
+fn apply_limits(
+    sk: &SkeletonSpec,
+    joints: &mut [Joint],
+    skin_x_axis: &[Option<DVec3>],
+    problems: &mut Vec<CharacterProblem>,
+) {
     for (name, l) in &sk.limits {
         let Some(j) = joints.iter().position(|j| &j.name == name) else {
-            problems.push(format!("skeleton.limits: no joint is named {name:?}"));
+            problems.push(CharacterProblem::LimitsUnknownJoint {
+                joint: name.clone(),
+            });
             continue;
         };
         for (which, [a, b]) in [
@@ -541,9 +795,12 @@ pub fn build(
             ("side_deg", l.side_deg),
         ] {
             if !(a.is_finite() && b.is_finite()) || a > b {
-                problems.push(format!(
-                    "skeleton.limits.{name}.{which}: [{a}, {b}] is not a range (min ≤ max, finite)"
-                ));
+                problems.push(CharacterProblem::BadLimitRange {
+                    joint: name.clone(),
+                    which,
+                    min: a,
+                    max: b,
+                });
             }
         }
         let axis = l
@@ -552,9 +809,9 @@ pub fn build(
             .or(skin_x_axis.get(j).copied().flatten());
         match axis {
             Some(a) if a.is_finite() && a.length() > 1e-9 => joints[j].bend_axis = a.normalize(),
-            _ => problems.push(format!(
-                "skeleton.limits.{name}: bend_axis is required (a non-zero vector) for a listed joint"
-            )),
+            _ => problems.push(CharacterProblem::BendAxisRequired {
+                joint: name.clone(),
+            }),
         }
         let r = |v: [f64; 2]| (v[0].to_radians(), v[1].to_radians());
         joints[j].limits = Some(JointLimits {
@@ -563,64 +820,52 @@ pub fn build(
             side: r(l.side_deg),
         });
     }
-    // Bend axes perpendicular to the twist axes (where the skeleton is otherwise valid).
-    let skeleton = match Skeleton::new(joints) {
-        Ok(s) => Some(s),
+}
+
+/// The skeleton, if the joints make a valid one, with every bend axis made
+/// perpendicular to its joint's twist axis (a limited joint's bend axis along its bone
+/// is a problem).
+fn finish_skeleton(joints: Vec<Joint>, problems: &mut Vec<CharacterProblem>) -> Option<Skeleton> {
+    let mut s = match Skeleton::new(joints) {
+        Ok(s) => s,
         Err(errs) => {
-            problems.extend(errs.iter().map(|e| e.to_string()));
-            None
+            problems.extend(errs.into_iter().map(CharacterProblem::Skeleton));
+            return None;
         }
     };
-    let skeleton = skeleton.map(|mut s| {
-        for j in 0..s.len() {
-            let a = s.twist_axis(j);
-            let b = s.joints[j].bend_axis;
-            let p = b - a * b.dot(a);
-            if s.joints[j].limits.is_some() && p.length() < 1e-3 {
-                problems.push(format!(
-                    "joint {:?}: bend_axis {b} is parallel to the bone; give an axis across it",
-                    s.joints[j].name
-                ));
-            }
-            s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+    for j in 0..s.len() {
+        let a = s.twist_axis(j);
+        let b = s.joints[j].bend_axis;
+        let p = b - a * b.dot(a);
+        if s.joints[j].limits.is_some() && p.length() < 1e-3 {
+            problems.push(CharacterProblem::BendAxisAlongBone {
+                joint: s.joints[j].name.clone(),
+                axis: b,
+            });
         }
-        s
-    });
-    // Markers.
-    let mut markers = Vec::new();
-    for (k, m) in spec.markers.iter().enumerate() {
-        if spec.markers[..k].iter().any(|o| o.name == m.name) {
-            problems.push(format!("marker name {:?} is used twice", m.name));
+        s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+    }
+    Some(s)
+}
+
+/// The marker layout of `[[markers]]`, in file order (names unique, positions finite).
+fn place_markers(
+    specs: &[MarkerSpec],
+    skeleton: Option<&Skeleton>,
+    problems: &mut Vec<CharacterProblem>,
+) -> Vec<MarkerDef> {
+    let mut markers = Vec::with_capacity(specs.len());
+    for (k, m) in specs.iter().enumerate() {
+        if specs[..k].iter().any(|o| o.name == m.name) {
+            problems.push(CharacterProblem::DuplicateMarker {
+                marker: m.name.clone(),
+            });
         }
-        let (rest, joint) = match (&m.position_m, &m.bone, &skeleton) {
-            (Some(p), None, _) => (DVec3::from_array(*p), None),
-            (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
-                Some(j) => {
-                    let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
-                    // A leaf joint's bone is the segment that ends at it.
-                    let carrier = if s.children(j).next().is_none() {
-                        s.joints[j].parent.unwrap_or(j)
-                    } else {
-                        j
-                    };
-                    (s.joints[j].rest + off, Some(carrier))
-                }
-                None => {
-                    problems.push(format!("marker {:?}: no joint is named {b:?}", m.name));
-                    (DVec3::ZERO, None)
-                }
-            },
-            (None, Some(_), None) => (DVec3::ZERO, None),
-            _ => {
-                problems.push(format!(
-                    "marker {:?}: give exactly one of position_m and bone (with offset_m)",
-                    m.name
-                ));
-                (DVec3::ZERO, None)
-            }
-        };
+        let (rest, joint) = marker_rest(m, skeleton, problems);
         if !rest.is_finite() {
-            problems.push(format!("marker {:?}: position is not finite", m.name));
+            problems.push(CharacterProblem::MarkerNotFinite {
+                marker: m.name.clone(),
+            });
         }
         markers.push(MarkerDef {
             name: m.name.clone(),
@@ -629,10 +874,53 @@ pub fn build(
         });
     }
     if markers.is_empty() {
-        problems.push("the character has no markers ([[markers]])".into());
+        problems.push(CharacterProblem::NoMarkers);
     }
-    // Binding settings.
-    let b = &spec.bind;
+    markers
+}
+
+/// A marker's rest position and the joint whose bone carries it: `position_m` (joint
+/// decided at bind time), or its bone's joint plus `offset_m` (a leaf joint's bone is
+/// its parent's). Zero and no joint when the marker cannot be placed.
+fn marker_rest(
+    m: &MarkerSpec,
+    skeleton: Option<&Skeleton>,
+    problems: &mut Vec<CharacterProblem>,
+) -> (DVec3, Option<usize>) {
+    match (&m.position_m, &m.bone, skeleton) {
+        (Some(p), None, _) => (DVec3::from_array(*p), None),
+        (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
+            Some(j) => {
+                let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
+                // A leaf joint's bone is the segment that ends at it.
+                let carrier = if s.children(j).next().is_none() {
+                    s.joints[j].parent.unwrap_or(j)
+                } else {
+                    j
+                };
+                (s.joints[j].rest + off, Some(carrier))
+            }
+            None => {
+                problems.push(CharacterProblem::MarkerUnknownBone {
+                    marker: m.name.clone(),
+                    bone: b.clone(),
+                });
+                (DVec3::ZERO, None)
+            }
+        },
+        (None, Some(_), None) => (DVec3::ZERO, None),
+        _ => {
+            problems.push(CharacterProblem::MarkerPlacement {
+                marker: m.name.clone(),
+            });
+            (DVec3::ZERO, None)
+        }
+    }
+}
+
+/// The binding settings of `[bind]`, defaults scaled to the character's height
+/// (metres); each must be a positive number, and the cell not absurdly small.
+fn bind_params(b: &BindSpec, height: f64, problems: &mut Vec<CharacterProblem>) -> BindParams {
     let cell = b.cell_size_m.unwrap_or(0.032 * height);
     let params = BindParams {
         cell_size_m: cell,
@@ -651,59 +939,66 @@ pub fn build(
         ("bind.max_marker_distance_m", params.max_marker_distance_m),
     ] {
         if !(v.is_finite() && v > 0.0) {
-            problems.push(format!("{name} must be a positive number, got {v}"));
+            problems.push(CharacterProblem::NotPositive {
+                setting: name,
+                value: v,
+            });
         }
     }
     if params.cell_size_m.is_finite() && height > 0.0 && params.cell_size_m < height / 400.0 {
-        problems.push(format!(
-            "bind.cell_size_m {} is below 1/400 of the character's height {height:.3} m: the control mesh would be enormous",
-            params.cell_size_m
-        ));
+        problems.push(CharacterProblem::CellTooSmall {
+            cell_size_m: params.cell_size_m,
+            height_m: height,
+        });
     }
-    // Correspondences.
-    let mut correspondences = Vec::new();
-    for (k, c) in spec.correspondences.iter().enumerate() {
-        let at = format!("correspondences[{k}] (joint {:?})", c.joint);
-        if spec.correspondences[..k].iter().any(|o| o.joint == c.joint) {
-            problems.push(format!("{at}: the joint is listed twice"));
+    params
+}
+
+/// The harmonic method's correspondences of `[[correspondences]]` by joint index (each
+/// joint once, known to the skeleton, with triangles of the mesh's `triangle_count`).
+fn correspondences(
+    specs: &[CorrespondenceSpec],
+    skeleton: Option<&Skeleton>,
+    triangle_count: usize,
+    problems: &mut Vec<CharacterProblem>,
+) -> Vec<Correspondence> {
+    let mut out = Vec::new();
+    for (index, c) in specs.iter().enumerate() {
+        if specs[..index].iter().any(|o| o.joint == c.joint) {
+            problems.push(CharacterProblem::CorrespondenceTwice {
+                index,
+                joint: c.joint.clone(),
+            });
         }
-        let joint = skeleton
-            .as_ref()
-            .and_then(|s| s.joints.iter().position(|j| j.name == c.joint));
+        let joint = skeleton.and_then(|s| s.joints.iter().position(|j| j.name == c.joint));
         if skeleton.is_some() && joint.is_none() {
-            problems.push(format!("{at}: no joint is named {:?}", c.joint));
+            problems.push(CharacterProblem::CorrespondenceUnknownJoint {
+                index,
+                joint: c.joint.clone(),
+            });
         }
         if c.triangles.is_empty() {
-            problems.push(format!("{at}: no triangles"));
+            problems.push(CharacterProblem::CorrespondenceEmpty {
+                index,
+                joint: c.joint.clone(),
+            });
         }
-        let n = mesh.triangles.len();
-        if let Some(&t) = c.triangles.iter().find(|&&t| t >= n) {
-            problems.push(format!(
-                "{at}: triangle {t} is out of range (the mesh has {n} triangles)"
-            ));
+        if let Some(&t) = c.triangles.iter().find(|&&t| t >= triangle_count) {
+            problems.push(CharacterProblem::CorrespondenceTriangleOutOfRange {
+                index,
+                joint: c.joint.clone(),
+                triangle: t,
+                triangle_count,
+            });
         }
         if let Some(joint) = joint {
-            correspondences.push(Correspondence {
+            out.push(Correspondence {
                 joint,
                 triangles: c.triangles.iter().map(|&t| t as u32).collect(),
             });
         }
     }
-    match (problems.is_empty(), skeleton) {
-        (true, Some(skeleton)) => Ok((
-            Character {
-                name,
-                vertices,
-                triangles: mesh.triangles,
-                skeleton,
-                markers,
-                skin: None,
-                correspondences,
-            },
-            params,
-        )),
-        _ => Err(problems),
-    }
+    out
 }
 
 /// Writes a character as `DIR/NAME.obj` and a character file `DIR/NAME.toml` that loads

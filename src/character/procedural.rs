@@ -78,6 +78,8 @@ pub(crate) fn on_skin(
     from + dir * (0.5 * (lo + hi) + offset_m)
 }
 
+/// Signed distance to a tapered capsule: from its axis's nearest point, less the radius
+/// interpolated there.
 fn capsule_sdf(c: &Capsule, p: DVec3) -> f64 {
     let ab = c.b - c.a;
     let t = ((p - c.a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
@@ -137,15 +139,33 @@ const DEG: f64 = std::f64::consts::PI / 180.0;
 /// `mesh_cell_m` and simplified to about `target_triangles` (10,000 gives about 5,000
 /// vertices).
 pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
-    let mut joints = vec![Joint {
-        name: "wrist".into(),
-        parent: None,
-        rest: DVec3::ZERO,
-        limits: None,
-        bend_axis: DVec3::X,
-    }];
-    let mut capsules: Vec<(usize, Capsule)> = Vec::new();
-    let finger_limits = [
+    let (joints, capsules) = hand_joints_and_bones();
+    let skeleton = Skeleton::new(joints).expect("procedural hand skeleton is valid");
+    let flesh = HandFlesh::around(capsules);
+    let sdf = |p: DVec3| flesh.sdf(p);
+    let (fine_v, fine_t) = marching_tets(
+        &sdf,
+        DVec3::new(-0.12, -0.07, -0.06),
+        DVec3::new(0.1, 0.23, 0.07),
+        mesh_cell_m,
+    );
+    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
+    let skin = flesh.skin(&vertices);
+    let markers = hand_markers(&skeleton, &sdf);
+    Character {
+        name: "hand".into(),
+        vertices,
+        triangles,
+        skeleton,
+        markers,
+        skin: Some(skin),
+        correspondences: Vec::new(),
+    }
+}
+
+/// The limits of a finger's three joints (MCP, PIP, DIP).
+fn finger_limits() -> [JointLimits; 3] {
+    [
         JointLimits {
             twist: (-5.0 * DEG, 5.0 * DEG),
             bend: (-10.0 * DEG, 90.0 * DEG),
@@ -161,66 +181,12 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
             bend: (0.0, 80.0 * DEG),
             side: (-5.0 * DEG, 5.0 * DEG),
         },
-    ];
-    let add_chain = |joints: &mut Vec<Joint>,
-                     capsules: &mut Vec<(usize, Capsule)>,
-                     name: &str,
-                     base: DVec3,
-                     dir: DVec3,
-                     lengths: [f64; 3],
-                     radius: (f64, f64),
-                     bend_axis: DVec3,
-                     limits: [JointLimits; 3]| {
-        let names = ["1", "2", "3", "tip"];
-        let mut pos = base;
-        let total: f64 = lengths.iter().sum();
-        let mut along = 0.0;
-        let mut parent = 0usize;
-        for k in 0..4 {
-            let bend = (bend_axis - dir * bend_axis.dot(dir)).normalize();
-            joints.push(Joint {
-                name: format!("{name}_{}", names[k]),
-                parent: Some(parent),
-                rest: pos,
-                limits: if k < 3 { Some(limits[k]) } else { None },
-                bend_axis: bend,
-            });
-            let me = joints.len() - 1;
-            if k < 3 {
-                let next = pos + dir * lengths[k];
-                let r0 = radius.0 + (radius.1 - radius.0) * along / total;
-                along += lengths[k];
-                let r1 = radius.0 + (radius.1 - radius.0) * along / total;
-                capsules.push((
-                    me,
-                    Capsule {
-                        a: pos,
-                        b: next,
-                        ra: r0,
-                        rb: r1,
-                    },
-                ));
-                pos = next;
-            }
-            parent = me;
-        }
-    };
-    for f in &FINGERS {
-        let dir = DVec3::new((f.fan_deg * DEG).sin(), (f.fan_deg * DEG).cos(), 0.0);
-        add_chain(
-            &mut joints,
-            &mut capsules,
-            f.name,
-            f.base,
-            dir,
-            f.lengths,
-            f.radius,
-            DVec3::X,
-            finger_limits,
-        );
-    }
-    let thumb_dir = DVec3::new(-0.55, 0.8, 0.25).normalize();
-    let thumb_limits = [
+    ]
+}
+
+/// The limits of the thumb's three joints (CMC, MCP, IP).
+fn thumb_limits() -> [JointLimits; 3] {
+    [
         JointLimits {
             twist: (-15.0 * DEG, 15.0 * DEG),
             bend: (-15.0 * DEG, 50.0 * DEG),
@@ -236,18 +202,104 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
             bend: (-10.0 * DEG, 80.0 * DEG),
             side: (-5.0 * DEG, 5.0 * DEG),
         },
-    ];
-    add_chain(
-        &mut joints,
-        &mut capsules,
-        "thumb",
-        DVec3::new(-0.022, 0.022, 0.008),
-        thumb_dir,
-        [0.045, 0.032, 0.027],
-        (0.0125, 0.0085),
-        DVec3::new(0.3, 0.0, -1.0),
-        thumb_limits,
-    );
+    ]
+}
+
+/// One digit for [`add_chain`]: three straight segments from `base` along unit `dir`.
+struct Chain<'a> {
+    /// Joint names are `NAME_1`, `NAME_2`, `NAME_3` and `NAME_tip`.
+    name: &'a str,
+    base: DVec3,
+    dir: DVec3,
+    lengths: [f64; 3],
+    /// Radius at the base and at the tip (linear along the digit).
+    radius: (f64, f64),
+    /// Made perpendicular to `dir` for every joint.
+    bend_axis: DVec3,
+    limits: [JointLimits; 3],
+}
+
+/// Appends a digit's four joints (children of the wrist, joint 0) and its three bone
+/// capsules, each owned by the joint it leaves.
+fn add_chain(joints: &mut Vec<Joint>, capsules: &mut Vec<(usize, Capsule)>, chain: &Chain) {
+    let Chain {
+        name,
+        base,
+        dir,
+        lengths,
+        radius,
+        bend_axis,
+        limits,
+    } = *chain;
+    let names = ["1", "2", "3", "tip"];
+    let mut pos = base;
+    let total: f64 = lengths.iter().sum();
+    let mut along = 0.0;
+    let mut parent = 0usize;
+    for k in 0..4 {
+        let bend = (bend_axis - dir * bend_axis.dot(dir)).normalize();
+        joints.push(Joint {
+            name: format!("{name}_{}", names[k]),
+            parent: Some(parent),
+            rest: pos,
+            limits: if k < 3 { Some(limits[k]) } else { None },
+            bend_axis: bend,
+        });
+        let me = joints.len() - 1;
+        if k < 3 {
+            let next = pos + dir * lengths[k];
+            let r0 = radius.0 + (radius.1 - radius.0) * along / total;
+            along += lengths[k];
+            let r1 = radius.0 + (radius.1 - radius.0) * along / total;
+            capsules.push((
+                me,
+                Capsule {
+                    a: pos,
+                    b: next,
+                    ra: r0,
+                    rb: r1,
+                },
+            ));
+            pos = next;
+        }
+        parent = me;
+    }
+}
+
+/// The hand's 21 joints (the wrist, each finger's chain, the thumb's) and its bone
+/// capsules with their owner joints (the metacarpals, last, owned by the wrist).
+fn hand_joints_and_bones() -> (Vec<Joint>, Vec<(usize, Capsule)>) {
+    let mut joints = vec![Joint {
+        name: "wrist".into(),
+        parent: None,
+        rest: DVec3::ZERO,
+        limits: None,
+        bend_axis: DVec3::X,
+    }];
+    let mut capsules: Vec<(usize, Capsule)> = Vec::new();
+    for f in &FINGERS {
+        let dir = DVec3::new((f.fan_deg * DEG).sin(), (f.fan_deg * DEG).cos(), 0.0);
+        let chain = Chain {
+            name: f.name,
+            base: f.base,
+            dir,
+            lengths: f.lengths,
+            radius: f.radius,
+            bend_axis: DVec3::X,
+            limits: finger_limits(),
+        };
+        add_chain(&mut joints, &mut capsules, &chain);
+    }
+    let thumb = Chain {
+        name: "thumb",
+        base: DVec3::new(-0.022, 0.022, 0.008),
+        dir: DVec3::new(-0.55, 0.8, 0.25).normalize(),
+        lengths: [0.045, 0.032, 0.027],
+        radius: (0.0125, 0.0085),
+        bend_axis: DVec3::new(0.3, 0.0, -1.0),
+        limits: thumb_limits(),
+    };
+    add_chain(&mut joints, &mut capsules, &thumb);
     // Metacarpals (owned by the wrist): wrist to each finger base, inside the palm.
     let metacarpals: Vec<Capsule> = FINGERS
         .iter()
@@ -261,51 +313,73 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
     for m in &metacarpals {
         capsules.push((0, *m));
     }
-    let skeleton = Skeleton::new(joints).expect("procedural hand skeleton is valid");
-    // The palm: an oval pad (narrow at the wrist, full at the knuckles, where the
-    // metacarpals widen it) and the thenar pad at the thumb's base.
-    let palm = Shape::Ellipsoid {
-        c: DVec3::new(0.0, 0.05, 0.0),
-        r: DVec3::new(0.043, 0.054, 0.0145),
-    };
-    let thenar = Shape::Ellipsoid {
-        c: DVec3::new(-0.021, 0.03, 0.005),
-        r: DVec3::new(0.02, 0.032, 0.0135),
-    };
-    let forearm = Capsule {
-        a: DVec3::new(0.0, -0.05, 0.0),
-        b: DVec3::new(0.0, 0.0, 0.0),
-        ra: 0.022,
-        rb: 0.022,
-    };
-    let sdf = |p: DVec3| {
-        let pad = smin(palm.sdf(p), thenar.sdf(p), 0.01);
-        let arm = capsule_sdf(&forearm, p).max(-(p.y + 0.045));
+    (joints, capsules)
+}
+
+/// The hand's flesh: the palm (an oval pad, narrow at the wrist, full at the knuckles,
+/// where the metacarpals widen it), the thenar pad at the thumb's base, a forearm stub,
+/// and the bone capsules.
+struct HandFlesh {
+    palm: Shape,
+    thenar: Shape,
+    forearm: Capsule,
+    /// Bone capsules with their owner joints.
+    bones: Vec<(usize, Capsule)>,
+}
+
+impl HandFlesh {
+    /// The pads and the forearm stub around the given bones.
+    fn around(bones: Vec<(usize, Capsule)>) -> Self {
+        HandFlesh {
+            palm: Shape::Ellipsoid {
+                c: DVec3::new(0.0, 0.05, 0.0),
+                r: DVec3::new(0.043, 0.054, 0.0145),
+            },
+            thenar: Shape::Ellipsoid {
+                c: DVec3::new(-0.021, 0.03, 0.005),
+                r: DVec3::new(0.02, 0.032, 0.0135),
+            },
+            forearm: Capsule {
+                a: DVec3::new(0.0, -0.05, 0.0),
+                b: DVec3::new(0.0, 0.0, 0.0),
+                ra: 0.022,
+                rb: 0.022,
+            },
+            bones,
+        }
+    }
+
+    /// The implicit surface at `p`: pads, forearm (cut flat below the wrist) and bones in
+    /// a smooth union.
+    fn sdf(&self, p: DVec3) -> f64 {
+        let pad = smin(self.palm.sdf(p), self.thenar.sdf(p), 0.01);
+        let arm = capsule_sdf(&self.forearm, p).max(-(p.y + 0.045));
         let mut d = smin(pad, arm, 0.012);
-        for (_, c) in &capsules {
+        for (_, c) in &self.bones {
             d = smin(d, capsule_sdf(c, p), 0.0025);
         }
         d
-    };
-    let (fine_v, fine_t) = marching_tets(
-        &sdf,
-        DVec3::new(-0.12, -0.07, -0.06),
-        DVec3::new(0.1, 0.23, 0.07),
-        mesh_cell_m,
-    );
-    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
-    // Skin: weights from distance to each bone capsule surface, owned by its joint.
-    let bones: Vec<(usize, Shape)> = capsules
-        .iter()
-        .map(|&(j, c)| (j, Shape::Capsule(c)))
-        .chain(std::iter::once((0usize, Shape::Capsule(forearm))))
-        .collect();
-    let skin = skin_by_distance(&vertices, &bones, 0.006);
-    // Markers: 5 on the nails (dorsal side of each distal segment near the tip), 3 on the
-    // back of the hand; 6 mm off the skin (a 12 mm marker ball's centre).
+    }
+
+    /// Skin: weights from distance to each bone capsule surface, owned by its joint (the
+    /// forearm by the wrist).
+    fn skin(&self, vertices: &[DVec3]) -> Skin {
+        let bones: Vec<(usize, Shape)> = self
+            .bones
+            .iter()
+            .map(|&(j, c)| (j, Shape::Capsule(c)))
+            .chain(std::iter::once((0usize, Shape::Capsule(self.forearm))))
+            .collect();
+        skin_by_distance(vertices, &bones, 0.006)
+    }
+}
+
+/// The hand's 8 markers: 5 on the nails (dorsal side of each distal segment near the
+/// tip), 3 on the back of the hand; 6 mm off the skin (a 12 mm marker ball's centre).
+fn hand_markers(skeleton: &Skeleton, sdf: &dyn Fn(DVec3) -> f64) -> Vec<MarkerDef> {
     let mut markers = Vec::new();
     let dorsal = DVec3::new(0.0, 0.0, -1.0);
-    let on_skin = |from: DVec3, dir: DVec3| on_skin(&sdf, from, dir, 0.1, 0.006);
+    let on_skin = |from: DVec3, dir: DVec3| on_skin(sdf, from, dir, 0.1, 0.006);
     for name in ["thumb", "index", "middle", "ring", "pinky"] {
         let j3 = skeleton
             .joints
@@ -332,15 +406,7 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
             joint: Some(0),
         });
     }
-    Character {
-        name: "hand".into(),
-        vertices,
-        triangles,
-        skeleton,
-        markers,
-        skin: Some(skin),
-        correspondences: Vec::new(),
-    }
+    markers
 }
 
 /// Simplifies a closed mesh with meshoptimizer to about `target_triangles`, dropping
