@@ -45,13 +45,7 @@ pub fn run(a: ListenArgs) -> Result<()> {
             a.scale
         );
     }
-    let mut cfg = InputConfig::from_url(&a.url)?;
-    if let InputConfig::Osc(o) = &mut cfg {
-        if o.url.starts_with("osc://") {
-            o.scale = a.scale;
-            o.up = if a.z_up { "Z" } else { "Y" }.into();
-        }
-    }
+    let cfg = InputConfig::from_url(&a.url)?.with_sender_units(a.scale, a.z_up);
     // A glove poses the procedural hand's fingers, wrist at rest.
     let hand = demo_hand();
     let input = Input::open(

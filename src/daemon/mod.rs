@@ -4,3 +4,5 @@
 
 pub mod pipeline;
 pub mod stage;
+
+pub use stage::Stage;

@@ -636,7 +636,7 @@ fn assemble(
     let pins = cfg
         .inputs
         .iter()
-        .any(|i| matches!(i, crate::input::config::InputConfig::Glove(_)))
+        .any(crate::input::config::InputConfig::poses_joints)
         .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
     if let Some(p) = &pins {
         pipeline = pipeline.with_pins(Arc::clone(p));

@@ -245,6 +245,25 @@ impl InputConfig {
         })
     }
 
+    /// The same input with the sender's units and up axis set (`rigless listen --scale
+    /// --z-up`): they apply to an `osc://` input, whose senders use their own; the other
+    /// kinds' units are fixed by their protocol.
+    pub fn with_sender_units(mut self, metres_per_unit: f64, z_up: bool) -> Self {
+        if let InputConfig::Osc(o) = &mut self {
+            if o.url.starts_with("osc://") {
+                o.scale = metres_per_unit;
+                o.up = if z_up { "Z" } else { "Y" }.into();
+            }
+        }
+        self
+    }
+
+    /// Whether the input poses joints directly (a data glove) rather than sending
+    /// markers: the stage then gives the loop a pin slot.
+    pub fn poses_joints(&self) -> bool {
+        matches!(self, InputConfig::Glove(_))
+    }
+
     /// The input's kind, as `type` names it and as its Rerun series are named.
     pub fn kind(&self) -> &'static str {
         match self {

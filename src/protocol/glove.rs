@@ -303,33 +303,37 @@ pub fn encode_alpha(r: &GloveReading, out: &mut String) {
     use std::fmt::Write;
     for (f, v) in r.curl.iter().enumerate() {
         if let Some(v) = v {
-            let _ = write!(out, "{}{v}", char::from(b'A' + f as u8));
+            write!(out, "{}{v}", char::from(b'A' + f as u8))
+                .expect("writing to a String cannot fail");
         }
     }
     for (f, joints) in r.joint_curl.iter().enumerate() {
         for (j, v) in joints.iter().enumerate() {
             if let Some(v) = v {
-                let _ = write!(
+                write!(
                     out,
                     "({}A{}){v}",
                     char::from(b'A' + f as u8),
                     char::from(b'A' + j as u8)
-                );
+                )
+                .expect("writing to a String cannot fail");
             }
         }
     }
     for (f, v) in r.splay.iter().enumerate() {
         if let Some(v) = v {
-            let _ = write!(out, "({}B){v}", char::from(b'A' + f as u8));
+            write!(out, "({}B){v}", char::from(b'A' + f as u8))
+                .expect("writing to a String cannot fail");
         }
     }
     for (i, v) in r.joystick.iter().enumerate() {
         if let Some(v) = v {
-            let _ = write!(out, "{}{v}", if i == 0 { 'F' } else { 'G' });
+            write!(out, "{}{v}", if i == 0 { 'F' } else { 'G' })
+                .expect("writing to a String cannot fail");
         }
     }
     if let Some(v) = r.trigger {
-        let _ = write!(out, "P{v}");
+        write!(out, "P{v}").expect("writing to a String cannot fail");
     }
     for (bit, key) in "HIJKLMNO".chars().enumerate() {
         if r.buttons & (1 << bit) != 0 {
@@ -343,10 +347,11 @@ pub fn encode_alpha(r: &GloveReading, out: &mut String) {
 pub fn encode_legacy(r: &GloveReading, out: &mut String) {
     use std::fmt::Write;
     for v in r.curl.iter().chain(&r.joystick) {
-        let _ = write!(out, "{}&", v.unwrap_or(0));
+        write!(out, "{}&", v.unwrap_or(0)).expect("writing to a String cannot fail");
     }
     for bit in 0..6 {
-        let _ = write!(out, "{}&", u8::from(r.buttons & (1 << bit) != 0));
+        write!(out, "{}&", u8::from(r.buttons & (1 << bit) != 0))
+            .expect("writing to a String cannot fail");
     }
     out.pop();
     out.push('\n');
