@@ -286,8 +286,34 @@ fn parse_params(b: &[u8], start: usize, proc: Processor) -> Result<Params, C3dEr
     Ok(Params { list, proc })
 }
 
-/// Reads a C3D file's 3D points from its bytes.
-pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
+/// What the header (block 1) says, the fallback for the parameter section, and where
+/// that section starts and what processor type it names.
+struct Header {
+    /// Byte offset of the parameter section.
+    pstart: usize,
+    proc: Processor,
+    h_points: u16,
+    h_analog: u16,
+    h_first: u16,
+    h_last: u16,
+    h_scale: f64,
+    h_data_start: u16,
+    h_rate: f64,
+}
+
+/// How the points are stored, from the parameters (header as fallback).
+struct PointFormat {
+    points: usize,
+    rate_hz: f64,
+    /// POINT:SCALE: negative for float storage, else the file's units per integer step.
+    scale: f64,
+    /// First block of the data.
+    data_block: usize,
+}
+
+/// The header block: the key, the parameter section's place and its processor type, and
+/// the header's own values.
+fn read_header(b: &[u8]) -> Result<Header, C3dError> {
     if b.len() < BLOCK {
         return Err(C3dError::TooShort { len: b.len() });
     }
@@ -310,9 +336,33 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
     let hfloat = |i: usize| proc.f32([b[2 * i], b[2 * i + 1], b[2 * i + 2], b[2 * i + 3]]) as f64;
     let (h_points, h_analog, h_first, h_last) = (word(1), word(2), word(3), word(4));
     let (h_scale, h_data_start, h_rate) = (hfloat(6), word(8), hfloat(10));
-    let params = parse_params(b, pstart, proc)?;
-    let mut warnings = Vec::new();
+    Ok(Header {
+        pstart,
+        proc,
+        h_points,
+        h_analog,
+        h_first,
+        h_last,
+        h_scale,
+        h_data_start,
+        h_rate,
+    })
+}
 
+/// Point count (POINT:USED), frame rate (POINT:RATE), scale (POINT:SCALE) and data start
+/// (POINT:DATA_START), each from the parameters with the header as fallback.
+fn point_format(
+    params: &Params,
+    h: &Header,
+    warnings: &mut Vec<String>,
+) -> Result<PointFormat, C3dError> {
+    let Header {
+        h_points,
+        h_scale,
+        h_data_start,
+        h_rate,
+        ..
+    } = *h;
     let points = match params.int("POINT", "USED") {
         Some(n) => (n as u16) as usize,
         None => h_points as usize,
@@ -340,7 +390,6 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
         .float("POINT", "SCALE")
         .filter(|s| s.is_finite() && *s != 0.0)
         .unwrap_or(h_scale);
-    let is_float = scale < 0.0;
     let data_block = params
         .int("POINT", "DATA_START")
         .map(|d| (d as u16) as usize)
@@ -351,6 +400,18 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
             "header says data starts at block {h_data_start}, POINT:DATA_START says {data_block} (using the parameter)"
         ));
     }
+    Ok(PointFormat {
+        points,
+        rate_hz,
+        scale,
+        data_block,
+    })
+}
+
+/// The first frame number and the frame count: TRIAL:ACTUAL_START/END_FIELD, else the
+/// header's range, and POINT:FRAMES where it disagrees with a 16-bit range.
+fn frame_range(params: &Params, h: &Header, warnings: &mut Vec<String>) -> (u32, usize) {
+    let proc = h.proc;
     // Frame range: TRIAL fields (32-bit, for long trials), else header.
     let field = |name: &str| {
         params.get("TRIAL", name).and_then(|p| {
@@ -360,7 +421,7 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
     };
     let (first_frame, last_frame) = match (field("ACTUAL_START_FIELD"), field("ACTUAL_END_FIELD")) {
         (Some(s), Some(e)) if e >= s => (s, e),
-        _ => (h_first as u32, h_last as u32),
+        _ => (h.h_first as u32, h.h_last as u32),
     };
     let mut n_frames = (last_frame as usize + 1).saturating_sub(first_frame as usize);
     if let Some(pf) = params.int("POINT", "FRAMES") {
@@ -372,10 +433,20 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
             n_frames = pf;
         }
     }
-    // Analog samples per frame.
+    (first_frame, n_frames)
+}
+
+/// Analog samples per frame (ANALOG:USED × ANALOG:RATE / POINT:RATE, else the header's).
+fn analog_samples_per_frame(
+    params: &Params,
+    h: &Header,
+    rate_hz: f64,
+    warnings: &mut Vec<String>,
+) -> usize {
+    let h_analog = h.h_analog;
     let analog_used = params.int("ANALOG", "USED").map(|n| (n as u16) as usize);
     let analog_rate = params.float("ANALOG", "RATE");
-    let analog_per_frame = match (analog_used, analog_rate) {
+    match (analog_used, analog_rate) {
         (Some(u), Some(r)) if r.is_finite() && r > 0.0 => {
             let per = (r / rate_hz).round() as usize;
             let n = u * per;
@@ -388,7 +459,11 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
         }
         (Some(0), _) => 0,
         _ => h_analog as usize,
-    };
+    }
+}
+
+/// One label per point: POINT:LABELS, LABELS2..., then `pointN` for the rest.
+fn point_labels(params: &Params, points: usize) -> Vec<String> {
     let mut labels: Vec<String> = params
         .get("POINT", "LABELS")
         .map(|p| p.strings())
@@ -403,6 +478,11 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
     while labels.len() < points {
         labels.push(format!("point{}", labels.len() + 1));
     }
+    labels
+}
+
+/// POINT:UNITS (`mm` when absent) and metres per unit.
+fn point_units(params: &Params, warnings: &mut Vec<String>) -> (String, f64) {
     let units = params
         .string("POINT", "UNITS")
         .filter(|u| !u.is_empty())
@@ -418,11 +498,68 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
             1e-3
         }
     };
-    let y_up = params
-        .string("POINT", "Y_SCREEN")
-        .is_some_and(|s| s.trim().eq_ignore_ascii_case("+Y"));
+    (units, metres_per_unit)
+}
 
-    let value_len = if is_float { 4 } else { 2 };
+/// How to turn a stored point into a world position.
+struct PointDecoding {
+    proc: Processor,
+    is_float: bool,
+    /// Units per integer step (integer storage).
+    int_scale: f64,
+    metres_per_unit: f64,
+    /// POINT:Y_SCREEN is `+Y` (already Y up).
+    y_up: bool,
+}
+
+/// The point stored at byte `at`: metres, world frame; NaN when its residual is negative
+/// or a coordinate is not finite.
+fn read_point(b: &[u8], at: usize, d: &PointDecoding) -> DVec3 {
+    let proc = d.proc;
+    let (c, residual_ok) = if d.is_float {
+        let v = |i: usize| {
+            let o = at + 4 * i;
+            proc.f32([b[o], b[o + 1], b[o + 2], b[o + 3]]) as f64
+        };
+        ([v(0), v(1), v(2)], v(3) >= 0.0)
+    } else {
+        let v = |i: usize| {
+            let o = at + 2 * i;
+            proc.i16([b[o], b[o + 1]])
+        };
+        (
+            [
+                v(0) as f64 * d.int_scale,
+                v(1) as f64 * d.int_scale,
+                v(2) as f64 * d.int_scale,
+            ],
+            v(3) >= 0,
+        )
+    };
+    if residual_ok && c.iter().all(|x| x.is_finite()) {
+        let p = DVec3::new(c[0], c[1], c[2]) * d.metres_per_unit;
+        if d.y_up {
+            p
+        } else {
+            y_up_from_z_up(p)
+        }
+    } else {
+        DVec3::NAN
+    }
+}
+
+/// The data section: the whole frames the file holds (at most `n_frames`, with a warning
+/// when it is cut short), each frame's points read and its analog samples skipped.
+fn read_frames(
+    b: &[u8],
+    data_block: usize,
+    points: usize,
+    analog_per_frame: usize,
+    mut n_frames: usize,
+    d: &PointDecoding,
+    warnings: &mut Vec<String>,
+) -> Vec<Vec<DVec3>> {
+    let value_len = if d.is_float { 4 } else { 2 };
     let frame_len = (4 * points + analog_per_frame) * value_len;
     let data_at = (data_block.max(1) - 1) * BLOCK;
     let available = b.len().saturating_sub(data_at);
@@ -433,47 +570,57 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
         ));
         n_frames = whole;
     }
-    let int_scale = scale.abs();
     let mut frames = Vec::with_capacity(n_frames);
     for f in 0..n_frames {
         let base = data_at + f * frame_len;
         let mut row = Vec::with_capacity(points);
         for k in 0..points {
             let at = base + k * 4 * value_len;
-            let (c, residual_ok) = if is_float {
-                let v = |i: usize| {
-                    let o = at + 4 * i;
-                    proc.f32([b[o], b[o + 1], b[o + 2], b[o + 3]]) as f64
-                };
-                ([v(0), v(1), v(2)], v(3) >= 0.0)
-            } else {
-                let v = |i: usize| {
-                    let o = at + 2 * i;
-                    proc.i16([b[o], b[o + 1]])
-                };
-                (
-                    [
-                        v(0) as f64 * int_scale,
-                        v(1) as f64 * int_scale,
-                        v(2) as f64 * int_scale,
-                    ],
-                    v(3) >= 0,
-                )
-            };
-            let p = if residual_ok && c.iter().all(|x| x.is_finite()) {
-                let p = DVec3::new(c[0], c[1], c[2]) * metres_per_unit;
-                if y_up {
-                    p
-                } else {
-                    y_up_from_z_up(p)
-                }
-            } else {
-                DVec3::NAN
-            };
-            row.push(p);
+            row.push(read_point(b, at, d));
         }
         frames.push(row);
     }
+    frames
+}
+
+/// Reads a C3D file's 3D points from its bytes.
+pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
+    let h = read_header(b)?;
+    let proc = h.proc;
+    let params = parse_params(b, h.pstart, proc)?;
+    let mut warnings = Vec::new();
+
+    let PointFormat {
+        points,
+        rate_hz,
+        scale,
+        data_block,
+    } = point_format(&params, &h, &mut warnings)?;
+    let is_float = scale < 0.0;
+    let (first_frame, n_frames) = frame_range(&params, &h, &mut warnings);
+    let analog_per_frame = analog_samples_per_frame(&params, &h, rate_hz, &mut warnings);
+    let labels = point_labels(&params, points);
+    let (units, metres_per_unit) = point_units(&params, &mut warnings);
+    let y_up = params
+        .string("POINT", "Y_SCREEN")
+        .is_some_and(|s| s.trim().eq_ignore_ascii_case("+Y"));
+
+    let decoding = PointDecoding {
+        proc,
+        is_float,
+        int_scale: scale.abs(),
+        metres_per_unit,
+        y_up,
+    };
+    let frames = read_frames(
+        b,
+        data_block,
+        points,
+        analog_per_frame,
+        n_frames,
+        &decoding,
+        &mut warnings,
+    );
     Ok(C3d {
         rate_hz,
         labels,

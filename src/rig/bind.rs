@@ -183,6 +183,395 @@ fn find(parent: &mut [usize], mut x: usize) -> usize {
     x
 }
 
+/// A point located in the control mesh: the tet's vertices, the point's barycentric
+/// coordinates in it, the smallest of those (negative outside the tet) and the tet's index.
+type Located = ([u32; 4], [f64; 4], f64, usize);
+
+/// A skeleton segment's samples: `(owner joint, child joint, first sample, count)`.
+type SegmentSamples = (usize, usize, usize, usize);
+
+/// The labelled lattice's cell instances: a grid cell once per label present in it.
+#[derive(Default)]
+struct CellInstances {
+    /// Instance index of each `(cell, label)`.
+    index: HashMap<(usize, u32), usize>,
+    /// `(cell, label)` of each instance, in order of creation.
+    list: Vec<(usize, u32)>,
+}
+
+impl CellInstances {
+    /// The instance of `(cell, label)`, created if it is new.
+    fn add(&mut self, cell: usize, label: u32) -> usize {
+        let list = &mut self.list;
+        *self.index.entry((cell, label)).or_insert_with(|| {
+            list.push((cell, label));
+            list.len() - 1
+        })
+    }
+}
+
+/// The lattice over the mesh bounds `lo..hi`, with cells of `params.cell_size_m`.
+fn lattice_grid(lo: DVec3, hi: DVec3, params: &BindParams) -> Grid {
+    // The lattice is offset from the mesh bounds by a fraction of a cell that no
+    // rational ratio reaches (1/π, (√2 − 1)/2, √2 − 1): meshes made on a grid (marching cubes or tets) would
+    // otherwise put vertices exactly on lattice planes, where Green coordinates lose
+    // precision and fall back to barycentric ones.
+    use std::f64::consts::{FRAC_1_PI, SQRT_2};
+    let offset = DVec3::new(FRAC_1_PI, (SQRT_2 - 1.0) / 2.0, SQRT_2 - 1.0) * params.cell_size_m;
+    Grid::covering(lo - offset, hi, params.cell_size_m, 2)
+}
+
+/// Cell instances of the surface samples and of the interior cells, each labelled with
+/// the owner joint of the nearest skeleton segment.
+fn label_cells(ch: &Character, segs: &[(usize, usize)], grid: &Grid) -> CellInstances {
+    let sk = &ch.skeleton;
+    let mut inst = CellInstances::default();
+    sample_surface(grid.cell_size, &ch.vertices, &ch.triangles, |p| {
+        let c = grid.cell_index(grid.cell_of(p));
+        inst.add(c, nearest_owner(sk, segs, p));
+    });
+    let surface = surface_cells(grid, &ch.vertices, &ch.triangles);
+    let keep = enclosed_or(grid, &surface);
+    for z in 0..grid.dims[2] {
+        for y in 0..grid.dims[1] {
+            for x in 0..grid.dims[0] {
+                let k = grid.cell_index([x, y, z]);
+                if keep[k] && !surface[k] {
+                    let center = grid.node_position([x, y, z]) + DVec3::splat(0.5 * grid.cell_size);
+                    inst.add(k, nearest_owner(sk, segs, center));
+                }
+            }
+        }
+    }
+    inst
+}
+
+/// Skeleton samples, each in a cell instance labelled by its segment's owner: their
+/// positions and labels, and per segment `(owner, child, first, count)`.
+fn sample_skeleton(
+    sk: &Skeleton,
+    segs: &[(usize, usize)],
+    grid: &Grid,
+    params: &BindParams,
+    inst: &mut CellInstances,
+) -> (Vec<(DVec3, u32)>, Vec<SegmentSamples>) {
+    let mut sample_pos: Vec<(DVec3, u32)> = Vec::new();
+    let mut seg_samples: Vec<SegmentSamples> = Vec::new(); // (owner, child, first, count)
+    for &(a, b) in segs {
+        let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
+        let len = (pb - pa).length();
+        let n = ((len / params.skeleton_step_m).ceil() as usize).max(1);
+        let first = sample_pos.len();
+        // The joints themselves, and interior samples at least a cell from both ends:
+        // samples of two segments closer than that to their shared joint would pin
+        // neighbouring tets to two rigid motions and crush the flexion crease.
+        let clear = grid.cell_size.min(0.5 * len);
+        for k in 0..=n {
+            let t = k as f64 / n as f64;
+            let interior = k > 0 && k < n;
+            if interior && (t * len < clear || (1.0 - t) * len < clear) {
+                continue;
+            }
+            let p = pa + (pb - pa) * t;
+            sample_pos.push((p, a as u32));
+            inst.add(grid.cell_index(grid.cell_of(p)), a as u32);
+        }
+        seg_samples.push((a, b, first, sample_pos.len() - first));
+    }
+    (sample_pos, seg_samples)
+}
+
+/// Per grid node, the cell instances around it: `(instance, corner bits)`, the bits
+/// giving the node's corner of the instance's cell.
+fn instances_at_nodes(
+    grid: &Grid,
+    inst_list: &[(usize, u32)],
+) -> HashMap<usize, Vec<(usize, usize)>> {
+    let mut at_node: HashMap<usize, Vec<(usize, usize)>> = HashMap::new(); // node -> (instance, corner bits)
+    let cell_coord = |k: usize| {
+        [
+            k % grid.dims[0],
+            (k / grid.dims[0]) % grid.dims[1],
+            k / (grid.dims[0] * grid.dims[1]),
+        ]
+    };
+    for (ii, &(cell, _)) in inst_list.iter().enumerate() {
+        let c = cell_coord(cell);
+        for bits in 0..8 {
+            let nc = [
+                c[0] + (bits & 1),
+                c[1] + ((bits >> 1) & 1),
+                c[2] + ((bits >> 2) & 1),
+            ];
+            at_node
+                .entry(grid.node_index(nc))
+                .or_default()
+                .push((ii, bits));
+        }
+    }
+    at_node
+}
+
+/// The control mesh (virtual nodes, Nesme et al. 2009): per grid node, the cell
+/// instances around it that have compatible labels are united into one control vertex;
+/// then six Kuhn tets per instance. Returns the mesh and each control vertex's label.
+fn control_mesh(
+    sk: &Skeleton,
+    grid: &Grid,
+    inst_list: &[(usize, u32)],
+) -> Result<(TetMesh, Vec<u32>), BindError> {
+    let at_node = instances_at_nodes(grid, inst_list);
+    let mut corner_node = vec![[u32::MAX; 8]; inst_list.len()];
+    let mut positions: Vec<DVec3> = Vec::new();
+    let mut control_label: Vec<u32> = Vec::new();
+    let mut nodes: Vec<(&usize, &Vec<(usize, usize)>)> = at_node.iter().collect();
+    nodes.sort_unstable_by_key(|(n, _)| **n);
+    for (&node, list) in nodes {
+        let m = list.len();
+        let nx1 = grid.dims[0] + 1;
+        let ny1 = grid.dims[1] + 1;
+        let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
+        let mut parent: Vec<usize> = (0..m).collect();
+        for x in 0..m {
+            for y in x + 1..m {
+                if compatible(sk, inst_list[list[x].0].1, inst_list[list[y].0].1) {
+                    let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
+                    parent[rx] = ry;
+                }
+            }
+        }
+        let pos = grid.node_position(nc);
+        let mut root_id: HashMap<usize, u32> = HashMap::new();
+        for (x, &(ii, bits)) in list.iter().enumerate() {
+            let r = find(&mut parent, x);
+            let id = *root_id.entry(r).or_insert_with(|| {
+                positions.push(pos);
+                control_label.push(inst_list[ii].1);
+                (positions.len() - 1) as u32
+            });
+            corner_node[ii][bits] = id;
+        }
+    }
+    let mut tets = Vec::with_capacity(inst_list.len() * 6);
+    for corners in &corner_node {
+        for kt in KUHN {
+            tets.push(kt.map(|b| corners[b]));
+        }
+    }
+    let control = TetMesh::new(positions, tets)?;
+    Ok((control, control_label))
+}
+
+/// Locates points in the control mesh: the tet of instance (cell, label) that holds a
+/// point, or the nearest compatible tet around it (for markers off the skin).
+struct Locator<'a> {
+    sk: &'a Skeleton,
+    grid: &'a Grid,
+    control: &'a TetMesh,
+    /// Instance index of each `(cell, label)`.
+    inst: &'a HashMap<(usize, u32), usize>,
+    /// Per cell, its instances as `(label, instance)`.
+    by_cell: HashMap<usize, Vec<(u32, usize)>>,
+}
+
+impl<'a> Locator<'a> {
+    /// A locator over `control`, built from the instances `inst` of `grid`.
+    fn new(
+        sk: &'a Skeleton,
+        grid: &'a Grid,
+        control: &'a TetMesh,
+        inst: &'a CellInstances,
+    ) -> Self {
+        let mut by_cell: HashMap<usize, Vec<(u32, usize)>> = HashMap::new();
+        for (ii, &(cell, label)) in inst.list.iter().enumerate() {
+            by_cell.entry(cell).or_default().push((label, ii));
+        }
+        Self {
+            sk,
+            grid,
+            control,
+            inst: &inst.index,
+            by_cell,
+        }
+    }
+
+    /// The tet of instance `ii` whose smallest barycentric coordinate of `p` is largest.
+    fn locate_in(&self, ii: usize, p: DVec3) -> Located {
+        let control = self.control;
+        let mut best = ([0u32; 4], [0.0; 4], f64::NEG_INFINITY, 0);
+        for (k, t) in control.tets[ii * 6..ii * 6 + 6].iter().enumerate() {
+            let b = barycentric(t.map(|i| control.positions[i as usize]), p);
+            let m = b.iter().cloned().fold(f64::INFINITY, f64::min);
+            if m > best.2 {
+                best = (*t, b, m, ii * 6 + k);
+            }
+        }
+        best
+    }
+
+    /// The tet of instance (cell of `p`, `label`) if it holds `p`, else the best tet of
+    /// the instances compatible with `label` within `search_cells` cells.
+    fn locate(&self, p: DVec3, label: u32, search_cells: usize) -> Option<Located> {
+        let grid = self.grid;
+        let c = grid.cell_of(p);
+        if let Some(&ii) = self.inst.get(&(grid.cell_index(c), label)) {
+            let r = self.locate_in(ii, p);
+            if r.2 >= -1e-9 {
+                return Some(r);
+            }
+        }
+        let r = search_cells as i64;
+        let mut best: Option<Located> = None;
+        for dz in -r..=r {
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
+                    if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
+                        continue;
+                    }
+                    let k = grid.cell_index(q.map(|v| v as usize));
+                    for &(l, ii) in self.by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
+                        if !compatible(self.sk, l, label) {
+                            continue;
+                        }
+                        let cand = self.locate_in(ii, p);
+                        if best.is_none_or(|b| cand.2 > b.2) {
+                            best = Some(cand);
+                        }
+                    }
+                }
+            }
+        }
+        best
+    }
+}
+
+/// The control tet of every mesh vertex, and how many vertices lie inside theirs.
+fn locate_vertices(
+    ch: &Character,
+    segs: &[(usize, usize)],
+    loc: &Locator,
+) -> Result<(Vec<usize>, usize), BindError> {
+    let sk = &ch.skeleton;
+    let mut vertex_tets = Vec::with_capacity(ch.vertices.len());
+    let mut inside = 0;
+    for (vi, &v) in ch.vertices.iter().enumerate() {
+        let label = nearest_owner(sk, segs, v);
+        let (_, _, m, t) = loc
+            .locate(v, label, 1)
+            .ok_or(BindError::VertexOutside { vertex: vi })?;
+        if m >= -1e-9 {
+            inside += 1;
+        }
+        vertex_tets.push(t);
+    }
+    Ok((vertex_tets, inside))
+}
+
+/// The markers' ARAP rows (weight `w_marker`), each in the tet of its joint's instances
+/// nearest its rest position, and the joint carrying each marker.
+fn marker_rows(
+    ch: &Character,
+    segs: &[(usize, usize)],
+    params: &BindParams,
+    loc: &Locator,
+) -> Result<(LinearRows, Vec<usize>), BindError> {
+    let sk = &ch.skeleton;
+    let (grid, control) = (loc.grid, loc.control);
+    let mut rows = LinearRows::new();
+    let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
+    let mut marker_joint = Vec::with_capacity(ch.markers.len());
+    for m in &ch.markers {
+        let label = m
+            .joint
+            .map(|j| j as u32)
+            .unwrap_or_else(|| nearest_owner(sk, segs, m.rest));
+        marker_joint.push(label as usize);
+        let too_far = |d: f64| BindError::MarkerTooFar {
+            name: m.name.clone(),
+            distance_m: d,
+            limit_m: params.max_marker_distance_m,
+        };
+        let (t, b, _, _) = loc
+            .locate(m.rest, label, search)
+            .ok_or_else(|| too_far(f64::INFINITY))?;
+        let centroid: DVec3 = t
+            .iter()
+            .map(|&i| control.positions[i as usize])
+            .sum::<DVec3>()
+            / 4.0;
+        let d = (centroid - m.rest).length() - grid.cell_size;
+        if d > params.max_marker_distance_m {
+            return Err(too_far(d));
+        }
+        let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
+        rows.push(&entries, params.w_marker);
+    }
+    Ok((rows, marker_joint))
+}
+
+/// The skeleton samples' rows: returned unweighted (to read their positions), and
+/// appended to `rows` as absolute positional rows of weight `w_skeleton`.
+fn sample_rows(
+    sk: &Skeleton,
+    params: &BindParams,
+    sample_pos: &[(DVec3, u32)],
+    loc: &Locator,
+    rows: &mut LinearRows,
+) -> Result<LinearRows, BindError> {
+    let mut samples = LinearRows::new();
+    for &(p, label) in sample_pos {
+        let (t, b, _, _) = loc
+            .locate(p, label, 2)
+            .ok_or_else(|| BindError::JointOutside {
+                joint: sk.joints[label as usize].name.clone(),
+            })?;
+        let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
+        samples.push(&entries, 1.0);
+        rows.push(&entries, params.w_skeleton);
+    }
+    Ok(samples)
+}
+
+/// The skeleton's sub-edges between consecutive samples of each segment, with their rest
+/// lengths.
+fn skeleton_edges(
+    seg_samples: &[SegmentSamples],
+    sample_pos: &[(DVec3, u32)],
+) -> Vec<SkeletonEdge> {
+    let mut edges = Vec::new();
+    for &(_, _, first, count) in seg_samples {
+        for k in first..first + count - 1 {
+            edges.push(SkeletonEdge {
+                samples: (k, k + 1),
+                rest_length_m: (sample_pos[k + 1].0 - sample_pos[k].0).length(),
+            });
+        }
+    }
+    edges
+}
+
+/// What the lattice stage binds: the control mesh and every point located in it (the
+/// ARAP rows themselves are returned beside it, for the factorization to take).
+struct LatticeBinding {
+    control: TetMesh,
+    /// Owner joint of each control vertex.
+    control_label: Vec<u32>,
+    /// Cell instances, and the distinct cells among them.
+    cell_instances: usize,
+    distinct_cells: usize,
+    /// The control tet of each mesh vertex, and how many vertices lie inside theirs.
+    vertex_tets: Vec<usize>,
+    inside: usize,
+    /// Skeleton samples as unweighted rows.
+    samples: LinearRows,
+    marker_joint: Vec<usize>,
+    /// Skeleton sample positions and labels, and per segment `(owner, child, first, count)`.
+    sample_pos: Vec<(DVec3, u32)>,
+    seg_samples: Vec<SegmentSamples>,
+    edges: Vec<SkeletonEdge>,
+}
+
 impl Rig {
     /// Binds a character.
     pub fn bind(ch: &Character, params: &BindParams) -> Result<Self, BindError> {
@@ -200,270 +589,34 @@ impl Rig {
         }
         let t0 = std::time::Instant::now();
         progress(BindStage::Lattice, 0.0);
-        let sk = &ch.skeleton;
-        let segs = segments(sk);
         let (lo, hi) = bounds(&ch.vertices);
-        // The lattice is offset from the mesh bounds by a fraction of a cell that no
-        // rational ratio reaches (1/π, (√2 − 1)/2, √2 − 1): meshes made on a grid (marching cubes or tets) would
-        // otherwise put vertices exactly on lattice planes, where Green coordinates lose
-        // precision and fall back to barycentric ones.
-        use std::f64::consts::{FRAC_1_PI, SQRT_2};
-        let offset = DVec3::new(FRAC_1_PI, (SQRT_2 - 1.0) / 2.0, SQRT_2 - 1.0) * params.cell_size_m;
-        let grid = Grid::covering(lo - offset, hi, params.cell_size_m, 2);
-        // 1. Cell instances (cell, label).
-        let mut inst: HashMap<(usize, u32), usize> = HashMap::new();
-        let mut inst_list: Vec<(usize, u32)> = Vec::new();
-        let mut add = |cell: usize, label: u32, inst: &mut HashMap<(usize, u32), usize>| -> usize {
-            *inst.entry((cell, label)).or_insert_with(|| {
-                inst_list.push((cell, label));
-                inst_list.len() - 1
-            })
-        };
-        sample_surface(grid.cell_size, &ch.vertices, &ch.triangles, |p| {
-            let c = grid.cell_index(grid.cell_of(p));
-            add(c, nearest_owner(sk, &segs, p), &mut inst);
-        });
-        let surface = surface_cells(&grid, &ch.vertices, &ch.triangles);
-        let keep = enclosed_or(&grid, &surface);
-        for z in 0..grid.dims[2] {
-            for y in 0..grid.dims[1] {
-                for x in 0..grid.dims[0] {
-                    let k = grid.cell_index([x, y, z]);
-                    if keep[k] && !surface[k] {
-                        let center =
-                            grid.node_position([x, y, z]) + DVec3::splat(0.5 * grid.cell_size);
-                        add(k, nearest_owner(sk, &segs, center), &mut inst);
-                    }
-                }
-            }
-        }
-        // Skeleton samples, each in a cell instance labelled by its segment's owner.
-        let mut sample_pos: Vec<(DVec3, u32)> = Vec::new();
-        let mut seg_samples: Vec<(usize, usize, usize, usize)> = Vec::new(); // (owner, child, first, count)
-        for &(a, b) in &segs {
-            let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
-            let len = (pb - pa).length();
-            let n = ((len / params.skeleton_step_m).ceil() as usize).max(1);
-            let first = sample_pos.len();
-            // The joints themselves, and interior samples at least a cell from both ends:
-            // samples of two segments closer than that to their shared joint would pin
-            // neighbouring tets to two rigid motions and crush the flexion crease.
-            let clear = grid.cell_size.min(0.5 * len);
-            for k in 0..=n {
-                let t = k as f64 / n as f64;
-                let interior = k > 0 && k < n;
-                if interior && (t * len < clear || (1.0 - t) * len < clear) {
-                    continue;
-                }
-                let p = pa + (pb - pa) * t;
-                sample_pos.push((p, a as u32));
-                add(grid.cell_index(grid.cell_of(p)), a as u32, &mut inst);
-            }
-            seg_samples.push((a, b, first, sample_pos.len() - first));
-        }
-        // 2. Nodes: per grid node, union compatible instances among the cells around it.
-        let mut at_node: HashMap<usize, Vec<(usize, usize)>> = HashMap::new(); // node -> (instance, corner bits)
-        let cell_coord = |k: usize| {
-            [
-                k % grid.dims[0],
-                (k / grid.dims[0]) % grid.dims[1],
-                k / (grid.dims[0] * grid.dims[1]),
-            ]
-        };
-        for (ii, &(cell, _)) in inst_list.iter().enumerate() {
-            let c = cell_coord(cell);
-            for bits in 0..8 {
-                let nc = [
-                    c[0] + (bits & 1),
-                    c[1] + ((bits >> 1) & 1),
-                    c[2] + ((bits >> 2) & 1),
-                ];
-                at_node
-                    .entry(grid.node_index(nc))
-                    .or_default()
-                    .push((ii, bits));
-            }
-        }
-        let mut corner_node = vec![[u32::MAX; 8]; inst_list.len()];
-        let mut positions: Vec<DVec3> = Vec::new();
-        let mut control_label: Vec<u32> = Vec::new();
-        let mut nodes: Vec<(&usize, &Vec<(usize, usize)>)> = at_node.iter().collect();
-        nodes.sort_unstable_by_key(|(n, _)| **n);
-        for (&node, list) in nodes {
-            let m = list.len();
-            let nx1 = grid.dims[0] + 1;
-            let ny1 = grid.dims[1] + 1;
-            let nc = [node % nx1, (node / nx1) % ny1, node / (nx1 * ny1)];
-            let mut parent: Vec<usize> = (0..m).collect();
-            for x in 0..m {
-                for y in x + 1..m {
-                    if compatible(sk, inst_list[list[x].0].1, inst_list[list[y].0].1) {
-                        let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
-                        parent[rx] = ry;
-                    }
-                }
-            }
-            let pos = grid.node_position(nc);
-            let mut root_id: HashMap<usize, u32> = HashMap::new();
-            for (x, &(ii, bits)) in list.iter().enumerate() {
-                let r = find(&mut parent, x);
-                let id = *root_id.entry(r).or_insert_with(|| {
-                    positions.push(pos);
-                    control_label.push(inst_list[ii].1);
-                    (positions.len() - 1) as u32
-                });
-                corner_node[ii][bits] = id;
-            }
-        }
-        let mut tets = Vec::with_capacity(inst_list.len() * 6);
-        for corners in &corner_node {
-            for kt in KUHN {
-                tets.push(kt.map(|b| corners[b]));
-            }
-        }
-        let control = TetMesh::new(positions, tets)?;
-        let distinct_cells = {
-            let mut cells: Vec<usize> = inst_list.iter().map(|i| i.0).collect();
-            cells.sort_unstable();
-            cells.dedup();
-            cells.len()
-        };
-        let mut by_cell: HashMap<usize, Vec<(u32, usize)>> = HashMap::new();
-        for (ii, &(cell, label)) in inst_list.iter().enumerate() {
-            by_cell.entry(cell).or_default().push((label, ii));
-        }
-        // 3. Locate points: the tet of instance (cell, label) that holds p, or the nearest
-        // compatible tet around it (for markers off the skin).
-        let locate_in = |ii: usize, p: DVec3| -> ([u32; 4], [f64; 4], f64, usize) {
-            let mut best = ([0u32; 4], [0.0; 4], f64::NEG_INFINITY, 0);
-            for (k, t) in control.tets[ii * 6..ii * 6 + 6].iter().enumerate() {
-                let b = barycentric(t.map(|i| control.positions[i as usize]), p);
-                let m = b.iter().cloned().fold(f64::INFINITY, f64::min);
-                if m > best.2 {
-                    best = (*t, b, m, ii * 6 + k);
-                }
-            }
-            best
-        };
-        let locate = |p: DVec3,
-                      label: u32,
-                      search_cells: usize|
-         -> Option<([u32; 4], [f64; 4], f64, usize)> {
-            let c = grid.cell_of(p);
-            if let Some(&ii) = inst.get(&(grid.cell_index(c), label)) {
-                let r = locate_in(ii, p);
-                if r.2 >= -1e-9 {
-                    return Some(r);
-                }
-            }
-            let r = search_cells as i64;
-            let mut best: Option<([u32; 4], [f64; 4], f64, usize)> = None;
-            for dz in -r..=r {
-                for dy in -r..=r {
-                    for dx in -r..=r {
-                        let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
-                        if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
-                            continue;
-                        }
-                        let k = grid.cell_index(q.map(|v| v as usize));
-                        for &(l, ii) in by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
-                            if !compatible(sk, l, label) {
-                                continue;
-                            }
-                            let cand = locate_in(ii, p);
-                            if best.is_none_or(|b| cand.2 > b.2) {
-                                best = Some(cand);
-                            }
-                        }
-                    }
-                }
-            }
-            best
-        };
-        let mut vertex_tets = Vec::with_capacity(ch.vertices.len());
-        let mut inside = 0;
-        for (vi, &v) in ch.vertices.iter().enumerate() {
-            let label = nearest_owner(sk, &segs, v);
-            let (_, _, m, t) =
-                locate(v, label, 1).ok_or(BindError::VertexOutside { vertex: vi })?;
-            if m >= -1e-9 {
-                inside += 1;
-            }
-            vertex_tets.push(t);
-        }
-        // 4. Rows: markers, then skeleton samples (absolute positions).
-        let mut rows = LinearRows::new();
-        let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
-        let mut marker_joint = Vec::with_capacity(ch.markers.len());
-        for m in &ch.markers {
-            let label = m
-                .joint
-                .map(|j| j as u32)
-                .unwrap_or_else(|| nearest_owner(sk, &segs, m.rest));
-            marker_joint.push(label as usize);
-            let too_far = |d: f64| BindError::MarkerTooFar {
-                name: m.name.clone(),
-                distance_m: d,
-                limit_m: params.max_marker_distance_m,
-            };
-            let (t, b, _, _) =
-                locate(m.rest, label, search).ok_or_else(|| too_far(f64::INFINITY))?;
-            let centroid: DVec3 = t
-                .iter()
-                .map(|&i| control.positions[i as usize])
-                .sum::<DVec3>()
-                / 4.0;
-            let d = (centroid - m.rest).length() - grid.cell_size;
-            if d > params.max_marker_distance_m {
-                return Err(too_far(d));
-            }
-            let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
-            rows.push(&entries, params.w_marker);
-        }
-        let mut samples = LinearRows::new();
-        for &(p, label) in &sample_pos {
-            let (t, b, _, _) = locate(p, label, 2).ok_or_else(|| BindError::JointOutside {
-                joint: sk.joints[label as usize].name.clone(),
-            })?;
-            let entries: Vec<(u32, f64)> = (0..4).map(|q| (t[q], b[q])).collect();
-            samples.push(&entries, 1.0);
-            rows.push(&entries, params.w_skeleton);
-        }
-        let mut edges = Vec::new();
-        for &(_, _, first, count) in &seg_samples {
-            for k in first..first + count - 1 {
-                edges.push(SkeletonEdge {
-                    samples: (k, k + 1),
-                    rest_length_m: (sample_pos[k + 1].0 - sample_pos[k].0).length(),
-                });
-            }
-        }
+        let (lattice, rows) = Self::bind_lattice(ch, params, lo, hi)?;
         let seconds_lattice = t0.elapsed().as_secs_f64();
         let t_gc = std::time::Instant::now();
         let height_m = hi.y - lo.y;
         let green = GreenEmbedding::new_with_progress(
-            &control,
+            &lattice.control,
             &ch.vertices,
-            &vertex_tets,
+            &lattice.vertex_tets,
             height_m,
             &mut |f| progress(BindStage::GreenCoordinates, f),
         );
         let seconds_green = t_gc.elapsed().as_secs_f64();
         progress(BindStage::Factorization, 0.0);
         let t_factor = std::time::Instant::now();
-        let op = ArapOperator::new(&control);
+        let op = ArapOperator::new(&lattice.control);
         let system = ArapSystem::new(op, rows, params.w_shape)?;
         let seconds_weights_factor = t_factor.elapsed().as_secs_f64();
         let stats = BindStats {
-            control_vertices: control.positions.len(),
-            control_tets: control.tets.len(),
-            cell_instances: inst_list.len(),
-            duplicated_cells: inst_list.len() - distinct_cells,
-            min_dihedral_deg: control.dihedral_range_deg().0,
+            control_vertices: lattice.control.positions.len(),
+            control_tets: lattice.control.tets.len(),
+            cell_instances: lattice.cell_instances,
+            duplicated_cells: lattice.cell_instances - lattice.distinct_cells,
+            min_dihedral_deg: lattice.control.dihedral_range_deg().0,
             clamped_weights: system.op.clamped_weights,
             mesh_vertices: ch.vertices.len(),
-            mesh_vertices_inside: inside,
-            skeleton_samples: sample_pos.len(),
+            mesh_vertices_inside: lattice.inside,
+            skeleton_samples: lattice.sample_pos.len(),
             factor_len: system.factor_len(),
             green_fallback_vertices: green.fallback_vertices,
             green_max_rest_error_m: green.max_rest_error_m,
@@ -471,31 +624,104 @@ impl Rig {
             seconds_green,
             seconds_weights_factor,
         };
+        Ok(Self::assemble(ch, lattice, green, system, stats, height_m))
+    }
+
+    /// The lattice stage ([`BindStage::Lattice`]): the labelled lattice's cell instances
+    /// and virtual nodes, the control mesh, and every mesh vertex, marker and skeleton
+    /// sample located in it. Returns the binding and the ARAP rows (markers, then
+    /// skeleton samples).
+    fn bind_lattice(
+        ch: &Character,
+        params: &BindParams,
+        lo: DVec3,
+        hi: DVec3,
+    ) -> Result<(LatticeBinding, LinearRows), BindError> {
+        let sk = &ch.skeleton;
+        let segs = segments(sk);
+        let grid = lattice_grid(lo, hi, params);
+        // 1. Cell instances (cell, label); skeleton samples, each in a cell instance
+        // labelled by its segment's owner.
+        let mut inst = label_cells(ch, &segs, &grid);
+        let (sample_pos, seg_samples) = sample_skeleton(sk, &segs, &grid, params, &mut inst);
+        // 2. Nodes: per grid node, union compatible instances among the cells around it.
+        let (control, control_label) = control_mesh(sk, &grid, &inst.list)?;
+        let distinct_cells = {
+            let mut cells: Vec<usize> = inst.list.iter().map(|i| i.0).collect();
+            cells.sort_unstable();
+            cells.dedup();
+            cells.len()
+        };
+        // 3. Locate points: the tet of instance (cell, label) that holds p, or the nearest
+        // compatible tet around it (for markers off the skin).
+        let loc = Locator::new(sk, &grid, &control, &inst);
+        let (vertex_tets, inside) = locate_vertices(ch, &segs, &loc)?;
+        // 4. Rows: markers, then skeleton samples (absolute positions).
+        let (mut rows, marker_joint) = marker_rows(ch, &segs, params, &loc)?;
+        let samples = sample_rows(sk, params, &sample_pos, &loc, &mut rows)?;
+        let edges = skeleton_edges(&seg_samples, &sample_pos);
+        let lattice = LatticeBinding {
+            control,
+            control_label,
+            cell_instances: inst.list.len(),
+            distinct_cells,
+            vertex_tets,
+            inside,
+            samples,
+            marker_joint,
+            sample_pos,
+            seg_samples,
+            edges,
+        };
+        Ok((lattice, rows))
+    }
+
+    /// The rig from the three stages' results: the lattice binding, the Green
+    /// coordinates and the factored system, with the skeleton step's posture problem.
+    fn assemble(
+        ch: &Character,
+        lattice: LatticeBinding,
+        green: GreenEmbedding,
+        system: ArapSystem,
+        stats: BindStats,
+        height_m: f64,
+    ) -> Self {
+        let sk = &ch.skeleton;
         let twist_axis: Vec<DVec3> = (0..sk.len()).map(|j| sk.twist_axis(j)).collect();
         let marker_rest: Vec<DVec3> = ch.markers.iter().map(|m| m.rest).collect();
-        let ik = IkModel::new(sk, &twist_axis, &marker_joint, &marker_rest, height_m);
-        Ok(Rig {
+        let ik = IkModel::new(
+            sk,
+            &twist_axis,
+            &lattice.marker_joint,
+            &marker_rest,
+            height_m,
+        );
+        Rig {
             skeleton: sk.clone(),
             twist_axis,
             marker_names: ch.markers.iter().map(|m| m.name.clone()).collect(),
             marker_rest: marker_rest.clone(),
             mesh_rest: ch.vertices.clone(),
             triangles: ch.triangles.clone(),
-            control,
+            control: lattice.control,
             system,
             n_markers: ch.markers.len(),
-            marker_joint,
-            samples,
-            sample_owner: sample_pos.iter().map(|&(_, o)| o as usize).collect(),
-            sample_rest: sample_pos.iter().map(|&(p, _)| p).collect(),
-            segment_samples: seg_samples,
-            edges,
-            control_label,
+            marker_joint: lattice.marker_joint,
+            samples: lattice.samples,
+            sample_owner: lattice
+                .sample_pos
+                .iter()
+                .map(|&(_, o)| o as usize)
+                .collect(),
+            sample_rest: lattice.sample_pos.iter().map(|&(p, _)| p).collect(),
+            segment_samples: lattice.seg_samples,
+            edges: lattice.edges,
+            control_label: lattice.control_label,
             ik,
             green,
             stats,
             height_m,
             correspondences: ch.correspondences.clone(),
-        })
+        }
     }
 }

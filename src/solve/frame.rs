@@ -156,6 +156,19 @@ pub const VOLUME_SCALE_MAX: f64 = 1.25;
 /// Sweeps of the untangling projection per frame at most.
 pub const UNTANGLE_MAX_SWEEPS: usize = 10;
 
+/// How one frame's ARAP alternation ended.
+struct ArapRun {
+    /// ARAP iterations (local, global) made.
+    iterations: usize,
+    stop: StopReason,
+    /// The last local step's relative residual and bone length error.
+    rrms: f64,
+    ble: f64,
+    /// The convergence criterion after each local step, first `trace_len` entries.
+    trace: [f32; TRACE_LEN],
+    trace_len: usize,
+}
+
 /// A per-character solver: owns the mutable state, shares the rig.
 pub struct Solver {
     rig: Arc<Rig>,
@@ -355,7 +368,49 @@ impl Solver {
     ) -> SolveReport {
         let t0 = Instant::now();
         let rig = Arc::clone(&self.rig);
-        let sys = &rig.system;
+        let nm = rig.n_markers;
+        let present = self.take_targets(&rig, frame);
+        // 1. Skeleton step.
+        let ik_rep = self.skeleton_step(&rig, present);
+        let t_ik = Instant::now();
+        if let Some(report) = self.deform_harmonic(&rig, vertices_out, &ik_rep, present, t0, t_ik) {
+            return report;
+        }
+        self.sample_targets(&rig);
+        // 2. Carry the control mesh along with each joint's change of pose.
+        self.warm_start(&rig);
+        self.hold_markers(&rig);
+        // 3. ARAP alternation.
+        let arap = self.arap_iterations(&rig, deadline);
+        // 4. Untangling.
+        let untangled = self.untangle(&rig);
+        let (sum2, max2) = self.marker_residuals(&rig);
+        let jlv = self.joint_limit_violation();
+        let t1 = Instant::now();
+        self.write_mesh(vertices_out);
+        let t2 = Instant::now();
+        SolveReport {
+            trace: arap.trace,
+            trace_len: arap.trace_len,
+            iterations: arap.iterations,
+            ik_iterations: ik_rep.iterations,
+            ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
+            ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
+            stop: arap.stop,
+            rrms: arap.rrms,
+            bone_length_error: arap.ble,
+            joint_limit_violation_deg: jlv.to_degrees(),
+            marker_residual_rms_mm: (sum2 / nm.max(1) as f64).sqrt() * 1e3,
+            marker_residual_max_mm: max2.sqrt() * 1e3,
+            solve_ms: (t1 - t0).as_secs_f64() * 1e3,
+            gc_ms: (t2 - t1).as_secs_f64() * 1e3,
+            untangled,
+        }
+    }
+
+    /// Takes the frame's marker positions as the targets of the present markers (ARAP rows
+    /// and posture fit) and marks the others NaN for the fit; returns how many are present.
+    fn take_targets(&mut self, rig: &Rig, frame: &MarkerFrame) -> usize {
         let nm = rig.n_markers;
         // `ik_targets[k]` is finite exactly where marker `k` is present this frame.
         let mut present = 0;
@@ -368,7 +423,12 @@ impl Solver {
                 self.ik_targets[k] = DVec3::NAN;
             }
         }
-        // 1. Skeleton step.
+        present
+    }
+
+    /// Step 1, the skeleton step: remembers the previous posture and fits this frame's to
+    /// the present markers, then imposes the pinned joint angles.
+    fn skeleton_step(&mut self, rig: &Rig, present: usize) -> IkReport {
         self.prev_rot.copy_from_slice(&self.ik.world_rot);
         self.prev_pos.copy_from_slice(&self.ik.world_pos);
         rig.ik.begin_frame(&mut self.ik);
@@ -383,54 +443,78 @@ impl Solver {
         if self.any_pin {
             rig.ik.pin(&mut self.ik, &self.pins);
         }
-        let t_ik = Instant::now();
-        if let Some((hr, hst)) = &mut self.harmonic {
-            // The second method: the segments drive the full mesh directly, each turned
-            // by its marker cluster where it has one in view, else by the posture.
-            self.segment_rot.copy_from_slice(&self.ik.world_rot);
-            self.segment_pos.copy_from_slice(&self.ik.world_pos);
-            self.clusters.fit(
-                &self.ik_targets,
-                &rig.marker_rest,
-                &mut self.segment_rot,
-                &mut self.segment_pos,
-            );
-            hr.deform(hst, &self.segment_rot, &self.segment_pos, vertices_out);
-            let t1 = Instant::now();
-            let (mut sum2, mut max2) = (0.0f64, 0.0f64);
-            for k in 0..nm {
-                if self.ik_targets[k].is_finite() {
-                    let d2 = (self.ik.predicted[k] - self.ik_targets[k]).length_squared();
-                    sum2 += d2;
-                    max2 = max2.max(d2);
-                }
+        ik_rep
+    }
+
+    /// The harmonic method (de Aguiar et al.): deforms the full mesh from the fitted
+    /// posture and the marker clusters, and reports the frame. `None` with ARAP.
+    fn deform_harmonic(
+        &mut self,
+        rig: &Rig,
+        vertices_out: &mut [DVec3],
+        ik_rep: &IkReport,
+        present: usize,
+        t0: Instant,
+        t_ik: Instant,
+    ) -> Option<SolveReport> {
+        let nm = rig.n_markers;
+        let (hr, hst) = self.harmonic.as_mut()?;
+        // The second method: the segments drive the full mesh directly, each turned
+        // by its marker cluster where it has one in view, else by the posture.
+        self.segment_rot.copy_from_slice(&self.ik.world_rot);
+        self.segment_pos.copy_from_slice(&self.ik.world_pos);
+        self.clusters.fit(
+            &self.ik_targets,
+            &rig.marker_rest,
+            &mut self.segment_rot,
+            &mut self.segment_pos,
+        );
+        hr.deform(hst, &self.segment_rot, &self.segment_pos, vertices_out);
+        let t1 = Instant::now();
+        let (mut sum2, mut max2) = (0.0f64, 0.0f64);
+        for k in 0..nm {
+            if self.ik_targets[k].is_finite() {
+                let d2 = (self.ik.predicted[k] - self.ik_targets[k]).length_squared();
+                sum2 += d2;
+                max2 = max2.max(d2);
             }
-            return SolveReport {
-                trace: [0.0; TRACE_LEN],
-                trace_len: 0,
-                iterations: 0,
-                ik_iterations: ik_rep.iterations,
-                ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
-                ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
-                stop: StopReason::Converged,
-                // No control mesh: the skeleton is the posture's own (rigid segments,
-                // limits held by the fit).
-                rrms: 0.0,
-                bone_length_error: 0.0,
-                joint_limit_violation_deg: 0.0,
-                marker_residual_rms_mm: (sum2 / present.max(1) as f64).sqrt() * 1e3,
-                marker_residual_max_mm: max2.sqrt() * 1e3,
-                solve_ms: (t1 - t0).as_secs_f64() * 1e3,
-                gc_ms: 0.0,
-                untangled: 0,
-            };
         }
+        Some(SolveReport {
+            trace: [0.0; TRACE_LEN],
+            trace_len: 0,
+            iterations: 0,
+            ik_iterations: ik_rep.iterations,
+            ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
+            ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
+            stop: StopReason::Converged,
+            // No control mesh: the skeleton is the posture's own (rigid segments,
+            // limits held by the fit).
+            rrms: 0.0,
+            bone_length_error: 0.0,
+            joint_limit_violation_deg: 0.0,
+            marker_residual_rms_mm: (sum2 / present.max(1) as f64).sqrt() * 1e3,
+            marker_residual_max_mm: max2.sqrt() * 1e3,
+            solve_ms: (t1 - t0).as_secs_f64() * 1e3,
+            gc_ms: 0.0,
+            untangled: 0,
+        })
+    }
+
+    /// The skeleton step's forward kinematics: every skeleton sample row's target, carried
+    /// rigidly by its segment's owner joint from its rest position.
+    fn sample_targets(&mut self, rig: &Rig) {
+        let nm = rig.n_markers;
         let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (s, t) in self.st.targets[nm..].iter_mut().enumerate() {
             let o = rig.sample_owner[s];
             *t = wp[o] + wr[o] * (rig.sample_rest[s] - rig.skeleton.joints[o].rest);
         }
-        // 2. Carry the control mesh along with each joint's change of pose.
+    }
+
+    /// Step 2, the warm start: each control vertex (and its rotation) moves rigidly with
+    /// its owner joint's change of pose since the previous frame.
+    fn warm_start(&mut self, rig: &Rig) {
+        let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         for (i, (p, q)) in self
             .st
             .positions
@@ -443,6 +527,12 @@ impl Solver {
             *p = wp[j] + delta * (*p - self.prev_pos[j]);
             *q = (delta * *q).normalize();
         }
+    }
+
+    /// The marker rows' targets of held markers, and the memory of present ones.
+    fn hold_markers(&mut self, rig: &Rig) {
+        let nm = rig.n_markers;
+        let (wr, wp) = (&self.ik.world_rot, &self.ik.world_pos);
         // A held marker keeps its last target where its bone takes it (so the mesh holds
         // its pose when nothing is seen, and the factorization never changes); a present
         // marker's target is remembered in its bone's frame for when it is lost.
@@ -454,7 +544,13 @@ impl Solver {
                 self.st.targets[k] = wp[j] + wr[j] * self.held_local[k];
             }
         }
-        // 3. ARAP alternation.
+    }
+
+    /// Step 3, the ARAP alternation (local step, volume restoration, global step) until
+    /// the paper's criterion `0.5·rrms + 0.5·bone_length_error` converges, the iteration
+    /// cap or the deadline.
+    fn arap_iterations(&mut self, rig: &Rig, deadline: Instant) -> ArapRun {
+        let sys = &rig.system;
         let mut prev: Option<f64> = None;
         let mut iterations = 0;
         let mut stop = StopReason::IterationCap;
@@ -488,41 +584,39 @@ impl Solver {
             sys.global_step(&mut self.st);
             iterations += 1;
         }
+        ArapRun {
+            iterations,
+            stop,
+            rrms,
+            ble,
+            trace,
+            trace_len,
+        }
+    }
+
+    /// Step 4, untangling: pushes folded control tets back; returns the projections made.
+    fn untangle(&mut self, rig: &Rig) -> usize {
         // Per-vertex ARAP can fold a few tets at strongly flexed creases (the minimum of
         // its energy, not early stopping): push them back before the mesh is read.
-        let untangled = self.untangler.run(
+        self.untangler.run(
             &rig.control,
             &mut self.st.positions,
             UNTANGLE_MIN_RATIO,
             UNTANGLE_MAX_SWEEPS,
-        );
+        )
+    }
+
+    /// Sum and largest of the squared distances between each marker's bound point on the
+    /// control mesh and its target.
+    fn marker_residuals(&self, rig: &Rig) -> (f64, f64) {
+        let sys = &rig.system;
         let (mut sum2, mut max2) = (0.0f64, 0.0f64);
-        for k in 0..nm {
+        for k in 0..rig.n_markers {
             let d2 = (sys.rows.eval(k, &self.st.positions) - self.st.targets[k]).length_squared();
             sum2 += d2;
             max2 = max2.max(d2);
         }
-        let jlv = self.joint_limit_violation();
-        let t1 = Instant::now();
-        self.write_mesh(vertices_out);
-        let t2 = Instant::now();
-        SolveReport {
-            trace,
-            trace_len,
-            iterations,
-            ik_iterations: ik_rep.iterations,
-            ik_marker_rms_mm: ik_rep.marker_rms_m * 1e3,
-            ik_ms: (t_ik - t0).as_secs_f64() * 1e3,
-            stop,
-            rrms,
-            bone_length_error: ble,
-            joint_limit_violation_deg: jlv.to_degrees(),
-            marker_residual_rms_mm: (sum2 / nm.max(1) as f64).sqrt() * 1e3,
-            marker_residual_max_mm: max2.sqrt() * 1e3,
-            solve_ms: (t1 - t0).as_secs_f64() * 1e3,
-            gc_ms: (t2 - t1).as_secs_f64() * 1e3,
-            untangled,
-        }
+        (sum2, max2)
     }
 
     /// Scales each control vertex's rotation (for the next global step) by its volume
