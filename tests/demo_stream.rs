@@ -186,3 +186,58 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
     assert!(s.samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
     assert!(s.samples.len() >= 8 * 120);
 }
+
+/// `run --json --rerun save=REL`: the recording lands where the command runs (not in the
+/// stage's folder), and the summary is one JSON object with its documented keys.
+#[test]
+fn run_json_summary_and_a_relative_rerun_file() {
+    let stage_dir = tempfile::tempdir().unwrap();
+    let cwd = tempfile::tempdir().unwrap();
+    let stage = stage_dir.path().join("stage.toml");
+    std::fs::write(
+        &stage,
+        "[character]\nprocedural = \"hand\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .current_dir(cwd.path())
+        .args([
+            "run",
+            "--config",
+            stage.to_str().unwrap(),
+            "--seconds",
+            "0.5",
+        ])
+        .args(["--json", "--rerun", "save=take.rrd"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        cwd.path().join("take.rrd").is_file(),
+        "no take.rrd where the command ran"
+    );
+    assert!(!stage_dir.path().join("take.rrd").exists());
+    let last: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert_eq!(last["stopped"], "time limit reached", "{last}");
+    // 0.5 s at 120 Hz: ticks 0..=60, each solved or (on a loaded machine) skipped and
+    // counted; every solved frame logged or, when the sink fell behind, counted.
+    let n = |v: &serde_json::Value| v.as_u64().unwrap_or_else(|| panic!("{v} in {last}"));
+    let frames = n(&last["summary"]["frames"]);
+    assert_eq!(frames + n(&last["summary"]["overruns"]), 61, "{last}");
+    let rerun = &last["rerun"];
+    assert_eq!(
+        n(&rerun["frames_logged"]) + n(&rerun["frames_skipped"]),
+        frames
+    );
+    // The replay sent its frames up to the last tick (8 samples each), give or take one.
+    let samples = n(&last["source_samples"]);
+    assert!((60 * 8..=62 * 8).contains(&samples), "{last}");
+    for key in ["stream", "source_dropped", "inputs", "recorded"] {
+        assert!(last.get(key).is_some(), "no {key} in {last}");
+    }
+}

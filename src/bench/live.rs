@@ -189,7 +189,12 @@ pub fn run_live(case: &LiveCase) -> Result<LiveRecord, BenchError> {
         .map_err(|e| BenchError::case("live stage", e))?;
     let rss_end_mib = rss_mib();
     drop(silent_conns);
-    let seen = measurer.join().unwrap_or_default();
+    let seen = measurer.join().map_err(|_| {
+        BenchError::case(
+            "live stage",
+            std::io::Error::other("the measuring client panicked"),
+        )
+    })?;
     for o in others {
         if o.join().is_err() {
             tracing::warn!("a reading client of the live benchmark panicked");

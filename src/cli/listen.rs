@@ -57,7 +57,10 @@ pub fn run(a: ListenArgs) -> Result<()> {
             procedural: None,
         },
     )?;
-    eprintln!("listening on {}: {}; Ctrl-C stops", a.url, input.opened());
+    match input.local_addr() {
+        Some(bound) => eprintln!("listening on {} (bound {bound}); Ctrl-C stops", a.url),
+        None => eprintln!("{}; Ctrl-C stops", input.opened()),
+    }
     let stop = ctrl_c_flag()?;
     if let Some(s) = a.seconds {
         let stop = Arc::clone(&stop);

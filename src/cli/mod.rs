@@ -58,6 +58,14 @@ pub fn check_seconds(seconds: Option<f64>) -> Result<()> {
     }
 }
 
+/// Flushes a progress or status line; one that cannot be flushed shows with the next
+/// line, so a failure is only logged.
+fn flush(out: &mut dyn Write) {
+    if let Err(e) = out.flush() {
+        tracing::debug!("flushing a progress line: {e}");
+    }
+}
+
 /// A progress bar on stderr for binding a character (every 5 %), ended by
 /// [`end_bind_progress`].
 pub fn bind_progress() -> impl FnMut(BindStage, f64) {
@@ -77,8 +85,7 @@ pub fn bind_progress() -> impl FnMut(BindStage, f64) {
             .map(|k| if k < pct / 5 { '#' } else { '.' })
             .collect();
         eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
-        // A progress bar that cannot be flushed only shows late.
-        std::io::stderr().flush().ok();
+        flush(&mut std::io::stderr());
     }
 }
 
@@ -101,11 +108,12 @@ pub struct LiveOptions {
 
 /// Runs a stage on the system clock until it ends, `--seconds` pass or Ctrl-C: prints
 /// what was started, a status line every second and the summary.
-pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Result<()> {
-    if let Some(t) = &opts.rerun {
-        cfg.outputs.rerun.target = t.to_string();
-    }
-    let interrupted = ctrl_c_flag()?;
+pub fn run_stage(cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Result<()> {
+    // `--rerun save=PATH` is relative to where the command runs, not to the stage.
+    let rerun = opts.rerun.clone().map(|t| match t {
+        RerunTarget::Save(p) => RerunTarget::Save(std::path::absolute(&p).unwrap_or(p)),
+        t => t,
+    });
     let mut drawn = false;
     let mut bar = bind_progress();
     let mut progress = |stage, f| {
@@ -122,10 +130,14 @@ pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> R
             stop_after_secs: opts.seconds,
             progress: Some(&mut progress),
             frames: None,
+            rerun,
         },
     );
     end_bind_progress(drawn);
     let stage = stage?;
+    // Until here Ctrl-C ends the process (binding can be long); from here it stops the
+    // stage in order.
+    let interrupted = ctrl_c_flag()?;
     print_started(&stage, opts.json);
     let tty = std::io::stdout().is_terminal() && !opts.json;
     while !stage.is_finished() {
@@ -144,47 +156,49 @@ pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> R
     print_summary(&summary, opts.json)
 }
 
-/// What was started. Tests and scripts read the `... listening on` lines for the ports.
+/// What was started. Tests and scripts read the `... listening on` lines for the ports
+/// (printed with `--json` too); the Rerun note goes to stderr either way.
 fn print_started(stage: &Stage, json: bool) {
     let i = stage.info();
+    if let Some(note) = &i.rerun_note {
+        eprintln!("{note}");
+    }
     if let Some(a) = i.stream_tcp {
         println!("vertex stream listening on tcp://{a}");
     }
     if let Some(a) = i.stream_ws {
         println!("vertex stream listening on ws://{a}");
     }
-    for input in &i.inputs {
+    // With --json, only the network inputs' lines (a recording's is for people).
+    let network = |kind: &str| !matches!(kind, "replay" | "synthetic");
+    for input in i.inputs.iter().filter(|input| !json || network(input.kind)) {
         println!("{}", input.opened);
     }
-    if json {
-        return;
-    }
-    println!(
-        "{}: {} mesh vertices, {} markers, {} control vertices; ready in {:.2} s",
-        i.character, i.mesh_vertices, i.markers, i.control_vertices, i.bind_s
-    );
-    if let Some(source) = &i.rig_source {
-        println!("{source}");
-    }
-    for input in &i.inputs {
-        for w in &input.warnings {
-            println!("  warning: {w}");
+    if !json {
+        println!(
+            "{}: {} mesh vertices, {} markers, {} control vertices; ready in {:.2} s",
+            i.character, i.mesh_vertices, i.markers, i.control_vertices, i.bind_s
+        );
+        if let Some(source) = &i.rig_source {
+            println!("{source}");
+        }
+        for input in &i.inputs {
+            for w in &input.warnings {
+                println!("  warning: {w}");
+            }
+        }
+        if let Some((path, flush_s)) = &i.recording {
+            println!(
+                "recording every sample to {} (flushed every {flush_s} s)",
+                path.display()
+            );
+        }
+        if i.rerun != RerunTarget::Off {
+            println!("rerun: {}", i.rerun);
         }
     }
-    if let Some((path, flush_s)) = &i.recording {
-        println!(
-            "recording every sample to {} (flushed every {flush_s} s)",
-            path.display()
-        );
-    }
-    if let Some(note) = &i.rerun_note {
-        println!("{note}");
-    }
-    if i.rerun != RerunTarget::Off {
-        println!("rerun: {}", i.rerun);
-    }
     // The lines above are what scripts wait for; a pipe must not hold them back.
-    std::io::stdout().flush().ok();
+    flush(&mut std::io::stdout());
 }
 
 fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
@@ -202,8 +216,7 @@ fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
     );
     if tty {
         print!("\r{line}   ");
-        // A status line that cannot be flushed shows with the next one.
-        std::io::stdout().flush().ok();
+        flush(&mut std::io::stdout());
     } else {
         println!("{line}");
     }
@@ -211,7 +224,17 @@ fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
 
 fn print_summary(s: &Summary, json: bool) -> Result<()> {
     if json {
-        println!("{}", serde_json::to_string(s)?);
+        let v = serde_json::json!({
+            "summary": s.status,
+            "stream": s.stream,
+            "source_samples": s.source_samples,
+            "source_dropped": s.source_dropped,
+            "stopped": s.stopped.reason(),
+            "inputs": s.inputs,
+            "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
+            "rerun": s.rerun,
+        });
+        println!("{v}");
         return Ok(());
     }
     if let Some((path, n)) = &s.recorded {

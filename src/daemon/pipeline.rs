@@ -385,22 +385,25 @@ pub fn run_loop(
 ) -> LoopStatus {
     let period = 1.0 / params.rate_hz;
     // Tick `k` is due at `start_s + k · period` (computed, not accumulated, so a long run
-    // does not drift); the end is reached when the next tick is past it by more than
-    // rounding.
+    // does not drift). The last tick is the last one due by `end_s`, its index computed
+    // once (a millionth of a period of slack for rounding).
     let due = |k: u64| params.start_s + k as f64 * period;
-    let past_end = |t: f64| params.end_s.is_some_and(|e| t > e + 1e-9 * period.max(1.0));
+    let last_k = params
+        .end_s
+        .map(|e| ((e - params.start_s) / period + 1e-6).floor().max(-1.0));
+    let past_end = |k: u64| last_k.is_some_and(|last| k as f64 > last);
     let mut k = 0u64;
     let mut overruns = 0u64;
     // The first tick covers the period before it, so rates come out exact.
     let mut last_status = due(0) - period;
-    while !stop.load(Ordering::Relaxed) && !past_end(due(k)) {
+    while !stop.load(Ordering::Relaxed) && !past_end(k) {
         clock.sleep_until(due(k));
         let late = clock.now_s() - due(k);
         if late > period {
             let behind = (late / period).floor() as u64;
             overruns += behind;
             k += behind;
-            if past_end(due(k)) {
+            if past_end(k) {
                 break;
             }
         }

@@ -5,7 +5,8 @@
 //! order (loop, inputs, recorder, stream clients told goodbye, Rerun flushed).
 //!
 //! `rigless run`, `demo` and `replay --solve`, the live benchmark and the tests all start
-//! stages through [`Stage::start`]; none builds the wiring itself. On a
+//! stages through [`Stage::start`] or [`Stage::start_with`]; none builds the wiring
+//! itself. On a
 //! [`ManualClock`](crate::runtime::clock::ManualClock) a stage runs as fast as it
 //! computes and deterministically: inputs that pace themselves and the loop take turns
 //! in time order.
@@ -34,10 +35,12 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 /// Inputs that pace themselves send their first frame this long after the stage has
-/// opened everything, seconds on the stage's clock (the threads start in the meantime).
+/// started everything else (the character bound, the stream, Rerun and the inputs
+/// opened), seconds on the stage's clock; the threads start in the meantime.
 pub const START_DELAY_S: f64 = 0.05;
-/// The loop ticks this long after the paced inputs send each frame (at the same rate),
-/// seconds, so that a frame's samples are in the channel when the tick drains it.
+/// The loop's first tick comes this long after the paced inputs' first frame, seconds: at
+/// equal rates every tick then comes just after a frame was sent, so that its samples
+/// are in the channel when the tick drains it.
 pub const LOOP_PHASE_S: f64 = 0.0002;
 
 /// How a stage is started, besides its config.
@@ -50,6 +53,9 @@ pub struct StartOptions<'a> {
     pub progress: Option<&'a mut dyn FnMut(BindStage, f64)>,
     /// Also publish every frame here (an in-process reader: it gets the newest frame).
     pub frames: Option<Arc<LatestSlot<DeformedFrame>>>,
+    /// Where the Rerun recording goes, instead of the config's `[outputs.rerun] target`
+    /// (a relative save path is taken as it is, not from the stage's folder).
+    pub rerun: Option<RerunTarget>,
 }
 
 /// Why a stage could not start, or ended badly.
@@ -63,8 +69,11 @@ pub enum StageError {
     Character(#[from] CharacterError),
     #[error(transparent)]
     Rig(#[from] LoadOrBindError),
-    #[error("starting the vertex stream: {0}")]
-    Stream(std::io::Error),
+    #[error("starting the vertex stream on {addresses}: {source}")]
+    Stream {
+        addresses: String,
+        source: std::io::Error,
+    },
     #[error("setting up the {} solver for {character}: {source}", .method.name())]
     Solver {
         method: crate::solve::frame::Method,
@@ -89,8 +98,8 @@ pub enum StageError {
         name: &'static str,
         source: std::io::Error,
     },
-    #[error("the {0} thread panicked")]
-    Panicked(&'static str),
+    #[error("the {thread} thread panicked")]
+    Panicked { thread: &'static str },
 }
 
 /// What a started stage is, for the user (the CLI prints it).
@@ -204,6 +213,18 @@ pub struct Stage {
     stream_stats: Arc<StreamStats>,
     rerun: Option<RunningRerun>,
     time_limited: bool,
+    /// Sets `stop` when the stage is dropped without [`Stage::join`].
+    _stop_on_drop: StopOnDrop,
+}
+
+/// Sets a stop flag when dropped: a stage that is dropped, or fails half-way through
+/// starting, stops the threads it started.
+struct StopOnDrop(Arc<AtomicBool>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
 }
 
 struct RunningRerun {
@@ -348,7 +369,7 @@ impl Stage {
         })?;
         let scene =
             Scene::of_rig(&rig, &bound.name, cfg.solver.rate_hz).with_tied(solver.harmonic_tied());
-        let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take())?;
+        let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take(), opts.rerun.take())?;
         let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
         let (mut pipeline, pins) = assemble(cfg, solver, rx, &sinks);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
@@ -367,6 +388,20 @@ impl Stage {
             procedural: bound.procedural.as_ref(),
         };
         let opened = open_inputs(cfg, &ctx)?;
+        let infos: Vec<InputInfo> = opened.iter().map(InputInfo::of).collect();
+        let counters: Vec<Arc<SourceCounters>> = opened
+            .iter()
+            .map(|_| Arc::new(SourceCounters::default()))
+            .collect();
+        let rerun = start_rerun(
+            cfg,
+            &sinks.rerun_target,
+            scene,
+            &infos,
+            &counters,
+            Arc::clone(&sinks.rerun_slot),
+        )?;
+        // Everything is open: the clock starts the inputs and the loop a moment from now.
         let start_s = clock.now_s() + START_DELAY_S;
         let loop_start_s = start_s + LOOP_PHASE_S;
         let end_s = match opts.stop_after_secs {
@@ -375,20 +410,13 @@ impl Stage {
                 i.duration_s().map(|d| end.max(start_s + d))
             }),
         };
-        let infos: Vec<InputInfo> = opened.iter().map(InputInfo::of).collect();
-        // The loop's place on the clock is taken before any input starts.
+        // The loop's place on the clock is taken before any input starts; the inputs
+        // stop when the stage is dropped before it is joined, or fails to start.
         let loop_place = Attached::new(&clock);
         let stop = Arc::new(AtomicBool::new(false));
-        let running = spawn_inputs(opened, &tx, &clock, start_s, &stop, &pins, &rig)?;
+        let stop_on_drop = StopOnDrop(Arc::clone(&stop));
+        let sources = spawn_inputs(opened, &counters, &tx, &clock, start_s, &stop, &pins, &rig)?;
         drop(tx);
-        let rerun = start_rerun(
-            cfg,
-            &sinks.rerun_target,
-            scene,
-            &infos,
-            &running.counters,
-            Arc::clone(&sinks.rerun_slot),
-        )?;
         let params = LoopParams {
             start_s: loop_start_s,
             rate_hz: cfg.solver.rate_hz,
@@ -433,8 +461,9 @@ impl Stage {
             stop_requested: AtomicBool::new(false),
             status,
             solver,
-            sources: running.threads,
-            counters: running.counters,
+            sources,
+            counters,
+            _stop_on_drop: stop_on_drop,
             recorder,
             stream_stats: server.as_ref().map_or_else(
                 || Arc::new(StreamStats::default()),
@@ -487,10 +516,11 @@ impl Stage {
     /// recorder (every sample that arrived is written), the stream (clients are told
     /// why), Rerun (flushed).
     pub fn join(self) -> Result<Summary, StageError> {
+        // A panicked loop still shuts everything else down before its error is returned.
         let status = self
             .solver
             .join()
-            .map_err(|_| StageError::Panicked("solver"))?;
+            .map_err(|_| StageError::Panicked { thread: "solver" });
         self.stop.store(true, Ordering::Relaxed);
         let stopped = if self.stop_requested.load(Ordering::Relaxed) {
             StopCause::Stopped
@@ -515,7 +545,7 @@ impl Stage {
                     path: path.display().to_string(),
                     source,
                 }),
-                Err(_) => Err(StageError::Panicked("recorder")),
+                Err(_) => Err(StageError::Panicked { thread: "recorder" }),
             },
             None => Ok(None),
         };
@@ -525,19 +555,21 @@ impl Stage {
         let rerun = match self.rerun {
             Some(r) => {
                 r.stop.store(true, Ordering::Relaxed);
-                r.thread.join().map_err(|_| StageError::Panicked("rerun"))?;
-                Some(RerunSummary {
-                    frames_logged: r.stats.frames_logged.load(Ordering::Relaxed),
-                    frames_skipped: r.slot.dropped(),
-                    log_errors: r.stats.log_errors.load(Ordering::Relaxed),
-                })
+                match r.thread.join() {
+                    Ok(()) => Ok(Some(RerunSummary {
+                        frames_logged: r.stats.frames_logged.load(Ordering::Relaxed),
+                        frames_skipped: r.slot.dropped(),
+                        log_errors: r.stats.log_errors.load(Ordering::Relaxed),
+                    })),
+                    Err(_) => Err(StageError::Panicked { thread: "rerun" }),
+                }
             }
-            None => None,
+            None => Ok(None),
         };
         let sum = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).sum();
         let s = &self.stream_stats;
         Ok(Summary {
-            status,
+            status: status?,
             stopped,
             source_samples: sum(|c| c.samples.load(Ordering::Relaxed)),
             source_dropped: sum(|c| c.dropped.load(Ordering::Relaxed)),
@@ -549,7 +581,7 @@ impl Stage {
                 write_errors: s.write_errors.load(Ordering::Relaxed),
             },
             recorded: recorded?,
-            rerun,
+            rerun: rerun?,
         })
     }
 }
@@ -583,19 +615,29 @@ impl Sinks {
         base_dir: &Path,
         scene: &Scene,
         reader: Option<Arc<LatestSlot<DeformedFrame>>>,
+        rerun: Option<RerunTarget>,
     ) -> Result<Self, StageError> {
         let stream_slot = Arc::new(LatestSlot::new());
         let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
         let server = if tcp.is_some() || ws.is_some() {
             Some(
-                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot))
-                    .map_err(StageError::Stream)?,
+                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot)).map_err(
+                    |source| StageError::Stream {
+                        addresses: [tcp, ws]
+                            .iter()
+                            .flatten()
+                            .map(ToString::to_string)
+                            .collect::<Vec<_>>()
+                            .join(" and "),
+                        source,
+                    },
+                )?,
             )
         } else {
             None
         };
         let (rerun_target, rerun_note) = usable_rerun_target(
-            cfg.outputs.rerun.target(base_dir),
+            rerun.unwrap_or_else(|| cfg.outputs.rerun.target(base_dir)),
             base_dir.join(format!("rigless-{}.rrd", scene.character)),
         );
         let rerun_slot = Arc::new(LatestSlot::new());
@@ -644,48 +686,40 @@ fn assemble(
     (pipeline, pins)
 }
 
-/// The inputs' threads and counters.
-struct RunningInputs {
-    threads: Vec<JoinHandle<Result<String, InputError>>>,
-    counters: Vec<Arc<SourceCounters>>,
-}
-
-/// Starts a thread per input, each with its sink into the channel (and the pin slot);
-/// paced inputs take their place on the clock before any starts.
+/// Starts a thread per input, each with its sink into the channel (counting into its
+/// `counters`, and writing the pin slot); paced inputs take their places on the clock
+/// before any starts.
+#[allow(clippy::too_many_arguments)]
 fn spawn_inputs(
     opened: Vec<Input>,
+    counters: &[Arc<SourceCounters>],
     tx: &crossbeam_channel::Sender<crate::markers::MarkerSample>,
     clock: &Arc<dyn Clock>,
     start_s: f64,
     stop: &Arc<AtomicBool>,
     pins: &Option<Arc<PinSlot>>,
     rig: &Arc<Rig>,
-) -> Result<RunningInputs, StageError> {
+) -> Result<Vec<JoinHandle<Result<String, InputError>>>, StageError> {
     let places: Vec<Option<Attached>> = opened
         .iter()
         .map(|i| i.is_paced().then(|| Attached::new(clock)))
         .collect();
-    let mut running = RunningInputs {
-        threads: Vec::new(),
-        counters: Vec::new(),
-    };
-    for (input, place) in opened.into_iter().zip(places) {
-        let c = Arc::new(SourceCounters::default());
-        running.counters.push(Arc::clone(&c));
+    let mut threads = Vec::new();
+    for ((input, place), c) in opened.into_iter().zip(places).zip(counters) {
         let pins = pins.as_ref().map(|slot| PinTarget {
             slot: Arc::clone(slot),
             rig: Arc::clone(rig),
         });
-        let mut sink = ChannelSink::new(tx.clone(), c, pins);
+        let mut sink = ChannelSink::new(tx.clone(), Arc::clone(c), pins);
         let kind = input.kind();
         let (clock, stop) = (Arc::clone(clock), Arc::clone(stop));
         let run = move || input.run(&*clock, start_s, &stop, &mut sink);
-        running.threads.push(match place {
+        threads.push(match place {
             Some(place) => spawn_paced(kind, place, run)?,
             None => spawn(kind, run)?,
         });
     }
-    Ok(running)
+    Ok(threads)
 }
 
 fn open_inputs(cfg: &StageConfig, ctx: &OpenContext<'_>) -> Result<Vec<Input>, StageError> {

@@ -139,12 +139,12 @@ impl HandMap {
         })
     }
 
-    /// The skeleton joints driven, thumb to pinky, base to distal.
     /// The glove's full-scale reading.
     pub fn max_value(&self) -> u32 {
         self.max_value
     }
 
+    /// The skeleton joints driven, thumb to pinky, base to distal.
     pub fn joints(&self) -> [[usize; JOINTS_PER_FINGER]; 5] {
         self.driven.map(|d| d.map(|x| x.joint))
     }
@@ -333,9 +333,9 @@ impl GloveInput {
             cfg.calibration(port.max_value),
             port.max_value,
         )
-        .map_err(|errs| InputError::GloveMap {
+        .map_err(|problems| InputError::GloveMap {
             url: cfg.url.clone(),
-            problems: errs.iter().map(ToString::to_string).collect(),
+            problems,
         })?;
         Ok(Self { port, map })
     }

@@ -85,10 +85,20 @@ pub enum InputError {
     NeedsProcedural,
     #[error("{url}: a glove input needs a character with a skeleton")]
     NeedsSkeleton { url: String },
-    #[error("{url}: the glove cannot drive this character:\n  {}", problems.join("\n  "))]
-    GloveMap { url: String, problems: Vec<String> },
+    #[error("{url}: the glove cannot drive this character:{}", lines(problems))]
+    GloveMap {
+        url: String,
+        problems: Vec<glove::GloveMapError>,
+    },
     #[error("{url}: cannot open its command socket: {source}")]
     CommandSocket { url: String, source: std::io::Error },
+    #[error("{url}: cannot set up its socket to receive: {source}")]
+    Receive { url: String, source: std::io::Error },
+}
+
+/// Each item on a line of its own, indented.
+fn lines(items: &[impl std::fmt::Display]) -> String {
+    items.iter().map(|i| format!("\n  {i}")).collect()
 }
 
 /// One packet of an input (or one frame of a recording), decoded.
@@ -191,8 +201,8 @@ impl Input {
         }
     }
 
-    /// How long a finite input plays, seconds from its first frame to its last (`None`:
-    /// it runs until stopped).
+    /// How long a finite input plays, seconds (its frames over its rate, at its speed;
+    /// `None`: it runs until stopped).
     pub fn duration_s(&self) -> Option<f64> {
         match &self.source {
             Source::Replay(i) => i.duration_s(),

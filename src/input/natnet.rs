@@ -102,7 +102,8 @@ pub struct NatNetInput {
     socket: UdpSocket,
     data: SocketAddr,
     version: Version,
-    server: Option<SocketAddr>,
+    /// The server's command port and the socket that talks to it.
+    server: Option<(SocketAddr, UdpSocket)>,
     index: MarkerIndex,
 }
 
@@ -125,6 +126,16 @@ impl NatNetInput {
             url: cfg.url.clone(),
             source,
         })?;
+        let server = match server {
+            Some(s) => Some((
+                s,
+                command_socket(s).map_err(|source| InputError::CommandSocket {
+                    url: cfg.url.clone(),
+                    source,
+                })?,
+            )),
+            None => None,
+        };
         Ok(Self {
             url: cfg.url.clone(),
             socket,
@@ -145,8 +156,8 @@ impl NatNetInput {
             .local_addr()
             .map_or_else(|| self.data.to_string(), |a| a.to_string());
         let Version(major, minor) = self.version;
-        match self.server {
-            Some(server) => format!("natnet input listening on udp://{bound} (NatNet {major}.{minor}); version and marker names from the server's command port {server}"),
+        match &self.server {
+            Some((server, _)) => format!("natnet input listening on udp://{bound} (NatNet {major}.{minor}); version and marker names from the server's command port {server}"),
             None => format!("natnet input listening on udp://{bound} (NatNet {major}.{minor})"),
         }
     }
@@ -161,46 +172,59 @@ impl NatNetInput {
         let stats = NatNetStats::default();
         let (mut named, mut batch) = (Vec::new(), Vec::new());
         let index = &mut self.index;
-        run_input(
-            &self.socket,
-            self.data,
-            self.version,
-            self.server,
-            stop,
-            &stats,
-            &mut |recv, f, names| {
-                let t = clock.now_s();
-                named.clear();
-                markers_of(f, names, &mut named);
-                batch.clear();
-                for m in &named {
-                    if let Some(k) = index.resolve(&m.name) {
-                        batch.push(MarkerSample {
-                            marker: k,
-                            time_s: t,
-                            source_time_s: f.timestamp_s,
-                            position_m: m.position_m,
-                            occluded: m.occluded,
-                        });
-                    }
+        let mut on_frame = |recv: f64, f: &MocapFrame, names: &ModelNames| {
+            let t = clock.now_s();
+            named.clear();
+            markers_of(f, names, &mut named);
+            batch.clear();
+            for m in &named {
+                if let Some(k) = index.resolve(&m.name) {
+                    batch.push(MarkerSample {
+                        marker: k,
+                        time_s: t,
+                        source_time_s: f.timestamp_s,
+                        position_m: m.position_m,
+                        occluded: m.occluded,
+                    });
                 }
-                let frame = InputFrame {
-                    time_s: t,
-                    receive_unix_s: recv,
-                    source_time_s: Some(f.timestamp_s),
-                    frame: Some(i64::from(f.frame)),
-                    samples: &batch,
-                    names: index.names(),
-                };
-                if !sink.frame(&frame) {
-                    stop.store(true, Ordering::Relaxed);
-                }
-            },
-        )
-        .map_err(|source| InputError::CommandSocket {
-            url: self.url.clone(),
-            source,
-        })?;
+            }
+            let frame = InputFrame {
+                time_s: t,
+                receive_unix_s: recv,
+                source_time_s: Some(f.timestamp_s),
+                frame: Some(i64::from(f.frame)),
+                samples: &batch,
+                names: index.names(),
+            };
+            if !sink.frame(&frame) {
+                stop.store(true, Ordering::Relaxed);
+            }
+        };
+        match &self.server {
+            Some((server, command)) => {
+                let unicast = !self.data.ip().is_multicast();
+                let mut client = CommandClient::new(self.version, unicast);
+                run_with_server(
+                    &self.socket,
+                    command,
+                    *server,
+                    &mut client,
+                    stop,
+                    &stats,
+                    &mut on_frame,
+                )
+                .map_err(|source| InputError::Receive {
+                    url: self.url.clone(),
+                    source,
+                })?;
+            }
+            None => {
+                let empty = ModelNames::default();
+                run(&self.socket, self.version, stop, &stats, &mut |recv, f| {
+                    on_frame(recv, f, &empty)
+                });
+            }
+        }
         Ok(format!(
             "{}; {} frames, {} other messages",
             stats.packets,
@@ -343,19 +367,13 @@ pub const SERVER_SILENCE_S: f64 = 5.0;
 /// names)`.
 pub fn run_with_server(
     data: &UdpSocket,
+    command: &UdpSocket,
     server: SocketAddr,
     client: &mut CommandClient,
     stop: &AtomicBool,
     stats: &NatNetStats,
     on_frame: &mut dyn FnMut(f64, &MocapFrame, &ModelNames),
 ) -> std::io::Result<()> {
-    let any: SocketAddr = if server.is_ipv4() {
-        ([0, 0, 0, 0], 0).into()
-    } else {
-        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-    };
-    let command = UdpSocket::bind(any)?;
-    command.set_nonblocking(true)?;
     data.set_read_timeout(Some(
         super::udp::UDP_POLL.min(std::time::Duration::from_millis(20)),
     ))?;
@@ -378,7 +396,7 @@ pub fn run_with_server(
         }
         // The command socket (answers, and unicast data from some servers), then the
         // data socket (waits briefly).
-        for sock in [&command, data] {
+        for sock in [command, data] {
             let (n, _) = match sock.recv_from(&mut buf) {
                 Ok(x) => x,
                 Err(e) if is_wait(&e) => continue,
@@ -424,6 +442,18 @@ pub fn run_with_server(
     Ok(())
 }
 
+/// A socket for talking to the command port of `server` (any local port, non-blocking).
+pub fn command_socket(server: SocketAddr) -> std::io::Result<UdpSocket> {
+    let any: SocketAddr = if server.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+    };
+    let command = UdpSocket::bind(any)?;
+    command.set_nonblocking(true)?;
+    Ok(command)
+}
+
 /// The input as a URL describes it: [`run_with_server`] when the server is known (the
 /// stream is unicast unless `data` is a multicast group), else [`run`] with no names.
 pub fn run_input(
@@ -437,8 +467,9 @@ pub fn run_input(
 ) -> std::io::Result<()> {
     match server {
         Some(server) => {
+            let command = command_socket(server)?;
             let mut client = CommandClient::new(version, !data_addr.ip().is_multicast());
-            run_with_server(data, server, &mut client, stop, stats, on_frame)
+            run_with_server(data, &command, server, &mut client, stop, stats, on_frame)
         }
         None => {
             let empty = ModelNames::default();

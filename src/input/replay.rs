@@ -10,7 +10,7 @@ use crate::markers::MarkerSample;
 use crate::replay::bundled::bundled;
 use crate::replay::recording::Recording;
 use crate::runtime::clock::Clock;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// How to play.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -108,7 +108,8 @@ impl ReplayInput {
         out
     }
 
-    /// Seconds from the first frame sent to the last (`None` when looping).
+    /// How long it plays, seconds: the recording's frames over its rate, at the playback
+    /// speed (`None` when looping).
     pub fn duration_s(&self) -> Option<f64> {
         (!self.params.looping).then(|| self.rec.duration_secs() / self.params.speed)
     }
@@ -150,14 +151,18 @@ impl ReplayInput {
                     }
                 }
                 sent += 1;
-                sink.frame(&InputFrame {
+                let taken = sink.frame(&InputFrame {
                     time_s: t,
                     receive_unix_s: clock.unix_s(t),
                     source_time_s: Some(source_t),
                     frame: Some(i as i64),
                     samples: &batch,
                     names: &self.names,
-                })
+                });
+                if !taken {
+                    stop.store(true, Ordering::Relaxed);
+                }
+                taken
             },
         );
         format!("{sent} frames of {} played", rec.name)
@@ -170,7 +175,6 @@ mod tests {
     use crate::input::{ChannelSink, SourceCounters};
     use crate::runtime::clock::ManualClock;
     use glam::DVec3;
-    use std::sync::atomic::Ordering;
     use std::sync::Arc;
 
     #[test]

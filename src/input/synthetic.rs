@@ -8,7 +8,7 @@ use crate::character::demo::Motion;
 use crate::character::procedural::Character;
 use crate::character::session::{SyntheticParams, SyntheticSession};
 use crate::runtime::clock::Clock;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// An opened synthetic input: a session of the stage's procedural character.
@@ -60,7 +60,7 @@ impl SyntheticInput {
         )
     }
 
-    /// Seconds from the first frame sent to the last (`None` when looping).
+    /// How long it plays, seconds: the session's length (`None` when looping).
     pub fn duration_s(&self) -> Option<f64> {
         (!self.looping).then(|| self.session.params().duration_secs)
     }
@@ -96,14 +96,18 @@ impl SyntheticInput {
                 batch.clear();
                 self.session.frame(n % frames, t, &mut batch);
                 sent += 1;
-                sink.frame(&InputFrame {
+                let taken = sink.frame(&InputFrame {
                     time_s: t,
                     receive_unix_s: clock.unix_s(t),
                     source_time_s: batch.first().map(|s| s.source_time_s),
                     frame: Some(n as i64),
                     samples: &batch,
                     names: &names,
-                })
+                });
+                if !taken {
+                    stop.store(true, Ordering::Relaxed);
+                }
+                taken
             },
         );
         format!("{sent} synthetic frames played")

@@ -6,23 +6,34 @@
 
 use std::collections::HashMap;
 
+/// Longest name a growing index takes, bytes (names come from the network).
+pub const MAX_NAME_BYTES: usize = 256;
+
 /// Marker indices by name.
 #[derive(Clone, Debug)]
 pub struct MarkerIndex {
     names: Vec<String>,
     exact: HashMap<String, u32>,
+    /// Loose names (a fixed index only).
     loose: HashMap<String, u32>,
     /// For a growing index, the most names it takes (later new names get no index).
     grow_up_to: Option<usize>,
+    /// Scratch for a loose name, so that a lookup does not allocate once warm.
+    scratch: String,
 }
 
 /// A name as it matches loosely: its part after the last `:`, trimmed, lower case.
 pub fn bare_name(name: &str) -> String {
-    name.rsplit(':')
-        .next()
-        .unwrap_or(name)
-        .trim()
-        .to_ascii_lowercase()
+    let mut out = String::new();
+    bare_name_into(name, &mut out);
+    out
+}
+
+/// [`bare_name`] into `out` (cleared first).
+fn bare_name_into(name: &str, out: &mut String) {
+    out.clear();
+    let bare = name.rsplit(':').next().unwrap_or(name).trim();
+    out.extend(bare.chars().map(|c| c.to_ascii_lowercase()));
 }
 
 impl MarkerIndex {
@@ -34,6 +45,7 @@ impl MarkerIndex {
             exact: HashMap::with_capacity(names.len()),
             loose: HashMap::with_capacity(names.len()),
             grow_up_to: None,
+            scratch: String::new(),
         };
         for n in names {
             index.insert(n);
@@ -42,13 +54,15 @@ impl MarkerIndex {
     }
 
     /// An empty index that gives each new name the next index, up to `max_names` names
-    /// (a bound on memory for names read from the network).
+    /// of at most [`MAX_NAME_BYTES`] (a bound on memory for names read from the
+    /// network).
     pub fn growing(max_names: usize) -> Self {
         Self {
             names: Vec::new(),
             exact: HashMap::new(),
             loose: HashMap::new(),
             grow_up_to: Some(max_names),
+            scratch: String::new(),
         }
     }
 
@@ -56,7 +70,9 @@ impl MarkerIndex {
         let k = self.names.len() as u32;
         self.names.push(name.to_owned());
         self.exact.entry(name.to_owned()).or_insert(k);
-        self.loose.entry(bare_name(name)).or_insert(k);
+        if self.grow_up_to.is_none() {
+            self.loose.entry(bare_name(name)).or_insert(k);
+        }
         k
     }
 
@@ -68,16 +84,22 @@ impl MarkerIndex {
             .copied()
     }
 
-    /// [`Self::get`]; a growing index with room left also takes a new name (matched
-    /// exactly only, so that `A` and `a` stay two markers of a stream).
+    /// [`Self::get`] without allocating once warm (the inputs call it per sample); a
+    /// growing index with room left also takes a new name (matched exactly only, so that
+    /// `A` and `a` stay two markers of a stream).
     pub fn resolve(&mut self, name: &str) -> Option<u32> {
+        if let Some(&k) = self.exact.get(name) {
+            return Some(k);
+        }
         match self.grow_up_to {
-            None => self.get(name),
-            Some(max) => match self.exact.get(name) {
-                Some(&k) => Some(k),
-                None if self.names.len() < max => Some(self.insert(name)),
-                None => None,
-            },
+            None => {
+                bare_name_into(name, &mut self.scratch);
+                self.loose.get(&self.scratch).copied()
+            }
+            Some(max) if self.names.len() < max && name.len() <= MAX_NAME_BYTES => {
+                Some(self.insert(name))
+            }
+            Some(_) => None,
         }
     }
 
@@ -154,8 +176,20 @@ mod tests {
         assert_eq!(index.resolve("A"), Some(0));
         assert_eq!(index.resolve("B"), None, "full");
         assert_eq!(index.names(), &names(&["A", "a"])[..]);
+        let mut index = MarkerIndex::growing(10);
+        assert_eq!(
+            index.resolve(&"x".repeat(MAX_NAME_BYTES + 1)),
+            None,
+            "too long"
+        );
+        assert_eq!(index.resolve(&"x".repeat(MAX_NAME_BYTES)), Some(0));
         let mut fixed = MarkerIndex::fixed(&names(&["A"]));
         assert_eq!(fixed.resolve("B"), None, "a fixed index never grows");
+        assert_eq!(
+            fixed.resolve("Sub:a"),
+            Some(0),
+            "resolve matches loosely too"
+        );
         assert_eq!(fixed.names().len(), 1);
     }
 

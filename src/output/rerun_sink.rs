@@ -185,6 +185,8 @@ pub enum RerunError {
     Start(#[from] ::rerun::RecordingStreamError),
     #[error("the Rerun thread ended before opening the recording")]
     ThreadEnded,
+    #[error("starting the Rerun thread: {0}")]
+    Thread(std::io::Error),
 }
 
 /// What the sink has done (the slot counts what it dropped).
@@ -286,7 +288,7 @@ pub fn start(
             }
             logger.finish();
         })
-        .expect("spawning the rerun thread");
+        .map_err(RerunError::Thread)?;
     match opened_rx.recv() {
         Ok(Ok(())) => Ok(Some(handle)),
         Ok(Err(e)) => Err(e),

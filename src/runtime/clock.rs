@@ -93,6 +93,10 @@ impl Clock for SystemClock {
 /// threads. A thread that never attached and calls `sleep_until` alone moves the clock
 /// straight to the time it asks for. [`ManualClock::advance_to`] moves it by hand.
 ///
+/// While threads are attached, every thread that waits on the clock must be one of them
+/// (a waiter that is not counts towards "every attached thread is waiting" and could move
+/// the clock while an attached one is still busy). A stage attaches all of its.
+///
 /// Ordering: threads due at different times run in time order, each to its next wait,
 /// before the clock moves on; so a source due at `t` has sent before a loop due at
 /// `t + ε` drains. Threads due at the same time run concurrently.
@@ -153,7 +157,8 @@ impl Clock for ManualClock {
 
     fn sleep_until(&self, t_s: f64) {
         let mut s = self.lock();
-        if s.now_s >= t_s {
+        // A time that is never reached (NaN) returns at once, as a past one does.
+        if s.now_s >= t_s || t_s.is_nan() {
             return;
         }
         s.waiting.push(t_s);
