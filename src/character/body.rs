@@ -8,7 +8,7 @@
 //! tetrahedra and simplified, as the hand is. Frame: metres, Y up, facing +Z, the
 //! character's left towards +X.
 
-use super::procedural::{marching_tets, on_skin, simplify, skin_by_distance, Capsule, Pose, Shape};
+use super::procedural::{on_skin, skin_by_distance, surface_of, Capsule, Pose, Shape};
 use super::skeleton::{compose, Joint, JointLimits, Skeleton, SwingTwist};
 use super::{Character, MarkerDef};
 use glam::{DQuat, DVec3};
@@ -48,13 +48,13 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
     let skeleton = body_skeleton();
     let shapes = body_shapes(&skeleton);
     let sdf = |q: DVec3| body_sdf(&shapes, q);
-    let (fine_v, fine_t) = marching_tets(
+    let (vertices, triangles) = surface_of(
         &sdf,
         DVec3::new(-0.62, -0.03, -0.2),
         DVec3::new(0.62, 1.81, 0.25),
         mesh_cell_m,
+        target_triangles,
     );
-    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
     let skin = skin_by_distance(&vertices, &shapes, 0.03);
     let markers = body_markers(&skeleton, &sdf);
     Character {

@@ -143,13 +143,13 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
     let skeleton = Skeleton::new(joints).expect("procedural hand skeleton is valid");
     let flesh = HandFlesh::around(capsules);
     let sdf = |p: DVec3| flesh.sdf(p);
-    let (fine_v, fine_t) = marching_tets(
+    let (vertices, triangles) = surface_of(
         &sdf,
         DVec3::new(-0.12, -0.07, -0.06),
         DVec3::new(0.1, 0.23, 0.07),
         mesh_cell_m,
+        target_triangles,
     );
-    let (vertices, triangles) = simplify(&fine_v, &fine_t, target_triangles);
     let skin = flesh.skin(&vertices);
     let markers = hand_markers(&skeleton, &sdf);
     Character {
@@ -407,6 +407,20 @@ fn hand_markers(skeleton: &Skeleton, sdf: &dyn Fn(DVec3) -> f64) -> Vec<MarkerDe
         });
     }
     markers
+}
+
+/// The surface of a procedural character: the zero level of `sdf` inside the box
+/// `lo..hi` meshed on a lattice of `cell_m` ([`marching_tets`]), then simplified to about
+/// `target_triangles` ([`simplify`]).
+pub fn surface_of(
+    sdf: &dyn Fn(DVec3) -> f64,
+    lo: DVec3,
+    hi: DVec3,
+    cell_m: f64,
+    target_triangles: usize,
+) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let (fine_v, fine_t) = marching_tets(sdf, lo, hi, cell_m);
+    simplify(&fine_v, &fine_t, target_triangles)
 }
 
 /// Simplifies a closed mesh with meshoptimizer to about `target_triangles`, dropping
