@@ -25,6 +25,7 @@ use crate::input::config::InputConfig;
 use crate::markers::buffer::BufferConfig;
 use crate::output::config::OutputsConfig;
 use crate::replay::config::RecorderConfig;
+use crate::runtime::toml_doc::{in_file_order, syntax_error, typed, Lines};
 use crate::solve::config::SolverConfig;
 
 /// A whole stage config.
@@ -65,107 +66,6 @@ const SECTIONS: [&str; 6] = [
     "outputs",
     "recorder",
 ];
-
-/// Where keys are in the text: `(table path, key) -> line`, with table paths such as
-/// `solver`, `inputs[1]`, `outputs.stream` (dotted keys are joined onto the table).
-struct Lines {
-    keys: Vec<(String, usize)>,
-}
-
-impl Lines {
-    fn scan(text: &str) -> Self {
-        let mut keys = Vec::new();
-        let mut table = String::new();
-        let mut arrays: Vec<(String, usize)> = Vec::new();
-        for (i, raw) in text.lines().enumerate() {
-            let line = raw.trim();
-            let n = i + 1;
-            if let Some(name) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
-                let name = name.trim().to_owned();
-                let idx = match arrays.iter_mut().find(|(a, _)| *a == name) {
-                    Some((_, c)) => {
-                        *c += 1;
-                        *c
-                    }
-                    None => {
-                        arrays.push((name.clone(), 0));
-                        0
-                    }
-                };
-                table = format!("{name}[{idx}]");
-                keys.push((table.clone(), n));
-            } else if let Some(name) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
-                table = name.trim().to_owned();
-                keys.push((table.clone(), n));
-            } else if let Some((k, _)) = line.split_once('=') {
-                let k = k.trim().trim_matches('"');
-                if !k.is_empty() && !k.starts_with('#') {
-                    let full = if table.is_empty() {
-                        k.to_owned()
-                    } else {
-                        format!("{table}.{k}")
-                    };
-                    keys.push((full, n));
-                }
-            }
-        }
-        Self { keys }
-    }
-
-    /// The line of `path` (a key or table), or of its nearest enclosing table.
-    fn of(&self, path: &str) -> Option<usize> {
-        let mut p = path;
-        loop {
-            if let Some((_, n)) = self.keys.iter().find(|(k, _)| k == p) {
-                return Some(*n);
-            }
-            p = &p[..p.rfind('.')?];
-        }
-    }
-
-    fn at(&self, path: &str, what: impl std::fmt::Display) -> String {
-        match self.of(path) {
-            Some(n) => format!("line {n}: {path}: {what}"),
-            None => format!("{path}: {what}"),
-        }
-    }
-}
-
-/// The field a serde error names (`unknown field `x`` or `missing field `x``), if any.
-fn named_field(message: &str) -> Option<&str> {
-    let rest = message.split("field `").nth(1)?;
-    rest.split('`').next()
-}
-
-/// Deserializes `value` (found at `at`) into `T`. An unknown key is reported and left
-/// out, and the rest tried again, so one stray key does not hide the other problems.
-fn typed<T: serde::de::DeserializeOwned>(
-    value: &toml::Value,
-    at: &str,
-    lines: &Lines,
-    problems: &mut Vec<String>,
-) -> Option<T> {
-    let mut v = value.clone();
-    for _ in 0..64 {
-        match v.clone().try_into::<T>() {
-            Ok(t) => return Some(t),
-            Err(e) => {
-                let msg = e.message().trim().to_owned();
-                match named_field(&msg) {
-                    Some(f) if msg.starts_with("unknown field") => {
-                        problems.push(lines.at(&format!("{at}.{f}"), &msg));
-                        v.as_table_mut().and_then(|t| t.remove(f))?;
-                    }
-                    _ => {
-                        problems.push(lines.at(at, msg));
-                        return None;
-                    }
-                }
-            }
-        }
-    }
-    None
-}
 
 fn section<T: serde::de::DeserializeOwned + Default>(
     table: &toml::Table,
@@ -252,16 +152,8 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         path: path.to_owned(),
         problems,
     };
-    let table: toml::Table = toml::from_str(text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
-        let msg = e.message().trim().to_owned();
-        invalid(vec![match line {
-            Some(n) => format!("line {n}: {msg}"),
-            None => msg,
-        }])
-    })?;
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| invalid(vec![syntax_error(text, &e)]))?;
     let lines = Lines::scan(text);
     let mut problems = Vec::new();
     for k in table.keys().filter(|k| !SECTIONS.contains(&k.as_str())) {
@@ -305,14 +197,7 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     if problems.is_empty() {
         return Ok(config);
     }
-    // In file order; problems without a line last.
-    let line_of = |p: &String| {
-        p.strip_prefix("line ")
-            .and_then(|r| r.split(':').next())
-            .and_then(|n| n.parse::<usize>().ok())
-            .unwrap_or(usize::MAX)
-    };
-    problems.sort_by_key(line_of);
+    in_file_order(&mut problems);
     Err(invalid(problems))
 }
 
@@ -482,6 +367,15 @@ on = true
             .unwrap_err()
             .to_string();
         assert!(err.contains("laplace"), "{err}");
+    }
+
+    #[test]
+    fn natnet_inputs_are_typed_as_the_docs_spell_them() {
+        for spelling in ["natnet", "nat_net"] {
+            let text = format!("[character]\nprocedural = \"hand\"\n[[inputs]]\ntype = \"{spelling}\"\nurl = \"natnet://127.0.0.1:1511\"\n");
+            let c = parse_stage(&text, "s.toml").unwrap_or_else(|e| panic!("{spelling}: {e}"));
+            assert!(matches!(c.inputs[0], InputConfig::NatNet(_)), "{spelling}");
+        }
     }
 
     #[test]

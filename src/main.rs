@@ -121,8 +121,15 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            // The whole chain of causes, without a backtrace: these are user errors.
-            eprintln!("error: {e:#}");
+            // The chain of causes, without a backtrace (these are user errors), each said
+            // once: a cause that its parent's message already quotes is not repeated.
+            let mut text = e.to_string();
+            for cause in e.chain().skip(1).map(ToString::to_string) {
+                if !text.contains(&cause) {
+                    text = format!("{text}: {cause}");
+                }
+            }
+            eprintln!("error: {text}");
             std::process::ExitCode::FAILURE
         }
     }

@@ -241,3 +241,19 @@ fn run_json_summary_and_a_relative_rerun_file() {
         assert!(last.get(key).is_some(), "no {key} in {last}");
     }
 }
+
+/// An error is said once: a cause that its parent's message already quotes is not
+/// repeated (`info` on a file that is not there printed the OS error twice).
+#[test]
+fn errors_are_said_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("take.c3d");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(["info", missing.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    assert!(err.contains("take.c3d"), "{err}");
+}

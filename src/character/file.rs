@@ -223,8 +223,8 @@ pub enum CharacterError {
         path: String,
         source: std::io::Error,
     },
-    #[error("{path}: {message}")]
-    Toml { path: String, message: String },
+    #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, .problems.join("\n  - "))]
+    Toml { path: String, problems: Vec<String> },
     #[error("{path}: {source}")]
     Mesh { path: String, source: MeshError },
     #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, join_problems(.problems))]
@@ -407,6 +407,21 @@ pub fn fnv1a(data: &[&[u8]]) -> u64 {
     h
 }
 
+/// The keys of a character file's text, every unknown or malformed key reported at its
+/// line (nothing is loaded or checked beyond the keys).
+pub fn read_spec(text: &str) -> Result<CharacterFile, Vec<String>> {
+    use crate::runtime::toml_doc::{in_file_order, syntax_error, typed, Lines};
+    let value: toml::Value = toml::from_str(text).map_err(|e| vec![syntax_error(text, &e)])?;
+    let mut problems = Vec::new();
+    match typed::<CharacterFile>(&value, "", &Lines::scan(text), &mut problems) {
+        Some(spec) if problems.is_empty() => Ok(spec),
+        _ => {
+            in_file_order(&mut problems);
+            Err(problems)
+        }
+    }
+}
+
 /// Loads and validates a character file.
 pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     let shown = path.display().to_string();
@@ -414,9 +429,9 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         path: shown.clone(),
         source,
     })?;
-    let spec: CharacterFile = toml::from_str(&text).map_err(|e| CharacterError::Toml {
+    let spec = read_spec(&text).map_err(|problems| CharacterError::Toml {
         path: shown.clone(),
-        message: e.to_string(),
+        problems,
     })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mesh_path = dir.join(&spec.mesh.path);
@@ -1092,4 +1107,28 @@ pub fn write_character_files(
     let path = dir.join(format!("{}.toml", ch.name));
     std::fs::write(&path, toml)?;
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_unknown_key_of_a_character_file_is_reported_at_once() {
+        let text = "name = \"x\"\nfoo = 1\nbar = 2\n[mesh]\npath = \"a.obj\"\nbaz = 3\n";
+        let problems = read_spec(text).unwrap_err();
+        assert_eq!(problems.len(), 3, "{problems:#?}");
+        assert!(
+            problems[0].starts_with("line 2: foo: unknown field"),
+            "{problems:?}"
+        );
+        assert!(
+            problems[1].starts_with("line 3: bar: unknown field"),
+            "{problems:?}"
+        );
+        assert!(
+            problems[2].starts_with("line 6: mesh.baz: unknown field"),
+            "{problems:?}"
+        );
+    }
 }

@@ -24,6 +24,8 @@ pub enum InputConfig {
     /// `url = "natnet://239.255.42.99:1511"` (a multicast group is joined) or a unicast
     /// data port; `?version=4.1` for newer servers, `?server=IP` for the command port
     /// (marker names). Markers are named `SET:NAME`, or `SET_1`, `SET_2`... without it.
+    /// `type = "natnet"` (`"nat_net"` is read too).
+    #[serde(rename = "natnet", alias = "nat_net")]
     NatNet(NatNetInputConfig),
     /// A VRPN tracker (`url = "vrpn://Tracker0@127.0.0.1"` for the UDP connection mode,
     /// `"vrpn://Tracker0@tcp://127.0.0.1:3883"` for TCP only). Each sensor is a marker
