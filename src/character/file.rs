@@ -258,6 +258,15 @@ pub enum CharacterProblem {
     /// Every vertex has the same height.
     #[error("the mesh has no height (all vertices at one Y)")]
     NoHeight,
+    /// Vertices far outside the box that holds the rest of the mesh (a stray vertex in
+    /// the file), with the first of them.
+    #[error("{count} mesh vertices lie far from the rest of the mesh, e.g. vertex {vertex} (from 0) at {position:?} in the file's units, while the rest fit in a box {extent_m:.3} m across")]
+    FarVertices {
+        count: usize,
+        vertex: usize,
+        position: DVec3,
+        extent_m: f64,
+    },
     /// Edges used by one triangle only, with an example edge (file vertices).
     #[error("the mesh is open: {edges} edges border a hole{}; the solver needs a closed surface", example_edge(.example))]
     OpenMesh {
@@ -576,16 +585,58 @@ fn world_vertices(
             vertex: i,
             position: mesh.positions[i],
         });
+        return (vertices, 0.0);
     }
-    let (lo, hi) = vertices.iter().fold(
+    let (lo, hi) = robust_box(&vertices);
+    let far: Vec<usize> = (0..vertices.len())
+        .filter(|&i| is_far(vertices[i], lo, hi))
+        .collect();
+    if let Some(&first) = far.first() {
+        problems.push(CharacterProblem::FarVertices {
+            count: far.len(),
+            vertex: first,
+            position: mesh.positions[first],
+            extent_m: (hi - lo).max_element(),
+        });
+    }
+    let (lo, hi) = vertices.iter().filter(|v| !is_far(**v, lo, hi)).fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(a, b), v| (a.min(*v), b.max(*v)),
     );
     let height = (hi.y - lo.y).max(0.0);
-    if non_finite.is_none() && height <= 0.0 {
+    if height <= 0.0 {
         problems.push(CharacterProblem::NoHeight);
     }
     (vertices, height)
+}
+
+/// Share of the vertices, at each end of each axis, left out of the robust box.
+const ROBUST_TAIL: f64 = 0.01;
+
+/// How many robust boxes away from it a vertex is far (an extremity of a real asset,
+/// a fingertip or an antenna, stays well within this).
+const FAR_BOXES: f64 = 10.0;
+
+/// The box holding the central 98 % of the vertices along each axis (the 1st to the
+/// 99th percentile), so that a stray vertex does not stretch it.
+fn robust_box(vertices: &[DVec3]) -> (DVec3, DVec3) {
+    let mut lo = DVec3::ZERO;
+    let mut hi = DVec3::ZERO;
+    let mut axis: Vec<f64> = Vec::with_capacity(vertices.len());
+    for a in 0..3 {
+        axis.clear();
+        axis.extend(vertices.iter().map(|v| v[a]));
+        lo[a] = crate::runtime::stats::percentile(&mut axis, ROBUST_TAIL);
+        hi[a] = crate::runtime::stats::percentile(&mut axis, 1.0 - ROBUST_TAIL);
+    }
+    (lo, hi)
+}
+
+/// Whether `v` lies more than [`FAR_BOXES`] robust boxes outside `lo..hi`.
+fn is_far(v: DVec3, lo: DVec3, hi: DVec3) -> bool {
+    let size = (hi - lo).max_element().max(f64::MIN_POSITIVE);
+    let outside = (lo - v).max(v - hi).max(DVec3::ZERO).max_element();
+    outside > FAR_BOXES * size
 }
 
 /// Checks that the mesh, its world-frame `vertices` welded within `weld_tol` metres, is
@@ -1112,6 +1163,37 @@ pub fn write_character_files(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_stray_vertex_is_named_not_taken_for_a_huge_mesh() {
+        // A unit cube with one vertex pulled to 1e5 m (and an 8-vertex cube is too small
+        // for percentiles: a 10x10x10 grid of points stands in for the mesh).
+        let mut positions: Vec<DVec3> = (0..1000)
+            .map(|i| DVec3::new((i % 10) as f64, (i / 10 % 10) as f64, (i / 100) as f64) * 0.1)
+            .collect();
+        positions[17] = DVec3::new(1e5, 0.0, 0.0);
+        let mesh = MeshData {
+            positions,
+            ..MeshData::default()
+        };
+        let mut problems = Vec::new();
+        let frame = WorldFrame {
+            metres: 1.0,
+            up: UpAxis::Y,
+        };
+        let (_, height) = world_vertices(&mesh, frame, &mut problems);
+        assert!(
+            (height - 0.9).abs() < 1e-12,
+            "the rest's height, not the stray's: {height}"
+        );
+        let text: Vec<String> = problems.iter().map(ToString::to_string).collect();
+        assert_eq!(text.len(), 1, "{text:?}");
+        assert!(
+            text[0]
+                .starts_with("1 mesh vertices lie far from the rest of the mesh, e.g. vertex 17"),
+            "{text:?}"
+        );
+    }
 
     #[test]
     fn every_unknown_key_of_a_character_file_is_reported_at_once() {
