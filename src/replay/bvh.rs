@@ -8,11 +8,24 @@
 //! conversions use about 0.0564). Y is up, as in the world frame. Rotation channels
 //! compose in the order they are listed (`Zrotation Yrotation Xrotation` is
 //! `Rz · Ry · Rx`), degrees. End sites become joints named `PARENT_end`.
+//!
+//! Hostile files: `Frames:` must be a whole number and `Frame Time:` a frame rate within
+//! `recording`'s limits; the frames kept are those whose values the file holds (a frame
+//! needs one value per channel, so a hierarchy without channels is refused), and the
+//! positions they make (frames × joints) are held to `recording::position_budget` of the
+//! text's length. The text is read token by token, without a token table.
 
+use super::recording::{position_budget, MAX_RATE_HZ, MIN_RATE_HZ};
 use glam::{DMat4, DQuat, DVec3};
+use std::iter::Enumerate;
+use std::str::{Lines, SplitWhitespace};
 
 /// Most joints (end sites included) a file may declare.
 pub const MAX_JOINTS: usize = 1024;
+/// Deepest nesting of joints a file may declare.
+pub const MAX_DEPTH: usize = 256;
+/// Most channels a joint may declare (three positions, three rotations).
+pub const MAX_CHANNELS: usize = 6;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Channel {
@@ -43,21 +56,70 @@ pub struct Bvh {
 pub enum BvhError {
     #[error("line {line}: {what}")]
     Syntax { line: usize, what: String },
+    #[error("line {line}: CHANNELS {text:?} is not a channel count (0 to {MAX_CHANNELS})")]
+    Channels { line: usize, text: String },
+    #[error("line {line}: more than {MAX_JOINTS} joints")]
+    Joints { line: usize },
+    #[error("line {line}: joints nested deeper than {MAX_DEPTH}")]
+    Depth { line: usize },
+    #[error("line {line}: Frames: {text:?} is not a frame count (a whole number from 0)")]
+    FrameCount { line: usize, text: String },
+    #[error("line {line}: Frame Time: {value:?} s is outside 1/{MAX_RATE_HZ}..=1/{MIN_RATE_HZ} s")]
+    FrameTime { line: usize, value: f64 },
+    #[error("no joint has a channel, so the motion's {frames:?} frames hold no values")]
+    NoChannels { frames: f64 },
+    #[error(
+        "{frames} frames × {joints} joints: more than the {budget} positions a \
+         {text_len}-byte file may hold"
+    )]
+    TooLong {
+        frames: usize,
+        joints: usize,
+        text_len: usize,
+        budget: usize,
+    },
 }
 
+/// The text's whitespace-separated tokens with their lines, read as they are asked for.
+#[derive(Clone)]
 struct Tokens<'a> {
-    items: Vec<(usize, &'a str)>,
-    at: usize,
+    lines: Enumerate<Lines<'a>>,
+    words: SplitWhitespace<'a>,
+    /// The line of `words` (1-based).
+    line: usize,
 }
 
 impl<'a> Tokens<'a> {
+    fn new(text: &'a str) -> Self {
+        Self {
+            lines: text.lines().enumerate(),
+            words: "".split_whitespace(),
+            line: 1,
+        }
+    }
+
+    fn try_next(&mut self) -> Option<(usize, &'a str)> {
+        loop {
+            if let Some(w) = self.words.next() {
+                return Some((self.line, w));
+            }
+            let (i, l) = self.lines.next()?;
+            self.line = i + 1;
+            self.words = l.split_whitespace();
+        }
+    }
+
     fn next(&mut self) -> Result<(usize, &'a str), BvhError> {
-        let t = self.items.get(self.at).copied().ok_or(BvhError::Syntax {
-            line: self.items.last().map_or(1, |t| t.0),
+        self.try_next().ok_or(BvhError::Syntax {
+            line: self.line,
             what: "file ends early".into(),
-        })?;
-        self.at += 1;
-        Ok(t)
+        })
+    }
+
+    /// How many tokens are left (counted, not stored).
+    fn remaining(&self) -> usize {
+        let mut rest = self.clone();
+        std::iter::from_fn(|| rest.try_next()).count()
     }
 
     fn expect(&mut self, want: &str) -> Result<usize, BvhError> {
@@ -92,11 +154,11 @@ fn parse_joint(
     depth: usize,
 ) -> Result<(), BvhError> {
     let line = tk.expect("{")?;
-    if joints.len() >= MAX_JOINTS || depth > 256 {
-        return Err(BvhError::Syntax {
-            line,
-            what: format!("more than {MAX_JOINTS} joints or nesting deeper than 256"),
-        });
+    if joints.len() >= MAX_JOINTS {
+        return Err(BvhError::Joints { line });
+    }
+    if depth > MAX_DEPTH {
+        return Err(BvhError::Depth { line });
     }
     let me = joints.len();
     joints.push(Joint {
@@ -112,13 +174,15 @@ fn parse_joint(
                 joints[me].offset = DVec3::new(tk.number()?, tk.number()?, tk.number()?);
             }
             "CHANNELS" => {
-                let n = tk.number()? as usize;
-                if n > 6 {
-                    return Err(BvhError::Syntax {
+                let (line, text) = tk.next()?;
+                let n = text
+                    .parse::<usize>()
+                    .ok()
+                    .filter(|n| *n <= MAX_CHANNELS)
+                    .ok_or_else(|| BvhError::Channels {
                         line,
-                        what: format!("{n} channels (at most 6)"),
-                    });
-                }
+                        text: text.chars().take(32).collect(),
+                    })?;
                 for _ in 0..n {
                     let (line, c) = tk.next()?;
                     let ch = match c.to_ascii_lowercase().as_str() {
@@ -158,35 +222,58 @@ fn parse_joint(
     }
 }
 
+/// The motion header: `Frames:` (a whole number from 0) and `Frame Time:` (seconds,
+/// within the rate limits).
+fn motion_header(tk: &mut Tokens) -> Result<(f64, f64), BvhError> {
+    tk.expect("MOTION")?;
+    tk.expect("Frames:")?;
+    let (line, text) = tk.next()?;
+    let frames = text
+        .parse::<f64>()
+        .ok()
+        .filter(|f| *f >= 0.0 && f.fract() == 0.0)
+        .ok_or_else(|| BvhError::FrameCount {
+            line,
+            text: text.chars().take(32).collect(),
+        })?;
+    tk.expect("Frame")?;
+    let line = tk.expect("Time:")?;
+    let frame_time_s = tk.number()?;
+    if !(1.0 / MAX_RATE_HZ..=1.0 / MIN_RATE_HZ).contains(&frame_time_s) {
+        return Err(BvhError::FrameTime {
+            line,
+            value: frame_time_s,
+        });
+    }
+    Ok((frames, frame_time_s))
+}
+
 /// Parses a BVH file's text; positions are scaled by `metres_per_unit`.
 pub fn parse_bvh(text: &str, metres_per_unit: f64) -> Result<Bvh, BvhError> {
-    let items: Vec<(usize, &str)> = text
-        .lines()
-        .enumerate()
-        .flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)))
-        .collect();
-    let mut tk = Tokens { items, at: 0 };
+    let mut tk = Tokens::new(text);
     tk.expect("HIERARCHY")?;
     tk.expect("ROOT")?;
     let (_, root) = tk.next()?;
     let mut joints = Vec::new();
     parse_joint(&mut tk, root.to_owned(), None, &mut joints, 0)?;
-    tk.expect("MOTION")?;
-    tk.expect("Frames:")?;
-    let frames = tk.number()?;
-    tk.expect("Frame")?;
-    tk.expect("Time:")?;
-    let frame_time_s = tk.number()?;
+    let (declared, frame_time_s) = motion_header(&mut tk)?;
     let nch: usize = joints.iter().map(|j| j.channels.len()).sum();
-    let left = tk.items.len() - tk.at;
-    if frames < 0.0 || frame_time_s <= 0.0 {
-        return Err(BvhError::Syntax {
-            line: tk.items.get(tk.at.saturating_sub(1)).map_or(1, |t| t.0),
-            what: format!("{frames} frames of {frame_time_s} s"),
+    if nch == 0 {
+        return Err(BvhError::NoChannels { frames: declared });
+    }
+    // Keep the whole frames present (a cut file keeps what it has): a frame needs `nch`
+    // values, so the text's length bounds the count. `declared` is a whole number; the
+    // cast saturates.
+    let frames = (declared as usize).min(tk.remaining() / nch);
+    let budget = position_budget(text.len());
+    if frames.saturating_mul(joints.len()) > budget {
+        return Err(BvhError::TooLong {
+            frames,
+            joints: joints.len(),
+            text_len: text.len(),
+            budget,
         });
     }
-    // Keep the whole frames present (a cut file keeps what it has).
-    let frames = (frames as usize).min(left.checked_div(nch).unwrap_or(frames as usize));
     let mut positions = Vec::with_capacity(frames);
     let mut world = vec![DMat4::IDENTITY; joints.len()];
     for _ in 0..frames {
@@ -205,8 +292,10 @@ pub fn parse_bvh(text: &str, metres_per_unit: f64) -> Result<Bvh, BvhError> {
             }
             // Position channels replace the offset (the root's usual case).
             let local = DMat4::from_rotation_translation(r, t);
-            world[j] = match joint.parent {
-                Some(p) => world[p] * local,
+            // A parent comes before its children, so `world[p]` is this frame's.
+            let parent = joint.parent.and_then(|p| world.get(p)).copied();
+            world[j] = match parent {
+                Some(p) => p * local,
                 None => local,
             };
         }
@@ -281,6 +370,82 @@ Frame Time: 0.0083333
         let cut = &ARM[..ARM.len() - 10];
         // A cut file keeps its whole frames.
         assert_eq!(parse_bvh(cut, 1.0).unwrap().positions.len(), 1);
+    }
+
+    fn with_motion(hierarchy_channels: &str, frames: &str, frame_time: &str) -> String {
+        format!(
+            "HIERARCHY\nROOT Hips\n{{\n  OFFSET 0 0 0\n  CHANNELS {hierarchy_channels}\n}}\n\
+             MOTION\nFrames: {frames}\nFrame Time: {frame_time}\n1 2 3\n"
+        )
+    }
+
+    #[test]
+    fn header_values_out_of_range_are_named() {
+        let err = |t: String| parse_bvh(&t, 1.0).unwrap_err();
+        // No channel: a frame needs no bytes, so no count of frames can be trusted.
+        for frames in ["1e300", "1000000000", "1"] {
+            assert!(matches!(
+                err(with_motion("0", frames, "0.01")),
+                BvhError::NoChannels { .. }
+            ));
+        }
+        for frames in ["-1", "2.5", "inf", "NaN", "lots"] {
+            assert_eq!(
+                err(with_motion("1 Xposition", frames, "0.01")),
+                BvhError::FrameCount {
+                    line: 8,
+                    text: frames.into()
+                }
+            );
+        }
+        for (text, value) in [
+            ("0", 0.0),
+            ("1e-300", 1e-300),
+            ("-0.01", -0.01),
+            ("11", 11.0),
+        ] {
+            assert_eq!(
+                err(with_motion("1 Xposition", "1", text)),
+                BvhError::FrameTime { line: 9, value }
+            );
+        }
+        for channels in ["7", "-1", "1e300", "2.5"] {
+            assert_eq!(
+                err(with_motion(channels, "1", "0.01")),
+                BvhError::Channels {
+                    line: 5,
+                    text: channels.into()
+                }
+            );
+        }
+        // The declared count is kept to the values present: 3 frames of 1 channel.
+        let b = parse_bvh(&with_motion("1 Xposition", "1e300", "0.01"), 1.0).unwrap();
+        assert_eq!(b.positions.len(), 3);
+        assert_eq!(b.positions[2][0], DVec3::new(3.0, 0.0, 0.0));
+    }
+
+    #[test]
+    fn joints_without_channels_are_held_to_the_position_budget() {
+        // 1000 joints, one channel: every 2-byte value would make 1000 positions.
+        let mut t = String::from("HIERARCHY\nROOT r\n{\nOFFSET 0 0 0\nCHANNELS 1 Xposition\n");
+        for i in 0..999 {
+            t += &format!("JOINT j{i}\n{{\nOFFSET 0 0 0\n}}\n");
+        }
+        t += "}\nMOTION\nFrames: 3000\nFrame Time: 0.01\n";
+        let head = t.len();
+        t += &"1\n".repeat(3000);
+        assert_eq!(
+            parse_bvh(&t, 1.0).unwrap_err(),
+            BvhError::TooLong {
+                frames: 3000,
+                joints: 1000,
+                text_len: head + 6000,
+                budget: position_budget(head + 6000),
+            }
+        );
+        // A thousand frames fit the budget.
+        let cut = &t[..head + 2000];
+        assert_eq!(parse_bvh(cut, 1.0).unwrap().positions.len(), 1000);
     }
 
     proptest! {

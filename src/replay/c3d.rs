@@ -14,7 +14,14 @@
 //! preamble with the block count and the processor type, then groups and parameters),
 //! then the data: per frame, per point `x y z residual` (f32, or i16 scaled by
 //! POINT:SCALE), then the analog samples.
+//!
+//! Hostile files: POINT:RATE is held to `recording`'s rate limits, ANALOG:RATE to
+//! [`MAX_ANALOG_RATE_HZ`], POINT:USED to [`MAX_POINTS`], POINT:SCALE to a finite non-zero
+//! number; the frame layout is computed with checked arithmetic and every frame is read
+//! from a slice of the file, so the frames kept are those the file holds (a frame needs
+//! at least 8 bytes a point, for 24 bytes of position).
 
+use super::recording::{rate_in_range, MAX_RATE_HZ, MIN_RATE_HZ};
 use crate::geom::axes::{y_up_from_z_up, z_up_from_y_up};
 use glam::DVec3;
 
@@ -25,6 +32,8 @@ const PROC_DEC: u8 = 85;
 const PROC_MIPS: u8 = 86;
 /// Most points a file may declare (bounds allocation before reading data).
 pub const MAX_POINTS: usize = 100_000;
+/// Highest ANALOG:RATE a file may declare, Hz (analog boards sample at up to ~100 kHz).
+pub const MAX_ANALOG_RATE_HZ: f64 = 1_000_000.0;
 
 /// Byte order and float format of a file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -121,6 +130,27 @@ pub enum C3dError {
     Processor { code: u8 },
     #[error("parameter section malformed at byte {offset}: {what}")]
     Parameters { offset: usize, what: &'static str },
+    #[error("POINT:USED {points}: at most {MAX_POINTS} points")]
+    TooManyPoints { points: usize },
+    #[error("{field} {value:?} Hz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz")]
+    Rate { field: &'static str, value: f64 },
+    #[error("ANALOG:RATE {value:?} Hz is above {MAX_ANALOG_RATE_HZ} Hz")]
+    AnalogRate { value: f64 },
+    #[error("{field} {value:?} is not a scale (a finite number other than 0)")]
+    Scale { field: &'static str, value: f64 },
+    #[error(
+        "a frame of {points} points and {analog_per_frame} analog values \
+         (ANALOG:USED {analog_used} × ANALOG:RATE {analog_rate:?} Hz / POINT:RATE {rate_hz:?} Hz) \
+         is too long to address"
+    )]
+    FrameLength {
+        points: usize,
+        analog_per_frame: u64,
+        analog_used: usize,
+        analog_rate: f64,
+        rate_hz: f64,
+    },
+    /// The writer's refusal (more than it can store, frames of the wrong width).
     #[error("{what}")]
     Invalid { what: String },
 }
@@ -137,10 +167,6 @@ struct Param {
 }
 
 impl Param {
-    fn count(&self) -> usize {
-        self.dims.iter().product::<usize>().max(1)
-    }
-
     fn ints(&self, p: Processor) -> Vec<i64> {
         match self.kind {
             1 => self.data.iter().map(|b| *b as i64).collect(),
@@ -166,9 +192,10 @@ impl Param {
         }
     }
 
-    /// Char data as strings: `dims[0]` characters each, trailing blanks trimmed.
-    fn strings(&self) -> Vec<String> {
-        if self.kind != -1 {
+    /// Char data as strings (at most `most` of them): `dims[0]` characters each,
+    /// trailing blanks trimmed.
+    fn strings(&self, most: usize) -> Vec<String> {
+        if self.kind != -1 || most == 0 {
             return Vec::new();
         }
         let w = self.dims.first().copied().unwrap_or(self.data.len()).max(1);
@@ -177,6 +204,7 @@ impl Param {
         }
         self.data
             .chunks(w)
+            .take(most)
             .map(|c| {
                 String::from_utf8_lossy(c)
                     .trim_matches(|ch: char| ch.is_whitespace() || ch == '\0')
@@ -210,14 +238,15 @@ impl Params {
 
     fn string(&self, group: &str, name: &str) -> Option<String> {
         self.get(group, name)
-            .and_then(|p| p.strings().into_iter().next())
+            .and_then(|p| p.strings(1).into_iter().next())
     }
 }
 
 fn parse_params(b: &[u8], start: usize, proc: Processor) -> Result<Params, C3dError> {
     let err = |offset: usize, what: &'static str| C3dError::Parameters { offset, what };
-    let mut groups: Vec<(i8, String)> = Vec::new();
-    let mut raw: Vec<(i8, Param)> = Vec::new();
+    // Group names by id (1..=128); the first group of an id names it.
+    let mut groups: Vec<Option<String>> = vec![None; 129];
+    let mut raw: Vec<(u8, Param)> = Vec::new();
     let mut at = start + 4;
     while at + 2 <= b.len() {
         let name_len = (b[at] as i8).unsigned_abs() as usize;
@@ -237,35 +266,12 @@ fn parse_params(b: &[u8], start: usize, proc: Processor) -> Result<Params, C3dEr
             .ok_or(err(off_at, "offset runs past the end"))?;
         let body = off_at + 2;
         if id < 0 {
-            groups.push((-id, name));
-        } else {
-            let kind = *b.get(body).ok_or(err(body, "type runs past the end"))? as i8;
-            if ![-1, 1, 2, 4].contains(&kind) {
-                return Err(err(body, "unknown parameter type"));
+            let slot = &mut groups[id.unsigned_abs() as usize];
+            if slot.is_none() {
+                *slot = Some(name);
             }
-            let nd = *b
-                .get(body + 1)
-                .ok_or(err(body, "dimensions run past the end"))? as usize;
-            let dims: Vec<usize> = b
-                .get(body + 2..body + 2 + nd)
-                .ok_or(err(body, "dimensions run past the end"))?
-                .iter()
-                .map(|d| *d as usize)
-                .collect();
-            let p = Param {
-                group: String::new(),
-                name,
-                kind,
-                dims,
-                data: Vec::new(),
-            };
-            let n = p.count() * kind.unsigned_abs() as usize;
-            let d0 = body + 2 + nd;
-            let data = b
-                .get(d0..d0 + n)
-                .ok_or(err(d0, "data runs past the end"))?
-                .to_vec();
-            raw.push((id, Param { data, ..p }));
+        } else {
+            raw.push((id.unsigned_abs(), read_param(b, body, name)?));
         }
         if next <= 0 {
             break;
@@ -275,15 +281,49 @@ fn parse_params(b: &[u8], start: usize, proc: Processor) -> Result<Params, C3dEr
     let list = raw
         .into_iter()
         .map(|(id, mut p)| {
-            p.group = groups
-                .iter()
-                .find(|(g, _)| *g == id)
-                .map(|(_, n)| n.clone())
-                .unwrap_or_default();
+            p.group = groups[id as usize].clone().unwrap_or_default();
             p
         })
         .collect();
     Ok(Params { list, proc })
+}
+
+/// A parameter's type, dimensions and data, from its body at `body` (its group set later).
+fn read_param(b: &[u8], body: usize, name: String) -> Result<Param, C3dError> {
+    let err = |offset: usize, what: &'static str| C3dError::Parameters { offset, what };
+    let kind = *b.get(body).ok_or(err(body, "type runs past the end"))? as i8;
+    if ![-1, 1, 2, 4].contains(&kind) {
+        return Err(err(body, "unknown parameter type"));
+    }
+    let nd = *b
+        .get(body + 1)
+        .ok_or(err(body, "dimensions run past the end"))? as usize;
+    let dims: Vec<usize> = b
+        .get(body + 2..body + 2 + nd)
+        .ok_or(err(body, "dimensions run past the end"))?
+        .iter()
+        .map(|d| *d as usize)
+        .collect();
+    // Up to 255 dimensions of up to 255: the product can overflow.
+    let n = dims
+        .iter()
+        .try_fold(1usize, |acc, d| acc.checked_mul(*d))
+        .map(|count| count.max(1))
+        .and_then(|count| count.checked_mul(kind.unsigned_abs() as usize))
+        .ok_or(err(body + 1, "dimensions overflow"))?;
+    let d0 = body + 2 + nd;
+    let data = d0
+        .checked_add(n)
+        .and_then(|end| b.get(d0..end))
+        .ok_or(err(d0, "data runs past the end"))?
+        .to_vec();
+    Ok(Param {
+        group: String::new(),
+        name,
+        kind,
+        dims,
+        data,
+    })
 }
 
 /// What the header (block 1) says, the fallback for the parameter section, and where
@@ -373,23 +413,35 @@ fn point_format(
         ));
     }
     if points > MAX_POINTS {
-        return Err(C3dError::Invalid {
-            what: format!("{points} points (at most {MAX_POINTS})"),
-        });
+        return Err(C3dError::TooManyPoints { points });
     }
-    let rate_hz = params
+    // A missing, zero or non-finite parameter falls back to the header.
+    let (field, rate_hz) = match params
         .float("POINT", "RATE")
         .filter(|r| r.is_finite() && *r > 0.0)
-        .unwrap_or(h_rate);
-    if !(rate_hz.is_finite() && rate_hz > 0.0) {
-        return Err(C3dError::Invalid {
-            what: format!("no usable frame rate (header {h_rate}, POINT:RATE absent)"),
+    {
+        Some(r) => ("POINT:RATE", r),
+        None => ("header frame rate", h_rate),
+    };
+    if !rate_in_range(rate_hz) {
+        return Err(C3dError::Rate {
+            field,
+            value: rate_hz,
         });
     }
-    let scale = params
+    let (field, scale) = match params
         .float("POINT", "SCALE")
         .filter(|s| s.is_finite() && *s != 0.0)
-        .unwrap_or(h_scale);
+    {
+        Some(s) => ("POINT:SCALE", s),
+        None => ("header scale", h_scale),
+    };
+    if !(scale.is_finite() && scale != 0.0) {
+        return Err(C3dError::Scale {
+            field,
+            value: scale,
+        });
+    }
     let data_block = params
         .int("POINT", "DATA_START")
         .map(|d| (d as u16) as usize)
@@ -442,35 +494,62 @@ fn analog_samples_per_frame(
     h: &Header,
     rate_hz: f64,
     warnings: &mut Vec<String>,
-) -> usize {
+) -> Result<AnalogLayout, C3dError> {
     let h_analog = h.h_analog;
     let analog_used = params.int("ANALOG", "USED").map(|n| (n as u16) as usize);
     let analog_rate = params.float("ANALOG", "RATE");
-    match (analog_used, analog_rate) {
+    let per_frame = match (analog_used, analog_rate) {
+        (Some(0), _) => {
+            if h_analog != 0 {
+                warnings.push(format!(
+                    "header says {h_analog} analog values per frame, ANALOG:USED says 0 (using the parameter)"
+                ));
+            }
+            0
+        }
         (Some(u), Some(r)) if r.is_finite() && r > 0.0 => {
-            let per = (r / rate_hz).round() as usize;
-            let n = u * per;
-            if n != h_analog as usize {
+            if r > MAX_ANALOG_RATE_HZ {
+                return Err(C3dError::AnalogRate { value: r });
+            }
+            // At most 1e6 / MIN_RATE_HZ: the cast is exact.
+            let per = (r / rate_hz).round() as u64;
+            let n = per * u as u64;
+            if n != h_analog as u64 {
                 warnings.push(format!(
                     "header says {h_analog} analog values per frame, ANALOG:USED × ANALOG:RATE / POINT:RATE gives {n} (using the parameters)"
                 ));
             }
-            n
+            return Ok(AnalogLayout {
+                per_frame: n,
+                used: u,
+                rate_hz: r,
+            });
         }
-        (Some(0), _) => 0,
-        _ => h_analog as usize,
-    }
+        _ => h_analog as u64,
+    };
+    Ok(AnalogLayout {
+        per_frame,
+        used: analog_used.unwrap_or(0),
+        rate_hz: analog_rate.unwrap_or(0.0),
+    })
+}
+
+/// The analog values stored in each frame, and the parameters they come from.
+struct AnalogLayout {
+    per_frame: u64,
+    used: usize,
+    rate_hz: f64,
 }
 
 /// One label per point: POINT:LABELS, LABELS2..., then `pointN` for the rest.
 fn point_labels(params: &Params, points: usize) -> Vec<String> {
     let mut labels: Vec<String> = params
         .get("POINT", "LABELS")
-        .map(|p| p.strings())
+        .map(|p| p.strings(points))
         .unwrap_or_default();
     for i in 2..100 {
         match params.get("POINT", &format!("LABELS{i}")) {
-            Some(p) => labels.extend(p.strings()),
+            Some(p) => labels.extend(p.strings(points.saturating_sub(labels.len()))),
             None => break,
         }
     }
@@ -510,30 +589,32 @@ struct PointDecoding {
     metres_per_unit: f64,
     /// POINT:Y_SCREEN is `+Y` (already Y up).
     y_up: bool,
+    /// POINT:RATE, for errors.
+    rate_hz: f64,
 }
 
-/// The point stored at byte `at`: metres, world frame; NaN when its residual is negative
-/// or a coordinate is not finite.
-fn read_point(b: &[u8], at: usize, d: &PointDecoding) -> DVec3 {
+/// The point stored in `v` (16 bytes for float storage, 8 for integer): metres, world
+/// frame; NaN when its residual is negative or a coordinate is not finite.
+fn read_point(v: &[u8], d: &PointDecoding) -> DVec3 {
     let proc = d.proc;
     let (c, residual_ok) = if d.is_float {
-        let v = |i: usize| {
-            let o = at + 4 * i;
-            proc.f32([b[o], b[o + 1], b[o + 2], b[o + 3]]) as f64
+        let Some(v) = v.first_chunk::<16>() else {
+            return DVec3::NAN;
         };
-        ([v(0), v(1), v(2)], v(3) >= 0.0)
+        let f = |i: usize| proc.f32([v[4 * i], v[4 * i + 1], v[4 * i + 2], v[4 * i + 3]]) as f64;
+        ([f(0), f(1), f(2)], f(3) >= 0.0)
     } else {
-        let v = |i: usize| {
-            let o = at + 2 * i;
-            proc.i16([b[o], b[o + 1]])
+        let Some(v) = v.first_chunk::<8>() else {
+            return DVec3::NAN;
         };
+        let i = |k: usize| proc.i16([v[2 * k], v[2 * k + 1]]);
         (
             [
-                v(0) as f64 * d.int_scale,
-                v(1) as f64 * d.int_scale,
-                v(2) as f64 * d.int_scale,
+                i(0) as f64 * d.int_scale,
+                i(1) as f64 * d.int_scale,
+                i(2) as f64 * d.int_scale,
             ],
-            v(3) >= 0,
+            i(3) >= 0,
         )
     };
     if residual_ok && c.iter().all(|x| x.is_finite()) {
@@ -554,33 +635,47 @@ fn read_frames(
     b: &[u8],
     data_block: usize,
     points: usize,
-    analog_per_frame: usize,
+    analog: &AnalogLayout,
     mut n_frames: usize,
     d: &PointDecoding,
     warnings: &mut Vec<String>,
-) -> Vec<Vec<DVec3>> {
-    let value_len = if d.is_float { 4 } else { 2 };
-    let frame_len = (4 * points + analog_per_frame) * value_len;
+) -> Result<Vec<Vec<DVec3>>, C3dError> {
+    let value_len: usize = if d.is_float { 4 } else { 2 };
+    let point_len = 4 * value_len;
+    // Checked: ANALOG:USED × ANALOG:RATE / POINT:RATE reaches 6.6e11 values a frame.
+    let frame_len = usize::try_from(analog.per_frame)
+        .ok()
+        .and_then(|a| a.checked_add(4 * points))
+        .and_then(|v| v.checked_mul(value_len))
+        .ok_or(C3dError::FrameLength {
+            points,
+            analog_per_frame: analog.per_frame,
+            analog_used: analog.used,
+            analog_rate: analog.rate_hz,
+            rate_hz: d.rate_hz,
+        })?;
     let data_at = (data_block.max(1) - 1) * BLOCK;
-    let available = b.len().saturating_sub(data_at);
-    let whole = available.checked_div(frame_len).unwrap_or(0);
+    let data = b.get(data_at..).unwrap_or_default();
+    let whole = data.len().checked_div(frame_len).unwrap_or(0);
     if whole < n_frames {
         warnings.push(format!(
             "file holds {whole} of {n_frames} frames (cut short); keeping those"
         ));
         n_frames = whole;
     }
-    let mut frames = Vec::with_capacity(n_frames);
-    for f in 0..n_frames {
-        let base = data_at + f * frame_len;
-        let mut row = Vec::with_capacity(points);
-        for k in 0..points {
-            let at = base + k * 4 * value_len;
-            row.push(read_point(b, at, d));
-        }
-        frames.push(row);
-    }
-    frames
+    // A frame of `frame_len` bytes holds the points' `points * point_len` bytes first.
+    let frames = data
+        .chunks_exact(frame_len.max(1))
+        .take(n_frames)
+        .map(|frame| {
+            frame
+                .chunks_exact(point_len)
+                .take(points)
+                .map(|v| read_point(v, d))
+                .collect()
+        })
+        .collect();
+    Ok(frames)
 }
 
 /// Reads a C3D file's 3D points from its bytes.
@@ -598,7 +693,7 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
     } = point_format(&params, &h, &mut warnings)?;
     let is_float = scale < 0.0;
     let (first_frame, n_frames) = frame_range(&params, &h, &mut warnings);
-    let analog_per_frame = analog_samples_per_frame(&params, &h, rate_hz, &mut warnings);
+    let analog = analog_samples_per_frame(&params, &h, rate_hz, &mut warnings)?;
     let labels = point_labels(&params, points);
     let (units, metres_per_unit) = point_units(&params, &mut warnings);
     let y_up = params
@@ -611,16 +706,17 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
         int_scale: scale.abs(),
         metres_per_unit,
         y_up,
+        rate_hz,
     };
     let frames = read_frames(
         b,
         data_block,
         points,
-        analog_per_frame,
+        &analog,
         n_frames,
         &decoding,
         &mut warnings,
-    );
+    )?;
     Ok(C3d {
         rate_hz,
         labels,
@@ -839,6 +935,247 @@ mod tests {
             read_c3d(&b),
             Err(C3dError::BadKey { found: 0x51 })
         ));
+    }
+
+    /// A parameter for [`crafted`]: group id, name, type, dimensions, data.
+    type RawParam<'a> = (i8, &'a str, i8, &'a [u8], Vec<u8>);
+
+    /// An Intel file built byte by byte: header words 1-4 (points, analog values per
+    /// frame, first and last frame), the header scale and rate, groups POINT (1) and
+    /// ANALOG (2) with `params`, data from block 3: `frames` frames of one point (x=1, y=2,
+    /// z=3 in the storage's units) and no analog values.
+    fn crafted(
+        words: [u16; 4],
+        scale: f32,
+        rate_bits: u32,
+        params: &[RawParam],
+        frames: usize,
+    ) -> Vec<u8> {
+        let mut h = vec![0u8; BLOCK];
+        h[0] = 2;
+        h[1] = 0x50;
+        for (i, w) in words.iter().enumerate() {
+            h[2 + 2 * i..4 + 2 * i].copy_from_slice(&w.to_le_bytes());
+        }
+        h[12..16].copy_from_slice(&scale.to_le_bytes());
+        h[16..18].copy_from_slice(&3u16.to_le_bytes());
+        h[20..24].copy_from_slice(&rate_bits.to_le_bytes());
+        let mut p = vec![1u8, 0x50, 1, PROC_INTEL];
+        for (id, name) in [(1i8, "POINT"), (2, "ANALOG")] {
+            p.extend([name.len() as u8, (-id) as u8]);
+            p.extend(name.bytes());
+            p.extend(3i16.to_le_bytes());
+            p.push(0);
+        }
+        for (id, name, kind, dims, data) in params {
+            p.extend([name.len() as u8, *id as u8]);
+            p.extend(name.bytes());
+            p.extend((5 + dims.len() as i16 + data.len() as i16).to_le_bytes());
+            p.extend([*kind as u8, dims.len() as u8]);
+            p.extend(*dims);
+            p.extend(data);
+            p.push(0);
+        }
+        p.extend([0; 4]);
+        p.resize(BLOCK, 0);
+        h.extend(p);
+        for _ in 0..frames {
+            if scale < 0.0 {
+                [1.0f32, 2.0, 3.0, 0.0]
+                    .iter()
+                    .for_each(|v| h.extend(v.to_le_bytes()));
+            } else {
+                [1i16, 2, 3, 0]
+                    .iter()
+                    .for_each(|v| h.extend(v.to_le_bytes()));
+            }
+        }
+        h
+    }
+
+    fn int(v: i16) -> Vec<u8> {
+        v.to_le_bytes().to_vec()
+    }
+
+    fn float(v: f32) -> Vec<u8> {
+        v.to_le_bytes().to_vec()
+    }
+
+    #[test]
+    fn a_sane_crafted_file_reads() {
+        for scale in [-1.0f32, 0.1] {
+            let params = [
+                (1, "USED", 2, &[][..], int(1)),
+                (1, "SCALE", 4, &[], float(scale)),
+                (1, "RATE", 4, &[], float(100.0)),
+                (2, "USED", 2, &[], int(2)),
+                (2, "RATE", 4, &[], float(100.0)),
+            ];
+            // Each frame: one point and two analog values, 4 + 2 values of the storage.
+            let mut b = crafted([1, 2, 1, 3], scale, 100f32.to_bits(), &params, 0);
+            let v = if scale < 0.0 { 4 } else { 2 };
+            for f in 0..3 {
+                let vals = [1.0 + f as f32, 2.0, 3.0, 0.0, 9.0, 9.0];
+                for x in vals {
+                    if v == 4 {
+                        b.extend(x.to_le_bytes());
+                    } else {
+                        b.extend((x as i16).to_le_bytes());
+                    }
+                }
+            }
+            let c = read_c3d(&b).unwrap();
+            assert!(c.warnings.is_empty(), "{:?}", c.warnings);
+            assert_eq!(c.frames.len(), 3);
+            // Metres per stored unit: millimetres, times the scale in integer storage.
+            let mm = if scale < 0.0 { 1e-3 } else { 1e-4 };
+            // (x, y, z) Z up becomes (x, z, -y); f32 and the scale: 1e-12 relative.
+            let want = DVec3::new(3.0, 3.0, -2.0) * mm;
+            // POINT:SCALE is an f32: 0.1 is off by 1.5e-8 relative.
+            assert!(
+                (c.frames[2][0] - want).length() < 1e-7 * want.length(),
+                "{}",
+                c.frames[2][0]
+            );
+        }
+    }
+
+    #[test]
+    fn a_subnormal_point_rate_is_refused_not_a_panic() {
+        // The issue's file: POINT:RATE the smallest subnormal, ANALOG:USED 3, ANALOG:RATE
+        // 1. The analog count per frame used to saturate and wrap, leaving a 4-byte frame
+        // (2 bytes in integer storage) and reading past the end.
+        for scale in [-1.0f32, 0.1] {
+            let params = [
+                (1, "USED", 2, &[][..], int(1)),
+                (1, "SCALE", 4, &[], float(scale)),
+                (1, "RATE", 4, &[], 1u32.to_le_bytes().to_vec()),
+                (2, "USED", 2, &[], int(3)),
+                (2, "RATE", 4, &[], float(1.0)),
+            ];
+            let b = crafted([1, 0, 1, 40], scale, 1, &params, 10);
+            assert_eq!(
+                read_c3d(&b).unwrap_err(),
+                C3dError::Rate {
+                    field: "POINT:RATE",
+                    value: f32::from_bits(1) as f64
+                }
+            );
+            // Without the parameter, the header's rate is the one named.
+            let b = crafted([1, 0, 1, 40], scale, 1, &params[..2], 10);
+            assert_eq!(
+                read_c3d(&b).unwrap_err(),
+                C3dError::Rate {
+                    field: "header frame rate",
+                    value: f32::from_bits(1) as f64
+                }
+            );
+        }
+    }
+
+    #[test]
+    fn header_values_out_of_range_are_named() {
+        let base = |extra: Vec<RawParam<'static>>| {
+            let mut p: Vec<RawParam> = vec![
+                (1, "USED", 2, &[], int(1)),
+                (1, "SCALE", 4, &[], float(-1.0)),
+                (1, "RATE", 4, &[], float(100.0)),
+            ];
+            p.extend(extra);
+            read_c3d(&crafted([1, 0, 1, 10], -1.0, 100f32.to_bits(), &p, 10))
+        };
+        assert_eq!(base(vec![]).unwrap().frames.len(), 10);
+        // A huge ANALOG:RATE used to saturate the same way as a tiny POINT:RATE.
+        assert_eq!(
+            base(vec![
+                (2, "USED", 2, &[], int(3)),
+                (2, "RATE", 4, &[], float(3e38))
+            ])
+            .unwrap_err(),
+            C3dError::AnalogRate {
+                value: 3e38f32 as f64
+            }
+        );
+        // A large one still in range makes frames longer than the file: none kept.
+        let c = base(vec![
+            (2, "USED", 2, &[], int(-1)),
+            (2, "RATE", 4, &[], float(1e6)),
+        ])
+        .unwrap();
+        assert!(c.frames.is_empty());
+        assert!(
+            c.warnings.iter().any(|w| w.contains("gives 655350000")),
+            "{:?}",
+            c.warnings
+        );
+        for rate in [1e9f32, 0.05, f32::MAX] {
+            let p = [
+                (1, "USED", 2, &[][..], int(1)),
+                (1, "RATE", 4, &[], float(rate)),
+            ];
+            assert_eq!(
+                read_c3d(&crafted([1, 0, 1, 10], -1.0, 100f32.to_bits(), &p, 10)).unwrap_err(),
+                C3dError::Rate {
+                    field: "POINT:RATE",
+                    value: rate as f64
+                }
+            );
+        }
+        // A zero POINT:SCALE falls back to the header's, which must be usable.
+        let p = vec![
+            (1, "USED", 2, &[][..], int(1)),
+            (1, "SCALE", 4, &[], float(0.0)),
+            (1, "RATE", 4, &[], float(100.0)),
+        ];
+        assert_eq!(
+            read_c3d(&crafted([1, 0, 1, 10], f32::NAN, 100f32.to_bits(), &p, 10))
+                .unwrap_err()
+                .to_string(),
+            "header scale NaN is not a scale (a finite number other than 0)"
+        );
+    }
+
+    #[test]
+    fn parameter_dimensions_that_overflow_are_an_error() {
+        // 200 dimensions of 255: 255^200 elements.
+        let dims = [255u8; 200];
+        let p = [(1, "LABELS", -1, &dims[..], vec![b'a'; 10])];
+        let b = crafted([1, 0, 1, 10], -1.0, 100f32.to_bits(), &p, 10);
+        assert!(matches!(
+            read_c3d(&b),
+            Err(C3dError::Parameters {
+                what: "dimensions overflow",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn parameters_are_read_in_linear_time() {
+        // Group id -128 (its negation overflows an i8), then 100,000 groups of id 1 and
+        // 100,000 parameters of group 2, which none names: looking each parameter's group
+        // up among every group took 1e10 steps.
+        let mut b = crafted([1, 0, 1, 1], -1.0, 100f32.to_bits(), &[], 0);
+        b.truncate(BLOCK + 4);
+        b.extend([1u8, 0x80, b'X']);
+        b.extend(3i16.to_le_bytes());
+        b.push(0);
+        for _ in 0..100_000 {
+            b.extend([1u8, 0xFF, b'G']);
+            b.extend(3i16.to_le_bytes());
+            b.push(0);
+        }
+        for _ in 0..100_000 {
+            b.extend([1u8, 2, b'P']);
+            b.extend(6i16.to_le_bytes());
+            b.extend([1u8, 0, 7, 0]);
+        }
+        b.extend([0; 4]);
+        let t = std::time::Instant::now();
+        let c = read_c3d(&b).unwrap();
+        assert_eq!((c.labels.len(), c.rate_hz), (1, 100.0));
+        // Linear, this takes milliseconds; the bound leaves room for a loaded machine.
+        assert!(t.elapsed().as_secs_f64() < 5.0, "{:?}", t.elapsed());
     }
 
     proptest! {

@@ -1,16 +1,47 @@
 //! A recording as the replayer plays it: labelled marker trajectories at a fixed rate, from
-//! a C3D or TSV file (or a bundled session), and the mapping of its labels onto a
-//! character's markers.
+//! a C3D, TSV, BVH or session file (or a bundled session), and the limits every reader
+//! holds a file to.
+//!
+//! Hostile files: no reader allocates by a number read from a file unless the file's own
+//! length bounds it (a frame needs bytes) or a documented limit does ([`MIN_RATE_HZ`],
+//! [`MAX_RATE_HZ`], [`position_budget`], and each reader's counts); header arithmetic is
+//! checked, and a value out of range is an error naming the field and the value.
 
 use super::bvh::{parse_bvh, BvhError};
 use super::c3d::{read_c3d, C3dError};
 use super::session::{read_session, Session, SessionError};
 use super::tsv::{parse_tsv, TsvError};
+use crate::markers::MarkerSample;
 use glam::DVec3;
 use std::path::Path;
 
 /// Metres per BVH unit unless told otherwise (centimetres, the commonest convention).
 pub const DEFAULT_BVH_METRES_PER_UNIT: f64 = 0.01;
+
+/// Lowest frame rate a recording may declare, Hz (a frame every 10 s).
+pub const MIN_RATE_HZ: f64 = 0.1;
+/// Highest frame rate a recording may declare, Hz (high-speed optical capture at reduced
+/// resolution stays below it).
+pub const MAX_RATE_HZ: f64 = 100_000.0;
+/// Positions (frames × markers) a recording may hold whatever its file's length: 2^20, or
+/// 24 MiB of positions (about 4 minutes of 36 markers at 120 Hz).
+pub const FREE_POSITIONS: usize = 1 << 20;
+/// Positions a recording may hold per byte of its file, on top of [`FREE_POSITIONS`]. C3D
+/// (8 or 16 bytes a position) and TSV (at least 3) stay under it by construction; it bounds
+/// BVH, whose joints without channels cost no byte a frame, and sessions, whose frames
+/// without a sample cost none (a 33-byte sample may leave 32 cells of its table empty).
+pub const POSITIONS_PER_BYTE: usize = 1;
+
+/// Whether a declared frame rate lies in [`MIN_RATE_HZ`]..=[`MAX_RATE_HZ`] (NaN does not).
+pub fn rate_in_range(rate_hz: f64) -> bool {
+    (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)
+}
+
+/// The most positions (frames × markers) a recording read from `file_len` bytes may hold:
+/// [`FREE_POSITIONS`] + [`POSITIONS_PER_BYTE`] per byte.
+pub fn position_budget(file_len: usize) -> usize {
+    FREE_POSITIONS.saturating_add(file_len.saturating_mul(POSITIONS_PER_BYTE))
+}
 
 /// Labelled marker trajectories: `frames[f][k]`, metres, world frame, NaN where missing.
 #[derive(Clone, Debug)]
@@ -45,6 +76,22 @@ pub enum RecordingError {
     Format { path: String },
     #[error("{path}: no frames")]
     Empty { path: String },
+    #[error("{path}: rate_hz {rate_hz:?} is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz")]
+    Rate { path: String, rate_hz: f64 },
+    #[error(
+        "{path}: the samples span {span_s:?} s, {frames:?} frames at {rate_hz:?} Hz, × {markers} \
+         markers: more than the {budget} positions a {file_len}-byte file may hold"
+    )]
+    TooLong {
+        path: String,
+        span_s: f64,
+        rate_hz: f64,
+        /// Frames the span needs (may be infinite).
+        frames: f64,
+        markers: usize,
+        file_len: usize,
+        budget: usize,
+    },
 }
 
 impl Recording {
@@ -75,101 +122,144 @@ impl Recording {
     /// `bvh_metres_per_unit` (BVH has no units) and its joints become the labels.
     pub fn load_with(path: &Path, bvh_metres_per_unit: f64) -> Result<Self, RecordingError> {
         let shown = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-            path: shown.clone(),
-            source,
-        })?;
         let ext = path
             .extension()
             .map(|e| e.to_string_lossy().to_ascii_lowercase())
             .unwrap_or_default();
+        if !["c3d", "tsv", "bvh", "rlsession"].contains(&ext.as_str()) {
+            return Err(RecordingError::Format { path: shown });
+        }
+        let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+            path: shown.clone(),
+            source,
+        })?;
         match ext.as_str() {
             "c3d" => Self::from_c3d(&shown, &bytes),
-            "tsv" => {
-                let t = parse_tsv(&String::from_utf8_lossy(&bytes)).map_err(|source| {
-                    RecordingError::Tsv {
-                        path: shown.clone(),
-                        source,
-                    }
-                })?;
-                Self::nonempty(Self {
-                    name: shown,
-                    rate_hz: t.rate_hz,
-                    labels: t.marker_names,
-                    frames: t.frames,
-                    warnings: Vec::new(),
-                    file_units: "mm".into(),
-                })
-            }
-            "bvh" => {
-                let b = parse_bvh(&String::from_utf8_lossy(&bytes), bvh_metres_per_unit).map_err(
-                    |source| RecordingError::Bvh {
-                        path: shown.clone(),
-                        source,
-                    },
-                )?;
-                let raw = 1.0 / b.frame_time_s;
-                // "Frame Time: .0083333" means 120 Hz.
-                let rate_hz = if (raw - raw.round()).abs() < 0.01 {
-                    raw.round()
-                } else {
-                    raw
-                };
-                Self::nonempty(Self {
-                    name: shown,
-                    rate_hz,
-                    labels: b.joint_names,
-                    frames: b.positions,
-                    warnings: Vec::new(),
-                    file_units: format!("BVH units ({bvh_metres_per_unit} m each)"),
-                })
-            }
-            "rlsession" => {
-                let sess = read_session(&bytes).map_err(|source| RecordingError::Session {
-                    path: shown.clone(),
-                    source,
-                })?;
-                Self::nonempty(Self::from_session(&shown, sess))
-            }
-            _ => Err(RecordingError::Format { path: shown }),
+            "tsv" => Self::from_tsv(&shown, &bytes),
+            "bvh" => Self::from_bvh(&shown, &bytes, bvh_metres_per_unit),
+            _ => Self::from_session_bytes(&shown, &bytes),
         }
+    }
+
+    /// Reads a Qualisys TSV export's bytes.
+    pub fn from_tsv(name: &str, bytes: &[u8]) -> Result<Self, RecordingError> {
+        let t =
+            parse_tsv(&String::from_utf8_lossy(bytes)).map_err(|source| RecordingError::Tsv {
+                path: name.to_owned(),
+                source,
+            })?;
+        Self::nonempty(Self {
+            name: name.to_owned(),
+            rate_hz: t.rate_hz,
+            labels: t.marker_names,
+            frames: t.frames,
+            warnings: Vec::new(),
+            file_units: "mm".into(),
+        })
+    }
+
+    /// Reads a BVH file's bytes; positions are scaled by `bvh_metres_per_unit`.
+    pub fn from_bvh(
+        name: &str,
+        bytes: &[u8],
+        bvh_metres_per_unit: f64,
+    ) -> Result<Self, RecordingError> {
+        let b =
+            parse_bvh(&String::from_utf8_lossy(bytes), bvh_metres_per_unit).map_err(|source| {
+                RecordingError::Bvh {
+                    path: name.to_owned(),
+                    source,
+                }
+            })?;
+        // The reader holds the frame time to 1/MAX_RATE_HZ..=1/MIN_RATE_HZ.
+        let raw = 1.0 / b.frame_time_s;
+        // "Frame Time: .0083333" means 120 Hz.
+        let rate_hz = if (raw - raw.round()).abs() < 0.01 {
+            raw.round()
+        } else {
+            raw
+        };
+        Self::nonempty(Self {
+            name: name.to_owned(),
+            rate_hz,
+            labels: b.joint_names,
+            frames: b.positions,
+            warnings: Vec::new(),
+            file_units: format!("BVH units ({bvh_metres_per_unit} m each)"),
+        })
+    }
+
+    /// Reads a session file's bytes and groups its samples into frames
+    /// ([`Recording::from_session`]).
+    pub fn from_session_bytes(name: &str, bytes: &[u8]) -> Result<Self, RecordingError> {
+        let sess = read_session(bytes).map_err(|source| RecordingError::Session {
+            path: name.to_owned(),
+            source,
+        })?;
+        Self::from_session(name, sess, bytes.len()).and_then(Self::nonempty)
     }
 
     /// Frames from a session's samples: grouped by receive time at the session's rate
     /// (frame `round((t - t0) · rate)`); the newest sample of a marker in a frame wins;
-    /// markers with no sample in a frame are missing.
-    pub fn from_session(name: &str, s: Session) -> Self {
+    /// markers with no sample in a frame are missing. Samples of no listed marker or with
+    /// a non-finite time are left out. The frame table is refused when it would hold more
+    /// than [`position_budget`]`(file_len)` positions (`file_len`: the session file's
+    /// length), so samples far apart in time cannot ask for a huge table.
+    pub fn from_session(name: &str, s: Session, file_len: usize) -> Result<Self, RecordingError> {
         let n = s.header.marker_names.len();
         let rate = s.header.rate_hz;
-        let t0 = s
+        if !rate_in_range(rate) {
+            return Err(RecordingError::Rate {
+                path: name.to_owned(),
+                rate_hz: rate,
+            });
+        }
+        let usable = |x: &&MarkerSample| (x.marker as usize) < n && x.time_s.is_finite();
+        let (t0, t1) = s
             .samples
             .iter()
-            .map(|x| x.time_s)
-            .fold(f64::INFINITY, f64::min);
+            .filter(usable)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x.time_s), hi.max(x.time_s))
+            });
         let mut frames: Vec<Vec<DVec3>> = Vec::new();
-        for x in &s.samples {
-            let k = x.marker as usize;
-            if k >= n || !x.time_s.is_finite() {
-                continue;
+        if t0 <= t1 {
+            // Infinite when the span overflows; the comparison below refuses it.
+            let last = ((t1 - t0) * rate).round();
+            let budget = position_budget(file_len);
+            let most_frames = budget / n.max(1);
+            if !(last < most_frames as f64) {
+                return Err(RecordingError::TooLong {
+                    path: name.to_owned(),
+                    span_s: t1 - t0,
+                    rate_hz: rate,
+                    frames: last + 1.0,
+                    markers: n,
+                    file_len,
+                    budget,
+                });
             }
-            let f = ((x.time_s - t0) * rate).round().max(0.0) as usize;
-            // A sample years away would ask for a huge frame table: skip it.
-            if f > 100_000_000 {
-                continue;
+            // `last` is a whole number below `most_frames`, so the cast is exact.
+            frames = vec![vec![DVec3::NAN; n]; last as usize + 1];
+            for x in s.samples.iter().filter(usable) {
+                // Within 0..=last: t0 <= time_s <= t1 and rounding keeps the order.
+                let f = ((x.time_s - t0) * rate).round() as usize;
+                if let Some(slot) = frames
+                    .get_mut(f)
+                    .and_then(|row| row.get_mut(x.marker as usize))
+                {
+                    *slot = if x.occluded { DVec3::NAN } else { x.position_m };
+                }
             }
-            if frames.len() <= f {
-                frames.resize(f + 1, vec![DVec3::NAN; n]);
-            }
-            frames[f][k] = if x.occluded { DVec3::NAN } else { x.position_m };
         }
-        Self {
+        Ok(Self {
             name: name.to_owned(),
             rate_hz: rate,
             labels: s.header.marker_names,
             frames,
             warnings: s.warnings,
             file_units: "m".into(),
-        }
+        })
     }
 
     fn nonempty(self) -> Result<Self, RecordingError> {
@@ -250,6 +340,90 @@ pub struct MarkerSummary {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::replay::session::SessionHeader;
+
+    fn session(names: usize, rate_hz: f64, samples: &[(u32, f64)]) -> Session {
+        Session {
+            header: SessionHeader {
+                marker_names: (0..names).map(|i| format!("m{i}")).collect(),
+                rate_hz,
+                started_unix_s: 0.0,
+                inputs: vec![],
+            },
+            samples: samples
+                .iter()
+                .map(|&(marker, time_s)| MarkerSample {
+                    marker,
+                    time_s,
+                    source_time_s: time_s,
+                    position_m: DVec3::new(time_s, 1.0, 2.0),
+                    occluded: false,
+                })
+                .collect(),
+            warnings: vec![],
+        }
+    }
+
+    #[test]
+    fn sessions_group_samples_into_frames_at_their_rate() {
+        // 100 Hz: 0.004 s after the first sample rounds into frame 0, 0.016 s into frame
+        // 2 (neither near a tie of the rounding). Marker 5 is not listed, NaN has no frame.
+        let s = session(
+            2,
+            100.0,
+            &[
+                (0, 10.0),
+                (1, 10.004),
+                (0, 10.016),
+                (5, 10.0),
+                (1, f64::NAN),
+            ],
+        );
+        let r = Recording::from_session("s", s, 1000).unwrap();
+        assert_eq!(r.frames.len(), 3);
+        assert_eq!(r.frames[0][0], DVec3::new(10.0, 1.0, 2.0));
+        assert_eq!(r.frames[0][1], DVec3::new(10.004, 1.0, 2.0));
+        assert!(!r.frames[1][0].is_finite() && !r.frames[1][1].is_finite());
+        assert_eq!(r.frames[2][0], DVec3::new(10.016, 1.0, 2.0));
+    }
+
+    #[test]
+    fn a_session_table_is_held_to_the_position_budget() {
+        // Two samples 800,000 s apart at 120 Hz: 96 million frames for a small file.
+        let far = session(2, 120.0, &[(0, 0.0), (1, 800_000.0)]);
+        match Recording::from_session("s", far, 233) {
+            Err(RecordingError::TooLong {
+                frames,
+                markers: 2,
+                budget,
+                ..
+            }) => {
+                assert_eq!(frames, 96_000_001.0);
+                assert_eq!(budget, FREE_POSITIONS + 233 * POSITIONS_PER_BYTE);
+            }
+            other => panic!("{other:?}"),
+        }
+        // Times whose difference overflows.
+        let inf = session(1, 120.0, &[(0, -1e308), (0, 1e308)]);
+        assert!(matches!(
+            Recording::from_session("s", inf, 100),
+            Err(RecordingError::TooLong { frames, .. }) if frames.is_infinite()
+        ));
+        // The largest table the budget allows is read.
+        let markers = 4;
+        let last = (position_budget(0) / markers - 1) as f64;
+        let edge = session(markers, 100.0, &[(0, 0.0), (3, last / 100.0)]);
+        assert_eq!(
+            Recording::from_session("s", edge, 0).unwrap().frames.len(),
+            position_budget(0) / markers
+        );
+        for rate_hz in [0.0, -100.0, f64::NAN, 1e9] {
+            assert!(matches!(
+                Recording::from_session("s", session(1, rate_hz, &[(0, 0.0)]), 100),
+                Err(RecordingError::Rate { .. })
+            ));
+        }
+    }
 
     #[test]
     fn summary_counts_gaps_per_marker_and_bounds_present_samples() {

@@ -1,13 +1,21 @@
 //! Session files (`.rlsession`, `protocols/session.md`): every marker sample the daemon
 //! received, from every input, with its source and receive times; append-only, framed and
 //! checksummed, so a file cut anywhere (a `kill -9`, a full disk) still reads up to its
-//! last whole record.
+//! last whole record, and a damaged record costs only itself: the reader scans forward to
+//! the next record that frames and checksums correctly and warns of the bytes it skipped.
+//!
+//! Hostile files: the header's rate, marker names and inputs are range-checked
+//! ([`MAX_MARKERS`], [`MAX_INPUTS`], the rates of `recording`), the scan for the next
+//! record checksums at most [`RESYNC_CHECKSUM_BYTES_PER_BYTE`] bytes per byte of the
+//! file, and at most [`MAX_WARNINGS`] warnings are kept.
 //!
 //! The codec is pure (bytes in, records out); [`SessionWriter`] adds the file and the
 //! bounded flush interval, driven by times passed in.
 
+use super::recording::{rate_in_range, MAX_RATE_HZ, MIN_RATE_HZ};
 use crate::markers::MarkerSample;
 use glam::DVec3;
+use serde::de::{Deserializer, IgnoredAny, SeqAccess, Visitor};
 use std::io::Write;
 
 /// The 16 bytes a session file starts with.
@@ -18,6 +26,18 @@ pub const VERSION: u32 = 1;
 pub const MAX_RECORD_LEN: u32 = 16 << 20;
 /// Bytes per sample in a samples record.
 pub const SAMPLE_LEN: usize = 4 + 8 + 8 + 3 * 4 + 1;
+/// Most marker names a session header may list (a character's markers: the body has 36).
+pub const MAX_MARKERS: usize = 10_000;
+/// Most input names a session header may list (a stage config's inputs).
+pub const MAX_INPUTS: usize = 1024;
+/// Most warnings a read keeps; one more counts those left out.
+pub const MAX_WARNINGS: usize = 64;
+/// Bytes the reader may checksum, per byte of the file (plus 1 MiB), while it looks for
+/// the next whole record after a damaged one. Real damage costs about the next record's
+/// length; this keeps a file crafted full of near-records linear.
+pub const RESYNC_CHECKSUM_BYTES_PER_BYTE: usize = 4;
+/// Bytes of framing around a payload: `u32 len`, `u8 kind`, `u32 crc`.
+const FRAMING: usize = 4 + 1 + 4;
 
 const KIND_HEADER: u8 = 1;
 const KIND_SAMPLES: u8 = 2;
@@ -121,100 +141,316 @@ pub enum SessionError {
     NoHeader,
     #[error("header record: {what}")]
     Header { what: String },
+    #[error("header record: rate_hz {rate_hz:?} is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz")]
+    Rate { rate_hz: f64 },
+    #[error("header record: {count} marker_names (at most {MAX_MARKERS})")]
+    Markers { count: usize },
+    #[error("header record: {count} inputs (at most {MAX_INPUTS})")]
+    Inputs { count: usize },
 }
 
-/// Reads a session; a cut or damaged record ends the reading with a warning, keeping every
-/// sample before it.
+/// Names read from a header (at most `MAX` of them kept) and how many it lists: the
+/// header is refused past `MAX` without storing the rest.
+struct Counted<const MAX: usize> {
+    names: Vec<String>,
+    count: usize,
+}
+
+impl<'de, const MAX: usize> serde::Deserialize<'de> for Counted<MAX> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<const MAX: usize>;
+        impl<'de, const MAX: usize> Visitor<'de> for V<MAX> {
+            type Value = Counted<MAX>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a list of strings")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut names = Vec::new();
+                let mut count = 0usize;
+                while count < MAX {
+                    match seq.next_element::<String>()? {
+                        Some(n) => names.push(n),
+                        None => return Ok(Counted { names, count }),
+                    }
+                    count += 1;
+                }
+                while seq.next_element::<IgnoredAny>()?.is_some() {
+                    count = count.saturating_add(1);
+                }
+                Ok(Counted { names, count })
+            }
+        }
+        d.deserialize_seq(V::<MAX>)
+    }
+}
+
+/// The header record as read, before its counts and rate are checked.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawHeader {
+    marker_names: Counted<MAX_MARKERS>,
+    rate_hz: f64,
+    started_unix_s: f64,
+    inputs: Counted<MAX_INPUTS>,
+}
+
+/// Parses and checks the header record's payload.
+fn parse_header(payload: &[u8]) -> Result<SessionHeader, SessionError> {
+    let h: RawHeader = serde_json::from_slice(payload).map_err(|e| SessionError::Header {
+        what: e.to_string(),
+    })?;
+    if h.marker_names.count > MAX_MARKERS {
+        return Err(SessionError::Markers {
+            count: h.marker_names.count,
+        });
+    }
+    if h.inputs.count > MAX_INPUTS {
+        return Err(SessionError::Inputs {
+            count: h.inputs.count,
+        });
+    }
+    if !rate_in_range(h.rate_hz) {
+        return Err(SessionError::Rate { rate_hz: h.rate_hz });
+    }
+    Ok(SessionHeader {
+        marker_names: h.marker_names.names,
+        rate_hz: h.rate_hz,
+        started_unix_s: h.started_unix_s,
+        inputs: h.inputs.names,
+    })
+}
+
+/// A whole record: its kind, its payload and the offset just past it.
+struct Record<'a> {
+    kind: u8,
+    payload: &'a [u8],
+    end: usize,
+}
+
+/// Why the bytes at an offset are not a whole record.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Broken {
+    /// Fewer than 4 bytes left.
+    LengthCut,
+    /// The length field is over [`MAX_RECORD_LEN`].
+    TooLong {
+        len: u32,
+    },
+    /// The record runs past the end of the file.
+    Cut,
+    Checksum,
+}
+
+impl Broken {
+    /// What happened at byte `at`, for a warning.
+    fn describe(self, at: usize) -> String {
+        match self {
+            Broken::LengthCut => format!("file ends inside a record length at byte {at}"),
+            Broken::TooLong { len } => {
+                format!("record at byte {at} claims {len} bytes (at most {MAX_RECORD_LEN})")
+            }
+            Broken::Cut => format!("file ends inside the record at byte {at}"),
+            Broken::Checksum => format!("record at byte {at} fails its checksum"),
+        }
+    }
+}
+
+fn u32_at(b: &[u8], at: usize) -> Option<u32> {
+    let c = b.get(at..at.checked_add(4)?)?;
+    Some(u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+}
+
+/// Where the record at `at` ends, if its length is acceptable and it fits in the file.
+fn frame_end(b: &[u8], at: usize) -> Result<usize, Broken> {
+    let len = u32_at(b, at).ok_or(Broken::LengthCut)?;
+    if len > MAX_RECORD_LEN {
+        return Err(Broken::TooLong { len });
+    }
+    // `len` is at most 16 MiB, and `at` lies within the file: no overflow.
+    let end = at + FRAMING + len as usize;
+    if end > b.len() {
+        return Err(Broken::Cut);
+    }
+    Ok(end)
+}
+
+/// The record at `at`, framed and checksummed.
+fn record_at(b: &[u8], at: usize) -> Result<Record<'_>, Broken> {
+    let end = frame_end(b, at)?;
+    let body = &b[at + 4..end - 4];
+    if u32_at(b, end - 4) != Some(crc32(body)) {
+        return Err(Broken::Checksum);
+    }
+    Ok(Record {
+        kind: body[0],
+        payload: &body[1..],
+        end,
+    })
+}
+
+/// Whether the bytes at `at` could be a record of a known kind, short of its checksum: a
+/// header's payload opens with `{`; a samples record's count matches its length.
+fn plausible(b: &[u8], at: usize) -> Option<usize> {
+    let end = frame_end(b, at).ok()?;
+    let payload = &b[at + 5..end - 4];
+    let fits = match b[at + 4] {
+        KIND_HEADER => payload.first() == Some(&b'{'),
+        KIND_SAMPLES => u32_at(payload, 0).is_some_and(|n| {
+            (n as usize)
+                .checked_mul(SAMPLE_LEN)
+                .and_then(|x| x.checked_add(4))
+                == Some(payload.len())
+        }),
+        _ => false,
+    };
+    fits.then_some(end)
+}
+
+/// How a scan for the next whole record ended.
+enum Resync {
+    Found(usize),
+    NotFound,
+    /// The checksum budget ran out at this offset.
+    GaveUp(usize),
+}
+
+/// The offset of the next whole record of a known kind at or after `from`, checksumming
+/// at most `budget` bytes (what is used is taken off it).
+fn resync(b: &[u8], from: usize, budget: &mut usize) -> Resync {
+    for at in from..b.len() {
+        let Some(end) = plausible(b, at) else {
+            continue;
+        };
+        let cost = end - at - 8;
+        if cost > *budget {
+            return Resync::GaveUp(at);
+        }
+        *budget -= cost;
+        if record_at(b, at).is_ok() {
+            return Resync::Found(at);
+        }
+    }
+    Resync::NotFound
+}
+
+/// Warnings, at most [`MAX_WARNINGS`] of them, then a count of the rest.
+#[derive(Default)]
+struct Warnings {
+    kept: Vec<String>,
+    left_out: usize,
+}
+
+impl Warnings {
+    fn push(&mut self, w: impl FnOnce() -> String) {
+        if self.kept.len() < MAX_WARNINGS {
+            self.kept.push(w());
+        } else {
+            self.left_out += 1;
+        }
+    }
+
+    fn finish(mut self) -> Vec<String> {
+        if self.left_out > 0 {
+            self.kept
+                .push(format!("{} more warnings left out", self.left_out));
+        }
+        self.kept
+    }
+}
+
+/// Appends a samples record's samples; `false` when its count does not match its length.
+fn read_samples(payload: &[u8], samples: &mut Vec<MarkerSample>) -> bool {
+    let n = u32_at(payload, 0).map_or(0, |n| n as usize);
+    if n.checked_mul(SAMPLE_LEN).and_then(|x| x.checked_add(4)) != Some(payload.len()) {
+        return false;
+    }
+    samples.reserve(n);
+    for c in payload[4..].chunks_exact(SAMPLE_LEN) {
+        let f64_at = |i: usize| f64::from_le_bytes(std::array::from_fn(|k| c[i + k]));
+        let f32_at = |i: usize| f32::from_le_bytes(std::array::from_fn(|k| c[i + k])) as f64;
+        samples.push(MarkerSample {
+            marker: u32::from_le_bytes([c[0], c[1], c[2], c[3]]),
+            time_s: f64_at(4),
+            source_time_s: f64_at(12),
+            position_m: DVec3::new(f32_at(20), f32_at(24), f32_at(28)),
+            occluded: c[32] & 1 != 0,
+        });
+    }
+    true
+}
+
+/// Reads a session. A damaged record is skipped: the reader scans forward to the next
+/// record that frames and checksums correctly, with a warning naming the offset and the
+/// bytes skipped; a file cut short keeps every whole record before the cut.
 pub fn read_session(b: &[u8]) -> Result<Session, SessionError> {
     if b.len() < 20 || b[..16] != MAGIC {
         return Err(SessionError::BadMagic);
     }
-    let version = u32::from_le_bytes(b[16..20].try_into().expect("4 bytes"));
+    let version = u32_at(b, 16).unwrap_or(0);
     if version != VERSION {
         return Err(SessionError::Version { found: version });
     }
+    let mut budget = b
+        .len()
+        .saturating_mul(RESYNC_CHECKSUM_BYTES_PER_BYTE)
+        .saturating_add(1 << 20);
     let mut at = 20;
     let mut header = None;
     let mut samples = Vec::new();
-    let mut warnings = Vec::new();
+    let mut warnings = Warnings::default();
     while at < b.len() {
-        let Some(len) = b
-            .get(at..at + 4)
-            .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")))
-        else {
-            warnings.push(format!(
-                "file ends inside a record length at byte {at}; kept what came before"
-            ));
-            break;
+        let rec = match record_at(b, at) {
+            Ok(rec) => rec,
+            Err(broken) => match resync(b, at + 1, &mut budget) {
+                Resync::Found(next) => {
+                    warnings.push(|| {
+                        format!(
+                            "{}; skipped {} bytes to the next whole record at byte {next}",
+                            broken.describe(at),
+                            next - at
+                        )
+                    });
+                    at = next;
+                    continue;
+                }
+                Resync::NotFound => {
+                    warnings.push(|| {
+                        format!(
+                            "{}; no whole record after it, kept what came before",
+                            broken.describe(at)
+                        )
+                    });
+                    break;
+                }
+                Resync::GaveUp(stop) => {
+                    warnings.push(|| {
+                        format!(
+                            "{}; gave up looking for the next whole record at byte {stop} (checksum budget spent), kept what came before",
+                            broken.describe(at)
+                        )
+                    });
+                    break;
+                }
+            },
         };
-        if len > MAX_RECORD_LEN {
-            warnings.push(format!(
-                "record at byte {at} claims {len} bytes; stopped there"
-            ));
-            break;
-        }
-        let body = at + 4;
-        let end = body + 1 + len as usize + 4;
-        if end > b.len() {
-            warnings.push(format!(
-                "file ends inside the record at byte {at} (cut short, e.g. by a kill); kept what came before"
-            ));
-            break;
-        }
-        let crc = u32::from_le_bytes(b[end - 4..end].try_into().expect("4 bytes"));
-        if crc32(&b[body..end - 4]) != crc {
-            warnings.push(format!(
-                "record at byte {at} fails its checksum; stopped there"
-            ));
-            break;
-        }
-        let kind = b[body];
-        let payload = &b[body + 1..end - 4];
-        match kind {
-            KIND_HEADER => {
-                let h: SessionHeader =
-                    serde_json::from_slice(payload).map_err(|e| SessionError::Header {
-                        what: e.to_string(),
-                    })?;
-                header = Some(h);
-            }
+        match rec.kind {
+            KIND_HEADER => header = Some(parse_header(rec.payload)?),
             KIND_SAMPLES => {
-                let n = payload.get(..4).map_or(0, |c| {
-                    u32::from_le_bytes(c.try_into().expect("4 bytes")) as usize
-                });
-                if payload.len() != 4 + n * SAMPLE_LEN {
-                    warnings.push(format!(
-                        "samples record at byte {at} has the wrong length; skipped"
-                    ));
-                } else {
-                    for c in payload[4..].chunks_exact(SAMPLE_LEN) {
-                        let f32_at =
-                            |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().expect("4 bytes"));
-                        samples.push(MarkerSample {
-                            marker: u32::from_le_bytes(c[0..4].try_into().expect("4 bytes")),
-                            time_s: f64::from_le_bytes(c[4..12].try_into().expect("8 bytes")),
-                            source_time_s: f64::from_le_bytes(
-                                c[12..20].try_into().expect("8 bytes"),
-                            ),
-                            position_m: DVec3::new(
-                                f32_at(20) as f64,
-                                f32_at(24) as f64,
-                                f32_at(28) as f64,
-                            ),
-                            occluded: c[32] & 1 != 0,
-                        });
-                    }
+                if !read_samples(rec.payload, &mut samples) {
+                    warnings.push(|| {
+                        format!("samples record at byte {at} has the wrong length; skipped")
+                    });
                 }
             }
-            other => warnings.push(format!("unknown record kind {other} at byte {at}; skipped")),
+            other => warnings.push(|| format!("unknown record kind {other} at byte {at}; skipped")),
         }
-        at = end;
+        at = rec.end;
     }
     let header = header.ok_or(SessionError::NoHeader)?;
     Ok(Session {
         header,
         samples,
-        warnings,
+        warnings: warnings.finish(),
     })
 }
 
@@ -418,12 +654,130 @@ mod tests {
             assert_eq!(s.samples.len(), 3 * whole, "cut at {cut}");
             assert_eq!(s.warnings.is_empty(), (cut - start_len) % record_len == 0);
         }
-        // A flipped byte in record 3 keeps records 1 and 2.
-        let mut d = b.clone();
-        d[start_len + 2 * record_len + 10] ^= 0x40;
+    }
+
+    #[test]
+    fn a_damaged_record_costs_only_itself() {
+        let b = file(5);
+        let start_len = {
+            let mut v = Vec::new();
+            encode_start(&header(), &mut v);
+            v.len()
+        };
+        let record_len = (b.len() - start_len) / 5;
+        let third = start_len + 2 * record_len;
+        // A flipped byte in record 3's payload, then in its length field (which makes it
+        // claim more than the file, or more than 16 MiB): records 1, 2, 4 and 5 stay.
+        for (offset, flip) in [(10, 0x40), (0, 0x01), (2, 0x10), (3, 0x80)] {
+            let mut d = b.clone();
+            d[third + offset] ^= flip;
+            let s = read_session(&d).unwrap();
+            assert_eq!(s.samples.len(), 12, "byte {offset}");
+            assert_eq!(&s.samples[6..9], &samples(3)[..]);
+            assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
+            let w = &s.warnings[0];
+            assert!(w.contains(&format!("at byte {third}")), "{w}");
+            assert!(w.contains(&format!("skipped {record_len} bytes")), "{w}");
+            assert!(
+                w.contains(&format!("record at byte {}", third + record_len)),
+                "{w}"
+            );
+        }
+        // Garbage between two records is skipped the same way.
+        let mut d = b[..third].to_vec();
+        d.extend_from_slice(&[0xAB; 100]);
+        d.extend_from_slice(&b[third..]);
         let s = read_session(&d).unwrap();
-        assert_eq!(s.samples.len(), 6);
-        assert!(s.warnings[0].contains("checksum"));
+        assert_eq!(s.samples.len(), 15);
+        assert!(
+            s.warnings[0].contains("skipped 100 bytes"),
+            "{:?}",
+            s.warnings
+        );
+    }
+
+    #[test]
+    fn the_scan_for_the_next_record_is_bounded() {
+        // After a damaged record, a run of near-records: each 9-byte group claims a
+        // samples record of 29,000 samples running to the end of the file, so that every
+        // one of them is worth checksumming. The scan stops within its budget.
+        let mut b = file(1);
+        let n: u32 = 29_000;
+        let len = 4 + n * SAMPLE_LEN as u32;
+        b.extend_from_slice(&[0xFF; 8]);
+        while b.len() < 2 * len as usize {
+            b.extend_from_slice(&len.to_le_bytes());
+            b.push(KIND_SAMPLES);
+            b.extend_from_slice(&n.to_le_bytes());
+        }
+        let s = read_session(&b).unwrap();
+        assert_eq!(s.samples.len(), 3);
+        assert!(s.warnings[0].contains("gave up"), "{:?}", s.warnings);
+    }
+
+    #[test]
+    fn warnings_are_bounded() {
+        let mut b = file(1);
+        for _ in 0..1000 {
+            put_record(&mut b, 7, b"x");
+        }
+        let s = read_session(&b).unwrap();
+        assert_eq!(s.warnings.len(), MAX_WARNINGS + 1);
+        assert_eq!(
+            s.warnings[MAX_WARNINGS],
+            format!("{} more warnings left out", 1000 - MAX_WARNINGS)
+        );
+    }
+
+    fn with_header_json(json: &str) -> Result<Session, SessionError> {
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&VERSION.to_le_bytes());
+        put_record(&mut b, KIND_HEADER, json.as_bytes());
+        read_session(&b)
+    }
+
+    #[test]
+    fn header_values_out_of_range_are_named() {
+        let json = |names: &str, rate: &str, inputs: &str| {
+            format!(
+                r#"{{"marker_names":[{names}],"rate_hz":{rate},"started_unix_s":0,"inputs":[{inputs}]}}"#
+            )
+        };
+        for (rate, value) in [
+            ("0", 0.0),
+            ("-100", -100.0),
+            ("1e9", 1e9),
+            ("5e-324", 5e-324),
+        ] {
+            assert_eq!(
+                with_header_json(&json(r#""a""#, rate, "")).unwrap_err(),
+                SessionError::Rate { rate_hz: value }
+            );
+        }
+        let many = vec![r#""m""#; MAX_MARKERS + 5].join(",");
+        assert_eq!(
+            with_header_json(&json(&many, "120", "")).unwrap_err(),
+            SessionError::Markers {
+                count: MAX_MARKERS + 5
+            }
+        );
+        let many = vec![r#""i""#; MAX_INPUTS + 1].join(",");
+        assert_eq!(
+            with_header_json(&json(r#""a""#, "120", &many)).unwrap_err(),
+            SessionError::Inputs {
+                count: MAX_INPUTS + 1
+            }
+        );
+        // At the limits: read.
+        let names = vec![r#""m""#; MAX_MARKERS].join(",");
+        let h = with_header_json(&json(&names, "100000", ""))
+            .unwrap()
+            .header;
+        assert_eq!((h.marker_names.len(), h.rate_hz), (MAX_MARKERS, 100_000.0));
+        assert!(matches!(
+            with_header_json(&json(r#""a""#, "120", "").replace("inputs", "inputz")),
+            Err(SessionError::Header { .. })
+        ));
     }
 
     proptest! {

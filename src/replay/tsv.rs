@@ -3,7 +3,13 @@
 //! line per frame with X Y Z per marker in millimetres, Z up. Read into metres, Y up
 //! (right-handed: `(x, y, z)` becomes `(x, z, -y)`). Missing samples (`NaN`, empty fields,
 //! or an exact `0 0 0` as older exports write) become NaN.
+//!
+//! Hostile files: `FREQUENCY` is held to `recording`'s rate limits and `MARKER_NAMES` to
+//! [`MAX_MARKERS`]; a frame's positions (24 bytes each) come from its line's fields (at
+//! least 3 bytes each), so the file's length bounds the frames. Lines are read field by
+//! field, without a field table.
 
+use super::recording::{rate_in_range, MAX_RATE_HZ, MIN_RATE_HZ};
 use crate::geom::axes::y_up_from_z_up;
 use glam::DVec3;
 
@@ -22,8 +28,16 @@ pub struct TsvRecording {
 /// Why a TSV file cannot be read, with its line (1-based).
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum TsvError {
-    #[error("line {line}: {what}")]
-    Header { line: usize, what: String },
+    #[error("line {line}: {field} {text:?} is not a number")]
+    HeaderNumber {
+        line: usize,
+        field: &'static str,
+        text: String,
+    },
+    #[error("line {line}: FREQUENCY {value:?} Hz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz")]
+    Rate { line: usize, value: f64 },
+    #[error("line {line}: {count} MARKER_NAMES (1 to {MAX_MARKERS})")]
+    MarkerCount { line: usize, count: usize },
     #[error("no MARKER_NAMES line before the data")]
     NoMarkerNames,
     #[error("no FREQUENCY line before the data")]
@@ -40,6 +54,81 @@ pub enum TsvError {
         column: usize,
         text: String,
     },
+}
+
+/// A header line's value (`FREQUENCY`, `MARKER_NAMES`) taken into `rate_hz` or `names`;
+/// other header lines are ignored.
+fn header_line<'a>(
+    n: usize,
+    first: &str,
+    mut fields: impl Iterator<Item = &'a str> + Clone,
+    rate_hz: &mut Option<f64>,
+    names: &mut Option<Vec<String>>,
+) -> Result<(), TsvError> {
+    match first {
+        "FREQUENCY" => {
+            let v = fields.next().unwrap_or("").trim();
+            let f: f64 = v.parse().map_err(|_| TsvError::HeaderNumber {
+                line: n,
+                field: "FREQUENCY",
+                text: v.chars().take(32).collect(),
+            })?;
+            if !rate_in_range(f) {
+                return Err(TsvError::Rate { line: n, value: f });
+            }
+            *rate_hz = Some(f);
+        }
+        "MARKER_NAMES" => {
+            let count = fields.clone().count();
+            if count == 0 || count > MAX_MARKERS {
+                return Err(TsvError::MarkerCount { line: n, count });
+            }
+            *names = Some(fields.map(|s| s.trim().to_owned()).collect());
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// One frame line: 3 values per marker after `skip` leading columns, in metres, Y up.
+fn frame_line(n: usize, line: &str, skip: usize, markers: usize) -> Result<Vec<DVec3>, TsvError> {
+    let expected = skip + 3 * markers;
+    let mut values = line.split('\t');
+    let columns = || TsvError::Columns {
+        line: n,
+        expected,
+        found: line.split('\t').count(),
+    };
+    let mut row = Vec::with_capacity(markers);
+    for _ in 0..skip {
+        values.next().ok_or_else(columns)?;
+    }
+    for k in 0..markers {
+        let mut c = [0.0f64; 3];
+        for (a, slot) in c.iter_mut().enumerate() {
+            let s = values.next().ok_or_else(columns)?.trim();
+            *slot = if s.is_empty() || s.eq_ignore_ascii_case("nan") {
+                f64::NAN
+            } else {
+                s.parse().map_err(|_| TsvError::Number {
+                    line: n,
+                    column: skip + 3 * k + a + 1,
+                    text: s.chars().take(32).collect(),
+                })?
+            };
+        }
+        let p = if c == [0.0; 3] || c.iter().any(|v| !v.is_finite()) {
+            DVec3::NAN
+        } else {
+            y_up_from_z_up(DVec3::new(c[0], c[1], c[2])) * 1e-3
+        };
+        row.push(p);
+    }
+    // Trailing empty columns are allowed (some exports end lines with a tab).
+    if values.any(|v| !v.trim().is_empty()) {
+        return Err(columns());
+    }
+    Ok(row)
 }
 
 /// Parses a TSV export from its text.
@@ -62,33 +151,10 @@ pub fn parse_tsv(text: &str) -> Result<TsvRecording, TsvError> {
             .next()
             .is_some_and(|c| c.is_ascii_digit() || c == '-' || c == '.');
         if !starts_numeric && frames.is_empty() {
-            match first {
-                "FREQUENCY" => {
-                    let v = fields.next().unwrap_or("").trim();
-                    let f: f64 = v.parse().map_err(|_| TsvError::Header {
-                        line: n,
-                        what: format!("FREQUENCY {v:?} is not a number"),
-                    })?;
-                    if !(f.is_finite() && f > 0.0 && f <= 100_000.0) {
-                        return Err(TsvError::Header {
-                            line: n,
-                            what: format!("FREQUENCY {f} is not a rate in Hz"),
-                        });
-                    }
-                    rate_hz = Some(f);
-                }
-                "MARKER_NAMES" => {
-                    let v: Vec<String> = fields.map(|s| s.trim().to_owned()).collect();
-                    if v.is_empty() || v.len() > MAX_MARKERS {
-                        return Err(TsvError::Header {
-                            line: n,
-                            what: format!("{} marker names (1 to {MAX_MARKERS})", v.len()),
-                        });
-                    }
-                    names = Some(v);
-                }
-                "Frame" => has_frame_time = true,
-                _ => {}
+            if first == "Frame" {
+                has_frame_time = true;
+            } else {
+                header_line(n, first, fields, &mut rate_hz, &mut names)?;
             }
             continue;
         }
@@ -97,41 +163,7 @@ pub fn parse_tsv(text: &str) -> Result<TsvRecording, TsvError> {
             return Err(TsvError::NoFrequency);
         }
         let skip = if has_frame_time { 2 } else { 0 };
-        let expected = skip + 3 * names.len();
-        let values: Vec<&str> = line.split('\t').collect();
-        // Trailing empty columns are allowed (some exports end lines with a tab).
-        let found = values.len();
-        if found < expected || values[expected..].iter().any(|v| !v.trim().is_empty()) {
-            return Err(TsvError::Columns {
-                line: n,
-                expected,
-                found,
-            });
-        }
-        let mut row = Vec::with_capacity(names.len());
-        for k in 0..names.len() {
-            let mut c = [0.0f64; 3];
-            for (a, slot) in c.iter_mut().enumerate() {
-                let col = skip + 3 * k + a;
-                let s = values[col].trim();
-                *slot = if s.is_empty() || s.eq_ignore_ascii_case("nan") {
-                    f64::NAN
-                } else {
-                    s.parse().map_err(|_| TsvError::Number {
-                        line: n,
-                        column: col + 1,
-                        text: s.chars().take(32).collect(),
-                    })?
-                };
-            }
-            let p = if c == [0.0; 3] || c.iter().any(|v| !v.is_finite()) {
-                DVec3::NAN
-            } else {
-                y_up_from_z_up(DVec3::new(c[0], c[1], c[2])) * 1e-3
-            };
-            row.push(p);
-        }
-        frames.push(row);
+        frames.push(frame_line(n, line, skip, names.len())?);
     }
     Ok(TsvRecording {
         rate_hz: rate_hz.ok_or(TsvError::NoFrequency)?,
@@ -177,6 +209,57 @@ mod tests {
             parse_tsv(&short),
             Err(TsvError::Columns { line: 6, .. })
         ));
+    }
+
+    #[test]
+    fn header_values_out_of_range_are_named() {
+        for (text, value) in [
+            ("0", 0.0),
+            ("-100", -100.0),
+            ("1e-300", 1e-300),
+            ("1e9", 1e9),
+        ] {
+            let t = SMALL.replace("FREQUENCY\t100", &format!("FREQUENCY\t{text}"));
+            assert_eq!(
+                parse_tsv(&t).unwrap_err(),
+                TsvError::Rate { line: 2, value }
+            );
+        }
+        let t = SMALL.replace("FREQUENCY\t100", "FREQUENCY\tfast");
+        assert_eq!(
+            parse_tsv(&t).unwrap_err(),
+            TsvError::HeaderNumber {
+                line: 2,
+                field: "FREQUENCY",
+                text: "fast".into()
+            }
+        );
+        let many = "\tm".repeat(MAX_MARKERS + 1);
+        let t = SMALL.replace("MARKER_NAMES\ta\tb", &format!("MARKER_NAMES{many}"));
+        assert_eq!(
+            parse_tsv(&t).unwrap_err(),
+            TsvError::MarkerCount {
+                line: 3,
+                count: MAX_MARKERS + 1
+            }
+        );
+        let t = SMALL.replace("MARKER_NAMES\ta\tb", "MARKER_NAMES");
+        assert_eq!(
+            parse_tsv(&t).unwrap_err(),
+            TsvError::MarkerCount { line: 3, count: 0 }
+        );
+        // Trailing tabs are allowed, a value past the last marker is not.
+        let t = SMALL.replace("\t5\n", "\t5\t\t\n");
+        assert_eq!(parse_tsv(&t).unwrap().frames.len(), 2);
+        let t = SMALL.replace("\t5\n", "\t5\t\t7\n");
+        assert_eq!(
+            parse_tsv(&t).unwrap_err(),
+            TsvError::Columns {
+                line: 6,
+                expected: 8,
+                found: 10
+            }
+        );
     }
 
     proptest! {
