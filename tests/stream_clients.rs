@@ -7,6 +7,7 @@ use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::character::session::{SyntheticParams, SyntheticSession};
 use rigless::daemon::pipeline::Pipeline;
 use rigless::markers::buffer::{BufferConfig, MarkerBuffer};
+use rigless::output::config::StreamOutputConfig;
 use rigless::output::scene::Scene;
 use rigless::output::stream::StreamServer;
 use rigless::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
@@ -53,8 +54,11 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
     let mut pipeline = Pipeline::new(solver, buffer, rx, vec![Arc::clone(&slot)]);
     let loopback = "127.0.0.1:0".parse().unwrap();
     let server = StreamServer::start(
-        Some(loopback),
-        Some(loopback),
+        &StreamOutputConfig {
+            tcp: Some(loopback),
+            websocket: Some(loopback),
+            ..StreamOutputConfig::default()
+        },
         &Scene::of_rig(&rig, "hand", 120.0).topology(),
         slot,
     )
@@ -157,4 +161,113 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
     server.shutdown("test over");
     assert_eq!(tcp_reader.join().unwrap(), "test over");
     assert_eq!(ws_reader.join().unwrap().as_deref(), Some("test over"));
+}
+
+/// A small topology (no rig needed) for the server tests below.
+fn small_topology() -> rigless::protocol::vertex_stream::Topology {
+    rigless::protocol::vertex_stream::Topology {
+        character: "tiny".into(),
+        rate_hz: 100.0,
+        length_unit: "m".into(),
+        up_axis: "+Y".into(),
+        handedness: "right".into(),
+        vertex_count: 3,
+        triangles: vec![[0, 1, 2]],
+        marker_names: vec!["A".into(), "B".into()],
+        joint_names: vec!["root".into()],
+        joint_parents: vec![-1],
+    }
+}
+
+/// A WebSocket client of `addr` (the blocking tungstenite client, reads bounded by
+/// `TIMEOUT`) and its next binary message, decoded.
+type Ws = tokio_tungstenite::tungstenite::WebSocket<TcpStream>;
+fn ws_client(addr: std::net::SocketAddr) -> Ws {
+    let s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(TIMEOUT)).unwrap();
+    tokio_tungstenite::tungstenite::client(format!("ws://{addr}/"), s)
+        .unwrap()
+        .0
+}
+fn ws_message(ws: &mut Ws) -> Option<Message> {
+    loop {
+        match ws.read() {
+            Ok(tokio_tungstenite::tungstenite::Message::Binary(b)) => {
+                return Some(decode(&b).expect("a whole message").0)
+            }
+            Ok(tokio_tungstenite::tungstenite::Message::Close(_)) | Err(_) => return None,
+            Ok(_) => {}
+        }
+    }
+}
+
+/// With `max_clients = 4`, three TCP clients and a WebSocket one get the topology; a
+/// fifth over TCP and a sixth over WebSocket get a goodbye saying the server is full and
+/// are closed; once a client has hung up (noticed at the next frame), a new one is
+/// served.
+#[test]
+fn clients_over_max_clients_are_told_the_server_is_full() {
+    let loopback = "127.0.0.1:0".parse().unwrap();
+    let slot = Arc::new(LatestSlot::new());
+    let server = StreamServer::start(
+        &StreamOutputConfig {
+            tcp: Some(loopback),
+            websocket: Some(loopback),
+            max_clients: 4,
+        },
+        &small_topology(),
+        Arc::clone(&slot),
+    )
+    .unwrap();
+    let (tcp_addr, ws_addr) = (server.local_addr().unwrap(), server.ws_addr().unwrap());
+    let tcp_client = || {
+        let mut s = TcpStream::connect(tcp_addr).unwrap();
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        let first = read_message(&mut s);
+        (s, first)
+    };
+    let mut kept = Vec::new();
+    for _ in 0..3 {
+        let (s, first) = tcp_client();
+        assert!(matches!(first, Message::Topology(_)));
+        kept.push(s);
+    }
+    let mut ws = ws_client(ws_addr);
+    assert!(matches!(ws_message(&mut ws), Some(Message::Topology(_))));
+    let (mut fifth, first) = tcp_client();
+    let Message::Goodbye(reason) = first else {
+        panic!("a goodbye, not {first:?}")
+    };
+    assert_eq!(reason, "server full: 4 clients connected (its max_clients)");
+    let mut rest = Vec::new();
+    assert_eq!(fifth.read_to_end(&mut rest).unwrap(), 0, "then closed");
+    let mut sixth = ws_client(ws_addr);
+    assert!(
+        matches!(ws_message(&mut sixth), Some(Message::Goodbye(r)) if r == reason),
+        "the same goodbye over WebSocket"
+    );
+    assert!(ws_message(&mut sixth).is_none(), "then closed");
+    let stats = Arc::clone(server.stats());
+    assert_eq!(stats.refused.load(Ordering::Relaxed), 2);
+    assert_eq!(stats.connections.load(Ordering::Relaxed), 4);
+    // One leaves; frames show the server it has gone; a new client is served.
+    drop(kept.pop());
+    let start = Instant::now();
+    let mut n = 0;
+    while stats.clients.load(Ordering::Relaxed) > 3 {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "the hung-up client was not noticed"
+        );
+        let mut f = rigless::output::frame::DeformedFrame::with_sizes(2, 3, 0);
+        f.frame = n;
+        slot.publish(Arc::new(f));
+        n += 1;
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let (_seventh, first) = tcp_client();
+    assert!(matches!(first, Message::Topology(_)));
+    assert_eq!(stats.refused.load(Ordering::Relaxed), 2);
+    assert_eq!(stats.accept_errors.load(Ordering::Relaxed), 0);
+    server.shutdown("test over");
 }

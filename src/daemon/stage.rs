@@ -187,6 +187,10 @@ pub struct StreamSummary {
     pub frames_sent: u64,
     pub frames_skipped: u64,
     pub write_errors: u64,
+    /// Connections refused because `max_clients` were connected.
+    pub refused: u64,
+    /// Accepts that failed (out of file descriptors, ...).
+    pub accept_errors: u64,
 }
 
 /// What the Rerun sink did.
@@ -579,6 +583,8 @@ impl Stage {
                 frames_sent: s.frames_sent.load(Ordering::Relaxed),
                 frames_skipped: s.frames_skipped.load(Ordering::Relaxed),
                 write_errors: s.write_errors.load(Ordering::Relaxed),
+                refused: s.refused.load(Ordering::Relaxed),
+                accept_errors: s.accept_errors.load(Ordering::Relaxed),
             },
             recorded: recorded?,
             rerun: rerun?,
@@ -621,17 +627,20 @@ impl Sinks {
         let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
         let server = if tcp.is_some() || ws.is_some() {
             Some(
-                StreamServer::start(tcp, ws, &scene.topology(), Arc::clone(&stream_slot)).map_err(
-                    |source| StageError::Stream {
-                        addresses: [tcp, ws]
-                            .iter()
-                            .flatten()
-                            .map(ToString::to_string)
-                            .collect::<Vec<_>>()
-                            .join(" and "),
-                        source,
-                    },
-                )?,
+                StreamServer::start(
+                    &cfg.outputs.stream,
+                    &scene.topology(),
+                    Arc::clone(&stream_slot),
+                )
+                .map_err(|source| StageError::Stream {
+                    addresses: [tcp, ws]
+                        .iter()
+                        .flatten()
+                        .map(ToString::to_string)
+                        .collect::<Vec<_>>()
+                        .join(" and "),
+                    source,
+                })?,
             )
         } else {
             None

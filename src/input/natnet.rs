@@ -5,6 +5,13 @@
 //! learns the server's NatNet version, asks for the model definitions (marker names), and
 //! keeps a unicast stream alive.
 //!
+//! What comes from the network is checked before it changes anything: server info and
+//! model definitions are believed only from the server's command port, on the command
+//! socket (bound to the interface that reaches the server); a version the server states
+//! is on trial until a frame decodes with it, and frames that decode only with the
+//! version before send the client back to that one, said once. Every other problem is
+//! said once per kind and counted.
+//!
 //! Marker names: with model definitions, a marker set's markers are `SET:NAME` and a
 //! labelled marker of a rigid body is `BODY:NAME` (its marker set's names, by member);
 //! without them a marker set's markers are `SET_1`, `SET_2`, ... in the set's order (the
@@ -19,11 +26,12 @@ use crate::markers::index::MarkerIndex;
 use crate::markers::MarkerSample;
 use crate::protocol::natnet::{
     decode, encode_connect, encode_keepalive, encode_request_modeldef, Description, Message,
-    MocapFrame, ServerInfo, Version,
+    MocapFrame, NatNetError, ServerInfo, Version,
 };
 use crate::protocol::url::Endpoint;
 use crate::runtime::clock::{unix_now, Clock};
-use crate::runtime::net::is_wait;
+use crate::runtime::net::{is_wait, local_ip_towards};
+use crate::runtime::said::SaidOnce;
 use glam::DVec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -36,6 +44,9 @@ pub struct NatNetStats {
     pub frames: AtomicU64,
     /// Packets of other kinds (model definitions, server info, pings).
     pub other: AtomicU64,
+    /// Server info and model definitions that did not come from the server's command
+    /// port (ignored), and packets on the command socket from anyone but the server.
+    pub foreign: AtomicU64,
 }
 
 /// One marker of a frame, named.
@@ -226,10 +237,11 @@ impl NatNetInput {
             }
         }
         Ok(format!(
-            "{}; {} frames, {} other messages",
+            "{}; {} frames, {} other messages, {} ignored (not from the server)",
             stats.packets,
             stats.frames.load(Ordering::Relaxed),
-            stats.other.load(Ordering::Relaxed)
+            stats.other.load(Ordering::Relaxed),
+            stats.foreign.load(Ordering::Relaxed)
         ))
     }
 }
@@ -288,9 +300,30 @@ pub struct CommandClient {
     /// The server's answer to the connect request, once it came.
     pub server: Option<ServerInfo>,
     pub names: Option<ModelNames>,
+    /// While no frame has decoded with the version the server stated: the version
+    /// frames were decoded with before it.
+    on_trial_from: Option<Version>,
+    /// Frames in a row that decoded only with `on_trial_from`.
+    misfits: u32,
+    /// A stated version frames did not decode with: stating it again changes nothing.
+    refused: Option<Version>,
     last_connect_s: f64,
     last_request_s: f64,
     last_keepalive_s: f64,
+}
+
+/// Frames in a row that decode only with the version before the one the server stated,
+/// after which the client goes back to it for good.
+pub const FALLBACK_FRAMES: u32 = 3;
+
+/// The client went back to the version it decoded frames with before the server stated
+/// another (see [`CommandClient::decode`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FellBack {
+    /// The version the server stated, that frames did not decode with.
+    pub stated: Version,
+    /// The version frames decode with, used from now on.
+    pub kept: Version,
 }
 
 impl CommandClient {
@@ -300,6 +333,9 @@ impl CommandClient {
             unicast,
             server: None,
             names: None,
+            on_trial_from: None,
+            misfits: 0,
+            refused: None,
             last_connect_s: f64::NEG_INFINITY,
             last_request_s: f64::NEG_INFINITY,
             last_keepalive_s: f64::NEG_INFINITY,
@@ -329,12 +365,22 @@ impl CommandClient {
         None
     }
 
-    /// Takes in a message from the server; true when it changed what the client knows.
+    /// Takes in a message from the server's command port (the caller checks where it
+    /// came from); true when it changed what the client knows. A stated version other
+    /// than the one in use is on trial until a frame decodes with it (see
+    /// [`Self::decode`]).
     pub fn on_message(&mut self, m: &Message) -> bool {
         match m {
             Message::ServerInfo(info) => {
-                if (3..=4).contains(&info.natnet.0) {
-                    self.version = info.natnet;
+                let v = info.natnet;
+                if (3..=4).contains(&v.0) && v != self.version && Some(v) != self.refused {
+                    self.on_trial_from = match self.on_trial_from {
+                        Some(before) if before == v => None,
+                        Some(before) => Some(before),
+                        None => Some(self.version),
+                    };
+                    self.version = v;
+                    self.misfits = 0;
                 }
                 let fresh = self.server.as_ref() != Some(info);
                 self.server = Some(info.clone());
@@ -350,9 +396,53 @@ impl CommandClient {
         }
     }
 
-    /// Forgets the server (after it went quiet): connect again.
+    /// Decodes a packet with the version in use. While a version the server stated is
+    /// on trial, a frame that does not decode with it but does with the version before
+    /// comes out decoded with that one; [`FALLBACK_FRAMES`] such frames in a row send the
+    /// client back to it for good, which is returned once (for the caller to say). The
+    /// first frame that decodes with the stated version ends the trial.
+    pub fn decode(&mut self, b: &[u8]) -> (Result<Message, NatNetError>, Option<FellBack>) {
+        let r = decode(b, self.version);
+        let Some(before) = self.on_trial_from else {
+            return (r, None);
+        };
+        match r {
+            Ok(Message::Frame(_)) => {
+                self.on_trial_from = None;
+                self.misfits = 0;
+                (r, None)
+            }
+            Err(e) => match decode(b, before) {
+                Ok(m @ Message::Frame(_)) => {
+                    self.misfits += 1;
+                    if self.misfits < FALLBACK_FRAMES {
+                        return (Ok(m), None);
+                    }
+                    let fell = FellBack {
+                        stated: self.version,
+                        kept: before,
+                    };
+                    self.refused = Some(self.version);
+                    self.version = before;
+                    self.on_trial_from = None;
+                    self.misfits = 0;
+                    (Ok(m), Some(fell))
+                }
+                _ => (Err(e), None),
+            },
+            Ok(m) => (Ok(m), None),
+        }
+    }
+
+    /// Forgets the server (after it went quiet): connect again. The version in use, and
+    /// what was learnt about stated versions, stay.
     pub fn reset(&mut self) {
-        *self = Self::new(self.version, self.unicast);
+        *self = Self {
+            on_trial_from: self.on_trial_from,
+            misfits: self.misfits,
+            refused: self.refused,
+            ..Self::new(self.version, self.unicast)
+        };
     }
 }
 
@@ -363,8 +453,10 @@ pub const SERVER_SILENCE_S: f64 = 5.0;
 /// [`run`] with the command port of the server at `server` (usually port 1510): frames
 /// are decoded with the version the server states and named by its model definitions;
 /// a unicast stream is kept alive. Frames may arrive on the data socket or, as some
-/// servers send unicast data, on the command socket. `on_frame(receive_unix_s, frame,
-/// names)`.
+/// servers send unicast data, on the command socket. Server info and model definitions
+/// are believed only from `server` itself on the command socket; anything else the
+/// command socket gets from elsewhere is ignored and counted ([`NatNetStats::foreign`]).
+/// `on_frame(receive_unix_s, frame, names)`.
 pub fn run_with_server(
     data: &UdpSocket,
     command: &UdpSocket,
@@ -377,79 +469,171 @@ pub fn run_with_server(
     data.set_read_timeout(Some(
         super::udp::UDP_POLL.min(std::time::Duration::from_millis(20)),
     ))?;
-    let empty = ModelNames::default();
+    let mut conn = Connection {
+        server,
+        client,
+        stats,
+        said: SaidOnce::default(),
+        empty: ModelNames::default(),
+    };
     let mut buf = vec![0u8; 65_536];
     let mut last_heard = unix_now();
     while !stop.load(Ordering::Relaxed) {
         let now = unix_now();
-        if client.server.is_some() && now - last_heard > SERVER_SILENCE_S {
+        if conn.client.server.is_some() && now - last_heard > SERVER_SILENCE_S {
             tracing::warn!(
                 "natnet: server {server} silent for {SERVER_SILENCE_S} s; connecting again"
             );
-            client.reset();
+            conn.client.reset();
             last_heard = now;
         }
-        if let Some(p) = client.poll(now) {
+        if let Some(p) = conn.client.poll(now) {
             if let Err(e) = command.send_to(&p, server) {
-                tracing::debug!(error = %e, "natnet: command send");
+                conn.say_once(Said::Send(e.kind()), || {
+                    format!("natnet: sending to the server's command port {server} failed: {e} (said once; retried every {COMMAND_INTERVAL_S} s)")
+                });
             }
         }
         // The command socket (answers, and unicast data from some servers), then the
         // data socket (waits briefly).
-        for sock in [command, data] {
-            let (n, _) = match sock.recv_from(&mut buf) {
+        for (sock, on_command) in [(command, true), (data, false)] {
+            let (n, from) = match sock.recv_from(&mut buf) {
                 Ok(x) => x,
                 Err(e) if is_wait(&e) => continue,
                 Err(e) => {
-                    tracing::debug!(error = %e, "natnet: receive failed");
+                    conn.say_once(Said::Receive(e.kind()), || {
+                        format!("natnet: receiving failed: {e} (said once; the rest are counted as not decodable)")
+                    });
                     stats.packets.error();
                     continue;
                 }
             };
             let now = unix_now();
-            last_heard = now;
             stats.packets.received(n, now);
-            match decode(&buf[..n], client.version) {
-                Ok(Message::Frame(f)) => {
-                    stats.frames.fetch_add(1, Ordering::Relaxed);
-                    on_frame(now, &f, client.names.as_ref().unwrap_or(&empty));
-                }
-                Ok(m) => {
-                    stats.other.fetch_add(1, Ordering::Relaxed);
-                    if client.on_message(&m) {
-                        match &m {
-                            Message::ServerInfo(i) => tracing::info!(
-                                "natnet: {} {}.{}.{}.{} at {server}, NatNet {}.{}",
-                                i.app,
-                                i.app_version[0],
-                                i.app_version[1],
-                                i.app_version[2],
-                                i.app_version[3],
-                                i.natnet.0,
-                                i.natnet.1
-                            ),
-                            Message::ModelDef(d) => {
-                                tracing::info!("natnet: {} model definitions", d.len())
-                            }
-                            _ => {}
-                        }
-                    }
-                }
-                Err(_) => stats.packets.error(),
+            if conn.packet(&buf[..n], from, on_command, now, on_frame) {
+                last_heard = now;
             }
         }
     }
     Ok(())
 }
 
-/// A socket for talking to the command port of `server` (any local port, non-blocking).
+/// Kinds of problem [`run_with_server`] says once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Said {
+    Send(std::io::ErrorKind),
+    Receive(std::io::ErrorKind),
+    Decode(std::mem::Discriminant<NatNetError>),
+    /// A packet on the command socket from another host.
+    ForeignPacket,
+    /// Server info or model definitions from anywhere but the server's command port.
+    ForeignInfo,
+}
+
+/// What [`run_with_server`] keeps between packets.
+struct Connection<'a> {
+    server: SocketAddr,
+    client: &'a mut CommandClient,
+    stats: &'a NatNetStats,
+    said: SaidOnce<Said>,
+    empty: ModelNames,
+}
+
+impl Connection<'_> {
+    /// Warns with `line()` the first time a kind of problem comes.
+    fn say_once(&mut self, kind: Said, line: impl FnOnce() -> String) {
+        if self.said.first(kind) {
+            tracing::warn!("{}", line());
+        }
+    }
+
+    /// Takes one packet from `from`, received on the command socket or the data socket;
+    /// true when it shows the server is there (a frame, or anything from the server's
+    /// command port).
+    fn packet(
+        &mut self,
+        b: &[u8],
+        from: SocketAddr,
+        on_command: bool,
+        now: f64,
+        on_frame: &mut dyn FnMut(f64, &MocapFrame, &ModelNames),
+    ) -> bool {
+        let (server, stats) = (self.server, self.stats);
+        let from_server = on_command && from == server;
+        // The command socket talks to the server alone (its frames come from its address).
+        if on_command && from.ip() != server.ip() {
+            stats.foreign.fetch_add(1, Ordering::Relaxed);
+            self.say_once(Said::ForeignPacket, || format!("natnet: ignoring packets from {from} on the command socket (only the server {server} is listened to there; said once, the rest are counted)"));
+            return false;
+        }
+        let (decoded, fell_back) = self.client.decode(b);
+        if let Some(FellBack { stated, kept }) = fell_back {
+            tracing::warn!(
+                "natnet: frames from {server} do not decode as NatNet {}.{}, which its server info stated, but do as {}.{}: decoding them as {}.{} from now on",
+                stated.0, stated.1, kept.0, kept.1, kept.0, kept.1
+            );
+        }
+        let m = match decoded {
+            Ok(m) => m,
+            Err(e) => {
+                stats.packets.error();
+                self.say_once(Said::Decode(std::mem::discriminant(&e)), || {
+                    format!("natnet: a packet from {from} did not decode: {e} (said once per kind of problem; the rest are counted as not decodable)")
+                });
+                return from_server;
+            }
+        };
+        match m {
+            Message::Frame(f) => {
+                stats.frames.fetch_add(1, Ordering::Relaxed);
+                on_frame(now, &f, self.client.names.as_ref().unwrap_or(&self.empty));
+                true
+            }
+            Message::ServerInfo(_) | Message::ModelDef(_) if !from_server => {
+                stats.foreign.fetch_add(1, Ordering::Relaxed);
+                let what = if matches!(m, Message::ServerInfo(_)) {
+                    "server info"
+                } else {
+                    "model definitions"
+                };
+                self.say_once(Said::ForeignInfo, || format!("natnet: ignoring {what} from {from}: only the server's command port {server} is believed (said once, the rest are counted)"));
+                false
+            }
+            m => {
+                stats.other.fetch_add(1, Ordering::Relaxed);
+                if self.client.on_message(&m) {
+                    announce(&m, server);
+                }
+                from_server
+            }
+        }
+    }
+}
+
+/// Says what the server's command port taught the client.
+fn announce(m: &Message, server: SocketAddr) {
+    match m {
+        Message::ServerInfo(i) => tracing::info!(
+            "natnet: {} {}.{}.{}.{} at {server}, NatNet {}.{}",
+            i.app,
+            i.app_version[0],
+            i.app_version[1],
+            i.app_version[2],
+            i.app_version[3],
+            i.natnet.0,
+            i.natnet.1
+        ),
+        Message::ModelDef(d) => tracing::info!("natnet: {} model definitions", d.len()),
+        _ => {}
+    }
+}
+
+/// A socket for talking to the command port of `server`: bound to the interface that
+/// reaches it (127.0.0.1 for a server on loopback; [`local_ip_towards`]), any port,
+/// non-blocking, and not connected (some servers send unicast data to it from another
+/// port).
 pub fn command_socket(server: SocketAddr) -> std::io::Result<UdpSocket> {
-    let any: SocketAddr = if server.is_ipv4() {
-        ([0, 0, 0, 0], 0).into()
-    } else {
-        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-    };
-    let command = UdpSocket::bind(any)?;
+    let command = UdpSocket::bind((local_ip_towards(server)?, 0))?;
     command.set_nonblocking(true)?;
     Ok(command)
 }
@@ -490,10 +674,11 @@ pub fn run(
     stats: &NatNetStats,
     on_frame: &mut dyn FnMut(f64, &MocapFrame),
 ) {
+    let said = std::cell::RefCell::new(SaidOnce::default());
     super::udp::udp_loop(
         socket,
         stop,
-        &mut |now, bytes| {
+        &mut |now, from, bytes| {
             stats.packets.received(bytes.len(), now);
             match decode(bytes, version) {
                 Ok(Message::Frame(f)) => {
@@ -503,12 +688,22 @@ pub fn run(
                 Ok(_) => {
                     stats.other.fetch_add(1, Ordering::Relaxed);
                 }
-                Err(_) => stats.packets.error(),
+                Err(e) => {
+                    stats.packets.error();
+                    if said
+                        .borrow_mut()
+                        .first(Said::Decode(std::mem::discriminant(&e)))
+                    {
+                        tracing::warn!("natnet: a packet from {from} did not decode as NatNet {}.{}: {e} (said once per kind of problem; the rest are counted as not decodable)", version.0, version.1);
+                    }
+                }
             }
         },
         &mut |e| {
-            tracing::debug!(error = %e, "natnet: receive failed");
             stats.packets.error();
+            if said.borrow_mut().first(Said::Receive(e.kind())) {
+                tracing::warn!("natnet: receiving failed: {e} (said once; the rest are counted as not decodable)");
+            }
         },
     );
 }
@@ -568,6 +763,54 @@ mod tests {
             multicast_group: None,
         });
         assert_eq!(m.poll(10.0), None);
+    }
+
+    #[test]
+    fn a_stated_version_frames_do_not_decode_with_is_given_up_after_three_frames() {
+        let info = |natnet| {
+            Message::ServerInfo(ServerInfo {
+                app: "Motive".into(),
+                app_version: [3, 0, 0, 0],
+                natnet,
+                clock_hz: None,
+                data_port: None,
+                multicast_group: None,
+            })
+        };
+        let v3_frame = crate::protocol::natnet::example_frame(3);
+        assert!(decode(&v3_frame, Version(4, 1)).is_err(), "the premise");
+        let mut c = CommandClient::new(Version(3, 0), true);
+        c.on_message(&info(Version(4, 1)));
+        assert_eq!(c.version, Version(4, 1));
+        // Frames 1 and 2 come out decoded as 3.0; the third also sends the client back.
+        for _ in 0..FALLBACK_FRAMES - 1 {
+            let (m, fell) = c.decode(&v3_frame);
+            assert!(matches!(m, Ok(Message::Frame(_))));
+            assert_eq!(fell, None);
+        }
+        let (m, fell) = c.decode(&v3_frame);
+        assert!(matches!(m, Ok(Message::Frame(_))));
+        assert_eq!(
+            fell,
+            Some(FellBack {
+                stated: Version(4, 1),
+                kept: Version(3, 0)
+            })
+        );
+        assert_eq!(c.version, Version(3, 0));
+        // Stating 4.1 again changes nothing, even after a reset; garbage stays garbage.
+        c.reset();
+        c.on_message(&info(Version(4, 1)));
+        assert_eq!(c.version, Version(3, 0));
+        assert_eq!(c.decode(&v3_frame).1, None);
+        assert!(c.decode(b"junk").0.is_err());
+        // A version whose frames do decode ends its trial at the first frame: 4.0 here,
+        // whose frames are laid out as 3.0's.
+        let mut d = CommandClient::new(Version(3, 0), true);
+        d.on_message(&info(Version(4, 0)));
+        assert!(matches!(d.decode(&v3_frame), (Ok(Message::Frame(_)), None)));
+        assert_eq!(d.on_trial_from, None);
+        assert_eq!(d.version, Version(4, 0));
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The OSC input (UDP, `osc://` and `vmc://`): receives datagrams on a bound address,
 //! decodes them with [`crate::protocol::osc`] (units and up axis converted there), and
 //! hands each packet's markers, names resolved, to the input's sink. Garbage costs only
-//! its own packet, and is counted.
+//! its own packet, and is counted; each kind of problem is said once.
 
 use super::config::{endpoint_of, OscInputConfig, OSC_SCHEMES};
 use super::{InputError, InputFrame, InputSink};
@@ -10,6 +10,7 @@ use crate::markers::MarkerSample;
 use crate::protocol::osc::{OscFrame, OscMapping};
 use crate::protocol::url::Endpoint;
 use crate::runtime::clock::Clock;
+use crate::runtime::said::SaidOnce;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -124,19 +125,30 @@ pub fn run(
     on_frame: &mut dyn FnMut(f64, &OscFrame),
 ) {
     let mut frame = OscFrame::default();
+    // Each kind of problem is said once; the rest are counted.
+    let said = std::cell::RefCell::new(SaidOnce::default());
     super::udp::udp_loop(
         socket,
         stop,
-        &mut |now, bytes| {
+        &mut |now, from, bytes| {
             stats.received(bytes.len(), now);
             match mapping.decode_into(bytes, &mut frame) {
                 Ok(()) => on_frame(now, &frame),
-                Err(_) => stats.error(),
+                Err(e) => {
+                    stats.error();
+                    if said.borrow_mut().first(Ok(std::mem::discriminant(&e))) {
+                        tracing::warn!("osc: a packet from {from} did not decode: {e} (said once per kind of problem; the rest are counted as not decodable)");
+                    }
+                }
             }
         },
         &mut |e| {
-            tracing::debug!(error = %e, "osc: receive failed");
             stats.error();
+            if said.borrow_mut().first(Err(e.kind())) {
+                tracing::warn!(
+                    "osc: receiving failed: {e} (said once; the rest are counted as not decodable)"
+                );
+            }
         },
     );
 }

@@ -42,20 +42,20 @@ pub fn udp_bind(addr: std::net::SocketAddr) -> std::io::Result<std::net::UdpSock
 }
 
 /// Receives datagrams on `socket` (which must have a read timeout) until `stop` is set,
-/// calling `on_packet(receive_unix_s, bytes)` for each. Timeouts and interruptions are
+/// calling `on_packet(receive_unix_s, sender, bytes)` for each. Timeouts and interruptions are
 /// waits; other receive errors (ICMP from an earlier send and the like) go to
 /// `on_error` and the loop carries on. One input, one thread.
 pub fn udp_loop(
     socket: &std::net::UdpSocket,
     stop: &AtomicBool,
-    on_packet: &mut dyn FnMut(f64, &[u8]),
+    on_packet: &mut dyn FnMut(f64, std::net::SocketAddr, &[u8]),
     on_error: &mut dyn FnMut(&std::io::Error),
 ) {
     let mut buf = vec![0u8; 65_536];
     while !stop.load(Ordering::Relaxed) {
         match socket.recv_from(&mut buf) {
-            Ok((n, _)) => {
-                on_packet(unix_now(), &buf[..n]);
+            Ok((n, from)) => {
+                on_packet(unix_now(), from, &buf[..n]);
             }
             Err(e) if is_wait(&e) => {}
             Err(e) => {

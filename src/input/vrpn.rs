@@ -11,6 +11,13 @@
 //! pings, and reconnects after a drop. Each report becomes a marker named
 //! `DEVICE_SENSOR` (stage configs map those names to the character's markers).
 //!
+//! A server that has sent nothing for a second is pinged, as VRPN's own clients do, once
+//! a second; one silent for [`SILENCE_TIMEOUT_S`] is given up and connected again. Each
+//! kind of reason for a drop (a bad cookie, a message length out of bounds, silence, a
+//! refused connect, ...) is said once at warning level, and every drop is counted.
+//! Datagrams, and connections to the call-back port, from hosts other than the server's
+//! are ignored and counted.
+//!
 //! The codec is [`crate::protocol::vrpn`]; this module owns the socket.
 
 use super::config::{endpoint_of, VrpnInputConfig, VRPN_SCHEMES};
@@ -24,7 +31,8 @@ use crate::protocol::vrpn::{
     POS_QUAT, SENDER_DESCRIPTION, TYPE_DESCRIPTION, UDP_DESCRIPTION,
 };
 use crate::runtime::clock::Clock;
-use crate::runtime::net::is_wait;
+use crate::runtime::net::{is_wait, local_ip_towards};
+use crate::runtime::said::SaidOnce;
 use std::collections::{BTreeMap, HashMap};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
@@ -39,8 +47,16 @@ pub struct VrpnStats {
     pub bytes: AtomicU64,
     pub reports: AtomicU64,
     pub pings_answered: AtomicU64,
-    /// Connection attempts that failed, and dropped or broken connections.
+    /// Connection attempts that failed, and broken connections (a protocol error, a
+    /// failed read or write).
     pub errors: AtomicU64,
+    /// Connections the server closed.
+    pub closed: AtomicU64,
+    /// Connections given up because the server sent nothing for [`SILENCE_TIMEOUT_S`].
+    pub silent: AtomicU64,
+    /// Datagrams from hosts other than the server's, and connections to the call-back
+    /// port from them (ignored).
+    pub foreign: AtomicU64,
     /// Datagrams received on the UDP port (UDP connection mode).
     pub datagrams: AtomicU64,
     /// Datagrams that did not hold whole, well-formed messages (dropped).
@@ -62,8 +78,9 @@ impl VrpnStats {
     }
 }
 
-/// Wait between reconnection attempts.
-const RECONNECT: Duration = Duration::from_millis(500);
+/// Wait between reconnection attempts, seconds.
+pub const RECONNECT_S: f64 = 0.5;
+const RECONNECT: Duration = Duration::from_millis((RECONNECT_S * 1e3) as u64);
 const POLL: Duration = Duration::from_millis(100);
 
 /// This side's ids for its own sender and types (it names them in descriptions).
@@ -114,10 +131,6 @@ fn hello(device: &str, udp_inbound: Option<SocketAddr>) -> Vec<u8> {
         );
     }
     out
-}
-
-fn invalid(e: crate::protocol::vrpn::VrpnError) -> std::io::Error {
-    std::io::Error::new(std::io::ErrorKind::InvalidData, e)
 }
 
 /// The server's side of one connection as this client reads it: its names, and what to
@@ -185,9 +198,166 @@ fn handle_datagram(
     }
 }
 
-/// Serves one connection until it drops or `stop` is set. With `udp` (the UDP
-/// connection mode) datagrams on that socket are read too; each must hold whole
-/// messages.
+/// Why a VRPN connection ended, or could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum VrpnDrop {
+    #[error("connecting failed: {source}")]
+    Connect { source: std::io::Error },
+    #[error("asking the server to call back failed: {source}")]
+    Request { source: std::io::Error },
+    #[error("the connection failed: {source}")]
+    Io { source: std::io::Error },
+    #[error("the server broke the protocol: {source}")]
+    Protocol { source: VrpnError },
+    #[error("the server sent nothing for {silent_s:.1} s (pings unanswered)")]
+    Silent { silent_s: f64 },
+    #[error("the server closed the connection")]
+    Closed,
+}
+
+/// What makes two [`VrpnDrop`]s the same kind of reason (each kind is said once).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum DropKind {
+    Connect(std::io::ErrorKind),
+    Request(std::io::ErrorKind),
+    Io(std::io::ErrorKind),
+    Protocol(std::mem::Discriminant<VrpnError>),
+    Silent,
+    Closed,
+    /// A connection from a host other than the server's, to the call-back port.
+    Stranger,
+}
+
+impl VrpnDrop {
+    fn kind(&self) -> DropKind {
+        match self {
+            VrpnDrop::Connect { source } => DropKind::Connect(source.kind()),
+            VrpnDrop::Request { source } => DropKind::Request(source.kind()),
+            VrpnDrop::Io { source } => DropKind::Io(source.kind()),
+            VrpnDrop::Protocol { source } => DropKind::Protocol(std::mem::discriminant(source)),
+            VrpnDrop::Silent { .. } => DropKind::Silent,
+            VrpnDrop::Closed => DropKind::Closed,
+        }
+    }
+}
+
+impl From<std::io::Error> for VrpnDrop {
+    fn from(source: std::io::Error) -> Self {
+        VrpnDrop::Io { source }
+    }
+}
+
+/// Says each kind of reason for a drop once, at warning level (later ones of a kind at
+/// debug level), and counts every one.
+struct Reasons<'a> {
+    said: SaidOnce<DropKind>,
+    device: &'a str,
+    addr: SocketAddr,
+    stats: &'a VrpnStats,
+}
+
+impl<'a> Reasons<'a> {
+    fn new(device: &'a str, addr: SocketAddr, stats: &'a VrpnStats) -> Self {
+        Self {
+            said: SaidOnce::default(),
+            device,
+            addr,
+            stats,
+        }
+    }
+
+    fn drop(&mut self, e: &VrpnDrop) {
+        let counter = match e {
+            VrpnDrop::Silent { .. } => &self.stats.silent,
+            VrpnDrop::Closed => &self.stats.closed,
+            _ => &self.stats.errors,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+        let (device, addr) = (self.device, self.addr);
+        if self.said.first(e.kind()) {
+            tracing::warn!(
+                "vrpn {device}@{addr}: {e}; trying again every {} ms (each kind of reason is said once, the rest counted)",
+                RECONNECT.as_millis()
+            );
+        } else {
+            tracing::debug!("vrpn {device}@{addr}: {e}");
+        }
+    }
+
+    /// A connection to the call-back port from `peer`, not the server: closed.
+    fn stranger(&mut self, peer: SocketAddr) {
+        self.stats.foreign.fetch_add(1, Ordering::Relaxed);
+        if self.said.first(DropKind::Stranger) {
+            tracing::warn!(
+                "vrpn {}@{}: {peer} connected to the call-back port, not the server: closed (said once, the rest counted)",
+                self.device,
+                self.addr
+            );
+        }
+    }
+}
+
+/// How often a client pings a server it has heard nothing from, seconds (as VRPN's own
+/// clients do, once a second; a live server answers with a pong).
+pub const PING_INTERVAL_S: f64 = 1.0;
+/// Seconds without a byte from the server after which the connection is given up and
+/// made again.
+pub const SILENCE_TIMEOUT_S: f64 = 5.0;
+
+/// What [`Liveness::poll`] says is due.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Due {
+    Nothing,
+    /// Send the server a ping.
+    Ping,
+    /// The server has been silent this long: give the connection up.
+    Dead {
+        silent_s: f64,
+    },
+}
+
+/// Whether the server at the other end is still there, with time passed in (seconds on
+/// a monotonic clock): pinged after [`PING_INTERVAL_S`] of silence and again every
+/// interval, given up after [`SILENCE_TIMEOUT_S`].
+#[derive(Clone, Debug)]
+pub struct Liveness {
+    last_heard_s: f64,
+    last_ping_s: f64,
+}
+
+impl Liveness {
+    /// A connection made at `now_s`.
+    pub fn new(now_s: f64) -> Self {
+        Self {
+            last_heard_s: now_s,
+            last_ping_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// Bytes from the server arrived at `now_s`.
+    pub fn heard(&mut self, now_s: f64) {
+        self.last_heard_s = now_s;
+    }
+
+    pub fn poll(&mut self, now_s: f64) -> Due {
+        let silent_s = now_s - self.last_heard_s;
+        if silent_s >= SILENCE_TIMEOUT_S {
+            Due::Dead { silent_s }
+        } else if silent_s >= PING_INTERVAL_S && now_s - self.last_ping_s >= PING_INTERVAL_S {
+            self.last_ping_s = now_s;
+            Due::Ping
+        } else {
+            Due::Nothing
+        }
+    }
+}
+
+/// A write to the server that takes longer than this fails the connection.
+const WRITE_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Serves one connection until it drops or `stop` is set (`Ok`). With `udp` (the UDP
+/// connection mode) datagrams on that socket are read too, from the server's host only;
+/// each must hold whole messages. A server silent for [`SILENCE_TIMEOUT_S`] is given up.
 fn session(
     mut sock: TcpStream,
     udp: Option<&UdpSocket>,
@@ -195,8 +365,10 @@ fn session(
     stop: &AtomicBool,
     stats: &VrpnStats,
     on_report: &mut dyn FnMut(f64, f64, &PosQuat),
-) -> std::io::Result<()> {
+) -> Result<(), VrpnDrop> {
+    let server_ip = sock.peer_addr()?.ip();
     sock.set_nodelay(true)?;
+    sock.set_write_timeout(Some(WRITE_TIMEOUT))?;
     sock.write_all(&hello(device, udp.map(|u| u.local_addr()).transpose()?))?;
     match udp {
         // TCP is only polled; the UDP port is where reports arrive and where we wait.
@@ -206,6 +378,9 @@ fn session(
         }
         None => sock.set_read_timeout(Some(POLL))?,
     }
+    let started = std::time::Instant::now();
+    let now_s = || started.elapsed().as_secs_f64();
+    let mut alive = Liveness::new(now_s());
     let mut reader = StreamReader::default();
     let mut chunk = vec![0u8; 1 << 16];
     let mut peer = Peer {
@@ -215,21 +390,38 @@ fn session(
     };
     let mut replies = Vec::new();
     let mut datagram = vec![0u8; 1 << 16];
+    // A datagram from the server's host, or `None` (nothing, another host's, an error).
+    let from_server = |u: &UdpSocket, d: &mut [u8]| match u.recv_from(d) {
+        Ok((n, from)) if from.ip() == server_ip => {
+            stats.datagrams.fetch_add(1, Ordering::Relaxed);
+            stats.received(n);
+            Some(n)
+        }
+        Ok(_) => {
+            stats.foreign.fetch_add(1, Ordering::Relaxed);
+            None
+        }
+        Err(e) if is_wait(&e) => None,
+        // ICMP from an earlier send and the like: the datagram is lost.
+        Err(e) => {
+            tracing::debug!(error = %e, "vrpn: udp receive");
+            None
+        }
+    };
     while !stop.load(Ordering::Relaxed) {
         replies.clear();
-        // Wait on the UDP port (UDP mode) or on TCP.
-        let mut got_datagram = None;
-        if let Some(u) = udp {
-            match u.recv(&mut datagram) {
-                Ok(n) => {
-                    stats.datagrams.fetch_add(1, Ordering::Relaxed);
-                    stats.received(n);
-                    got_datagram = Some(n);
-                }
-                Err(e) if is_wait(&e) => {}
-                // ICMP from an earlier send and the like: the datagram is lost.
-                Err(e) => tracing::debug!(error = %e, "vrpn: udp receive"),
+        match alive.poll(now_s()) {
+            Due::Dead { silent_s } => return Err(VrpnDrop::Silent { silent_s }),
+            Due::Ping => {
+                let (_, s, us) = unix_now();
+                encode_message(&mut replies, s, us, OUR_SENDER, OUR_PING, &[]);
             }
+            Due::Nothing => {}
+        }
+        // Wait on the UDP port (UDP mode) or on TCP.
+        let got_datagram = udp.and_then(|u| from_server(u, &mut datagram));
+        if got_datagram.is_some() {
+            alive.heard(now_s());
         }
         // TCP first: the descriptions a datagram's messages refer to came that way.
         match sock.read(&mut chunk) {
@@ -239,24 +431,23 @@ fn session(
                     if let Some(n) = got_datagram {
                         handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
                     }
-                    while let Ok(n) = u.recv(&mut datagram) {
-                        stats.datagrams.fetch_add(1, Ordering::Relaxed);
-                        stats.received(n);
+                    while let Some(n) = from_server(u, &mut datagram) {
                         handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
                     }
                 }
-                return Ok(());
+                return Err(VrpnDrop::Closed);
             }
             Ok(n) => {
                 stats.received(n);
+                alive.heard(now_s());
                 reader
                     .feed(&chunk[..n], &mut |m| {
                         peer.message(m, &mut replies, on_report)
                     })
-                    .map_err(invalid)?;
+                    .map_err(|source| VrpnDrop::Protocol { source })?;
             }
             Err(e) if is_wait(&e) => {}
-            Err(e) => return Err(e),
+            Err(e) => return Err(e.into()),
         }
         if let Some(n) = got_datagram {
             handle_datagram(&mut peer, &datagram[..n], &mut replies, on_report);
@@ -274,29 +465,33 @@ fn session(
     Ok(())
 }
 
-/// Connects to `addr` and serves `device` until `stop` is set, reconnecting after
-/// failures and drops; calls `on_report(receive_unix_s, source_unix_s, report)` for
-/// every position report of the device. Runs on the calling thread.
-pub fn run(
+/// A connection made by a [`run`] loop: the TCP stream, and the UDP port of the UDP
+/// connection mode.
+type Connected = (TcpStream, Option<UdpSocket>);
+
+/// Makes connections with `connect` (`Ok(None)`: `stop` was set while waiting) and
+/// serves them until `stop` is set, waiting [`RECONNECT`] after each failure or drop;
+/// each kind of reason is said once ([`Reasons`]).
+fn reconnecting(
     addr: SocketAddr,
     device: &str,
     stop: &AtomicBool,
     stats: &VrpnStats,
+    connect: &mut dyn FnMut(&mut Reasons) -> Result<Option<Connected>, VrpnDrop>,
     on_report: &mut dyn FnMut(f64, f64, &PosQuat),
 ) {
+    let mut reasons = Reasons::new(device, addr, stats);
     while !stop.load(Ordering::Relaxed) {
-        match TcpStream::connect_timeout(&addr, Duration::from_secs(2)) {
-            Ok(sock) => {
+        let ended = match connect(&mut reasons) {
+            Ok(Some((sock, udp))) => {
                 stats.connections.fetch_add(1, Ordering::Relaxed);
-                if let Err(e) = session(sock, None, device, stop, stats, on_report) {
-                    tracing::debug!(error = %e, "vrpn: connection lost");
-                    stats.errors.fetch_add(1, Ordering::Relaxed);
-                }
+                session(sock, udp.as_ref(), device, stop, stats, on_report)
             }
-            Err(e) => {
-                tracing::debug!(error = %e, "vrpn: connect failed");
-                stats.errors.fetch_add(1, Ordering::Relaxed);
-            }
+            Ok(None) => Ok(()),
+            Err(e) => Err(e),
+        };
+        if let Err(e) = ended {
+            reasons.drop(&e);
         }
         let until = std::time::Instant::now() + RECONNECT;
         while !stop.load(Ordering::Relaxed) && std::time::Instant::now() < until {
@@ -304,6 +499,27 @@ pub fn run(
         }
     }
 }
+
+/// Connects to `addr` and serves `device` until `stop` is set, reconnecting after
+/// failures, drops and [`SILENCE_TIMEOUT_S`] of silence; calls `on_report(receive_unix_s,
+/// source_unix_s, report)` for every position report of the device. Runs on the calling
+/// thread.
+pub fn run(
+    addr: SocketAddr,
+    device: &str,
+    stop: &AtomicBool,
+    stats: &VrpnStats,
+    on_report: &mut dyn FnMut(f64, f64, &PosQuat),
+) {
+    let mut connect = |_: &mut Reasons| match TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT) {
+        Ok(sock) => Ok(Some((sock, None))),
+        Err(source) => Err(VrpnDrop::Connect { source }),
+    };
+    reconnecting(addr, device, stop, stats, &mut connect, on_report);
+}
+
+/// How long a TCP connect may take.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// [`run`] or [`run_udp`], as `mode` says.
 pub fn run_mode(
@@ -322,8 +538,8 @@ pub fn run_mode(
 
 /// The UDP connection mode: asks the server at `server` (its UDP port, the same number
 /// as its TCP port) to call back, serves the connection it makes, and asks again after
-/// a drop, until `stop` is set. Reports arrive on this side's UDP port (or over TCP if
-/// the server prefers); `on_report` as for [`run`].
+/// a drop or silence, until `stop` is set. Reports arrive on this side's UDP port (or
+/// over TCP if the server prefers); `on_report` as for [`run`].
 pub fn run_udp(
     server: SocketAddr,
     device: &str,
@@ -331,44 +547,25 @@ pub fn run_udp(
     stats: &VrpnStats,
     on_report: &mut dyn FnMut(f64, f64, &PosQuat),
 ) {
-    while !stop.load(Ordering::Relaxed) {
-        match call_back(server, stop, stats) {
-            Ok(Some((sock, udp))) => {
-                stats.connections.fetch_add(1, Ordering::Relaxed);
-                if let Err(e) = session(sock, Some(&udp), device, stop, stats, on_report) {
-                    tracing::debug!(error = %e, "vrpn: connection lost");
-                    stats.errors.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-            Ok(None) => {}
-            Err(e) => {
-                tracing::debug!(error = %e, "vrpn: cannot ask for a connection");
-                stats.errors.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-        let until = std::time::Instant::now() + RECONNECT;
-        while !stop.load(Ordering::Relaxed) && std::time::Instant::now() < until {
-            std::thread::sleep(POLL.min(RECONNECT));
-        }
-    }
+    let mut connect = |reasons: &mut Reasons| {
+        call_back(server, stop, reasons).map(|c| c.map(|(sock, udp)| (sock, Some(udp))))
+    };
+    reconnecting(server, device, stop, stats, &mut connect, on_report);
 }
 
 /// Opens this side's TCP and UDP ports on the interface that reaches `server`, and sends
 /// connection requests every [`REQUEST_INTERVAL`] until the server connects (or `stop`).
+/// Connections from other hosts are closed.
 fn call_back(
     server: SocketAddr,
     stop: &AtomicBool,
-    stats: &VrpnStats,
-) -> std::io::Result<Option<(TcpStream, UdpSocket)>> {
-    let any: SocketAddr = if server.is_ipv4() {
-        ([0, 0, 0, 0], 0).into()
-    } else {
-        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
-    };
+    reasons: &mut Reasons,
+) -> Result<Option<(TcpStream, UdpSocket)>, VrpnDrop> {
+    let request_failed = |source| VrpnDrop::Request { source };
     // The local address a datagram to the server leaves from is the one it can call back.
-    let lob = UdpSocket::bind(any)?;
-    lob.connect(server)?;
-    let ip = lob.local_addr()?.ip();
+    let ip = local_ip_towards(server).map_err(request_failed)?;
+    let lob = UdpSocket::bind((ip, 0)).map_err(request_failed)?;
+    lob.connect(server).map_err(request_failed)?;
     let listener = TcpListener::bind((ip, 0))?;
     listener.set_nonblocking(true)?;
     let udp = UdpSocket::bind((ip, 0))?;
@@ -376,19 +573,19 @@ fn call_back(
     while !stop.load(Ordering::Relaxed) {
         // A send can fail with the ICMP error of the one before (nobody was on the
         // server's port yet): that consumes the error, so send once more.
-        if let Err(e) = lob.send(&request).or_else(|_| lob.send(&request)) {
-            tracing::debug!(error = %e, "vrpn: connection request");
-            stats.errors.fetch_add(1, Ordering::Relaxed);
+        if let Err(source) = lob.send(&request).or_else(|_| lob.send(&request)) {
+            reasons.drop(&VrpnDrop::Request { source });
         }
         let until = std::time::Instant::now() + REQUEST_INTERVAL;
         while std::time::Instant::now() < until && !stop.load(Ordering::Relaxed) {
             match listener.accept() {
+                Ok((_, peer)) if peer.ip() != server.ip() => reasons.stranger(peer),
                 Ok((sock, _)) => {
                     sock.set_nonblocking(false)?;
                     return Ok(Some((sock, udp)));
                 }
                 Err(e) if is_wait(&e) => std::thread::sleep(Duration::from_millis(10)),
-                Err(e) => return Err(e),
+                Err(e) => return Err(e.into()),
             }
         }
     }
@@ -493,16 +690,20 @@ impl VrpnInput {
                 stop.store(true, Ordering::Relaxed);
             }
         });
+        let n = |c: &AtomicU64| c.load(Ordering::Relaxed);
         format!(
-            "{} connections, {} messages, {} bytes, {} reports, {} pings answered, {} errors, {} datagrams ({} bad)",
-            stats.connections.load(Ordering::Relaxed),
-            stats.messages.load(Ordering::Relaxed),
-            stats.bytes.load(Ordering::Relaxed),
-            stats.reports.load(Ordering::Relaxed),
-            stats.pings_answered.load(Ordering::Relaxed),
-            stats.errors.load(Ordering::Relaxed),
-            stats.datagrams.load(Ordering::Relaxed),
-            stats.bad_datagrams.load(Ordering::Relaxed)
+            "{} connections ({} closed by the server, {} given up as silent), {} messages, {} bytes, {} reports, {} pings answered, {} errors, {} datagrams ({} bad), {} ignored (not from the server)",
+            n(&stats.connections),
+            n(&stats.closed),
+            n(&stats.silent),
+            n(&stats.messages),
+            n(&stats.bytes),
+            n(&stats.reports),
+            n(&stats.pings_answered),
+            n(&stats.errors),
+            n(&stats.datagrams),
+            n(&stats.bad_datagrams),
+            n(&stats.foreign)
         )
     }
 }

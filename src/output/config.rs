@@ -63,13 +63,21 @@ pub struct StreamOutputConfig {
     /// WebSocket address to listen on (same messages, one binary WebSocket message
     /// each); off unless set.
     pub websocket: Option<SocketAddr>,
+    /// Most clients served at once, over TCP and WebSocket together (a connection still
+    /// in its WebSocket handshake counts); the next one is sent a goodbye saying the
+    /// server is full, and closed.
+    pub max_clients: usize,
 }
+
+/// The default of `[outputs.stream] max_clients`.
+pub const DEFAULT_MAX_CLIENTS: usize = 64;
 
 impl Default for StreamOutputConfig {
     fn default() -> Self {
         Self {
             tcp: Some(SocketAddr::from(([127, 0, 0, 1], 7878))),
             websocket: None,
+            max_clients: DEFAULT_MAX_CLIENTS,
         }
     }
 }
@@ -80,6 +88,9 @@ impl OutputsConfig {
         let mut out = Vec::new();
         if let Err(e) = self.rerun.target.parse::<RerunTarget>() {
             out.push(("rerun.target".into(), e));
+        }
+        if self.stream.max_clients == 0 {
+            out.push(("stream.max_clients".into(), "must be at least 1".into()));
         }
         if self.rerun.mesh_every == 0 {
             out.push(("rerun.mesh_every".into(), "must be at least 1".into()));

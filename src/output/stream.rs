@@ -7,9 +7,18 @@
 //! a [`LatestSlot`]; a dispatcher task encodes each frame once and puts the bytes into a
 //! `watch` channel that every client task follows, so a slow client skips to the newest frame (the skipped frames
 //! are counted) and never holds up the loop or the other clients.
+//!
+//! At most `max_clients` are served at once (a connection still in its WebSocket
+//! handshake counts); the next is sent a goodbye saying the server is full and closed.
+//! When accepting fails (out of file descriptors, say), the server waits before it tries
+//! again, 100 ms and doubling up to a second, and says so at most once a second with a
+//! count of the failures it did not report; the clients already connected are served
+//! meanwhile.
 
+use super::config::StreamOutputConfig;
 use super::frame::DeformedFrame;
 use crate::protocol::vertex_stream::{encode_frame, encode_goodbye, encode_topology, Topology};
+use crate::runtime::said::Throttle;
 use crate::runtime::slot::LatestSlot;
 use futures_util::SinkExt;
 use std::io;
@@ -27,16 +36,32 @@ use tokio_tungstenite::WebSocketStream;
 
 /// A client whose socket accepts nothing for this long is disconnected, seconds.
 pub const WRITE_TIMEOUT_SECS: f64 = 5.0;
-/// How long shutdown waits for clients to take their goodbye, seconds.
+/// How long shutdown waits for clients to take their goodbye, seconds; also each step
+/// of refusing a connection (handshake, goodbye, close).
 const GOODBYE_TIMEOUT_SECS: f64 = 1.0;
+/// Connections being refused at once at most; beyond, a connection is closed at once,
+/// with no goodbye.
+const MAX_REFUSALS: usize = 16;
+/// The first wait after a failed accept, seconds; it doubles with each failure in a row
+/// up to [`ACCEPT_BACKOFF_MAX_S`].
+const ACCEPT_BACKOFF_MIN_S: f64 = 0.1;
+/// The longest wait after failed accepts, seconds.
+const ACCEPT_BACKOFF_MAX_S: f64 = 1.0;
+/// Seconds between two lines about failing accepts.
+const ACCEPT_REPORT_INTERVAL_S: f64 = 1.0;
 
 /// What the server has done (monotonic except `clients`).
 #[derive(Debug, Default)]
 pub struct StreamStats {
     /// Clients connected now.
     pub clients: AtomicU64,
-    /// Connections accepted in all.
+    /// Connections accepted to be served, in all (refused ones are not counted).
     pub connections: AtomicU64,
+    /// Connections refused because `max_clients` were connected (sent a goodbye saying
+    /// so, when no more than [`MAX_REFUSALS`] were being refused, and closed).
+    pub refused: AtomicU64,
+    /// Accepts that failed (out of file descriptors, ...); each made the server wait.
+    pub accept_errors: AtomicU64,
     /// Frame messages written, over all clients.
     pub frames_sent: AtomicU64,
     /// Frames a client skipped because it was slower than the loop, over all clients.
@@ -67,14 +92,14 @@ pub struct StreamServer {
 }
 
 impl StreamServer {
-    /// Binds `tcp` and `ws` (either may be `None`; port 0 picks a free port) and serves
-    /// frames published to `slot`.
+    /// Binds `cfg.tcp` and `cfg.websocket` (either may be `None`; port 0 picks a free
+    /// port) and serves frames published to `slot` to at most `cfg.max_clients` clients.
     pub fn start(
-        tcp: Option<SocketAddr>,
-        ws: Option<SocketAddr>,
+        cfg: &StreamOutputConfig,
         topology: &Topology,
         slot: Arc<LatestSlot<DeformedFrame>>,
     ) -> io::Result<Self> {
+        let (tcp, ws, max_clients) = (cfg.tcp, cfg.websocket, cfg.max_clients.max(1));
         let bind = |a: Option<SocketAddr>| -> io::Result<Option<std::net::TcpListener>> {
             a.map(|a| {
                 let l = std::net::TcpListener::bind(a)?;
@@ -98,7 +123,12 @@ impl StreamServer {
         let thread = std::thread::Builder::new()
             .name("vertex-stream".into())
             .spawn(move || {
-                rt.block_on(serve(tcp_l, ws_l, topo, slot, shutdown_rx, thread_stats));
+                let listeners = Listeners {
+                    tcp: tcp_l,
+                    ws: ws_l,
+                    max_clients,
+                };
+                rt.block_on(serve(listeners, topo, slot, shutdown_rx, thread_stats));
             })?;
         Ok(Self {
             local_addr,
@@ -153,6 +183,18 @@ enum Conn {
 }
 
 impl Conn {
+    /// The connection of an accepted socket: over WebSocket once its handshake is done
+    /// (`None` if it fails or takes longer than `limit`).
+    async fn accept(sock: TcpStream, websocket: bool, limit: Duration) -> Option<Self> {
+        if !websocket {
+            return Some(Conn::Tcp(sock));
+        }
+        match tokio::time::timeout(limit, tokio_tungstenite::accept_async(sock)).await {
+            Ok(Ok(w)) => Some(Conn::Ws(Box::new(w))),
+            _ => None,
+        }
+    }
+
     /// Sends one message; false on error or timeout.
     async fn send(&mut self, bytes: &[u8], secs: f64) -> bool {
         let limit = Duration::from_secs_f64(secs);
@@ -187,9 +229,43 @@ async fn accept_on(l: &Option<TcpListener>) -> io::Result<(TcpStream, SocketAddr
     }
 }
 
-async fn serve(
+/// The listening sockets and how many clients they may serve at once.
+struct Listeners {
     tcp: Option<std::net::TcpListener>,
     ws: Option<std::net::TcpListener>,
+    max_clients: usize,
+}
+
+/// How long the accept loop waits after failures in a row: [`ACCEPT_BACKOFF_MIN_S`],
+/// doubling up to [`ACCEPT_BACKOFF_MAX_S`], and back to the start after a success.
+#[derive(Clone, Debug)]
+struct AcceptBackoff {
+    next_s: f64,
+}
+
+impl Default for AcceptBackoff {
+    fn default() -> Self {
+        Self {
+            next_s: ACCEPT_BACKOFF_MIN_S,
+        }
+    }
+}
+
+impl AcceptBackoff {
+    /// An accept failed: the wait before the next, seconds.
+    fn failed(&mut self) -> f64 {
+        let wait = self.next_s;
+        self.next_s = (wait * 2.0).min(ACCEPT_BACKOFF_MAX_S);
+        wait
+    }
+
+    fn succeeded(&mut self) {
+        *self = Self::default();
+    }
+}
+
+async fn serve(
+    listeners: Listeners,
     topo: Arc<Vec<u8>>,
     slot: Arc<LatestSlot<DeformedFrame>>,
     mut shutdown: ShutdownRx,
@@ -203,71 +279,121 @@ async fn serve(
             None
         }
     };
-    let (tcp, ws) = (register(tcp), register(ws));
+    let max_clients = listeners.max_clients;
+    let (tcp, ws) = (register(listeners.tcp), register(listeners.ws));
     let (frames_tx, frames_rx) = watch::channel(None);
-    let mut dispatch_shutdown = shutdown.clone();
-    let dispatcher = tokio::spawn(async move {
-        loop {
-            tokio::select! {
-                f = slot.next() => {
-                    let mut bytes = Vec::with_capacity(64 + 12 * f.vertices_m.len());
-                    encode_frame(&f.wire(), &mut bytes);
-                    let e = Encoded { frame: f.frame, bytes };
-                    drop(f);
-                    frames_tx.send_replace(Some(Arc::new(e)));
-                }
-                _ = dispatch_shutdown.changed() => break,
-            }
-        }
-    });
-    let mut clients = JoinSet::new();
+    let dispatcher = tokio::spawn(dispatch(slot, frames_tx, shutdown.clone()));
+    let mut full = Vec::new();
+    encode_goodbye(
+        &format!("server full: {max_clients} clients connected (its max_clients)"),
+        &mut full,
+    );
+    let full = Arc::new(full);
+    let (mut clients, mut refusals) = (JoinSet::new(), JoinSet::new());
+    let (mut backoff, mut report) = (
+        AcceptBackoff::default(),
+        Throttle::new(ACCEPT_REPORT_INTERVAL_S),
+    );
+    let started = tokio::time::Instant::now();
+    let mut paused_until: Option<tokio::time::Instant> = None;
     loop {
         let (r, websocket) = tokio::select! {
-            r = accept_on(&tcp) => (r, false),
-            r = accept_on(&ws) => (r, true),
+            r = accept_on(&tcp), if paused_until.is_none() => (r, false),
+            r = accept_on(&ws), if paused_until.is_none() => (r, true),
+            _ = tokio::time::sleep_until(paused_until.unwrap_or(started)), if paused_until.is_some() => {
+                paused_until = None;
+                continue;
+            }
             _ = shutdown.changed() => break,
             Some(_) = clients.join_next(), if !clients.is_empty() => continue,
+            Some(_) = refusals.join_next(), if !refusals.is_empty() => continue,
         };
-        match r {
-            Ok((sock, peer)) => {
-                stats.connections.fetch_add(1, Ordering::Relaxed);
-                tracing::debug!(%peer, websocket, "vertex stream: client connected");
-                let (topo, frames, shutdown, stats) = (
-                    Arc::clone(&topo),
-                    frames_rx.clone(),
-                    shutdown.clone(),
-                    Arc::clone(&stats),
-                );
-                clients.spawn(async move {
-                    let _ = sock.set_nodelay(true);
-                    let conn = if websocket {
-                        let hs = tokio::time::timeout(
-                            Duration::from_secs_f64(WRITE_TIMEOUT_SECS),
-                            tokio_tungstenite::accept_async(sock),
-                        )
-                        .await;
-                        match hs {
-                            Ok(Ok(w)) => Conn::Ws(Box::new(w)),
-                            _ => {
-                                stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
-                                return;
-                            }
-                        }
-                    } else {
-                        Conn::Tcp(sock)
+        let (sock, peer) = match r {
+            Ok(x) => x,
+            Err(e) => {
+                stats.accept_errors.fetch_add(1, Ordering::Relaxed);
+                let wait_s = backoff.failed();
+                if let Some(unsaid) = report.hit(started.elapsed().as_secs_f64()) {
+                    let since = match unsaid {
+                        0 => String::new(),
+                        n => format!(" ({n} more failures since the last line)"),
                     };
-                    serve_client(conn, topo, frames, shutdown, stats).await;
-                });
+                    tracing::warn!(
+                        "vertex stream: accepting a connection failed: {e}; trying again in {:.0} ms{since}",
+                        wait_s * 1e3
+                    );
+                }
+                paused_until = Some(tokio::time::Instant::now() + Duration::from_secs_f64(wait_s));
+                continue;
             }
-            Err(e) => tracing::warn!(error = %e, "vertex stream: accept failed"),
+        };
+        backoff.succeeded();
+        while clients.try_join_next().is_some() {}
+        if clients.len() >= max_clients {
+            stats.refused.fetch_add(1, Ordering::Relaxed);
+            tracing::debug!(%peer, websocket, "vertex stream: refused, full");
+            if refusals.len() < MAX_REFUSALS {
+                refusals.spawn(refuse(sock, websocket, Arc::clone(&full)));
+            }
+            continue;
         }
+        stats.connections.fetch_add(1, Ordering::Relaxed);
+        tracing::debug!(%peer, websocket, "vertex stream: client connected");
+        let (topo, frames, shutdown, stats) = (
+            Arc::clone(&topo),
+            frames_rx.clone(),
+            shutdown.clone(),
+            Arc::clone(&stats),
+        );
+        clients.spawn(async move {
+            let _ = sock.set_nodelay(true);
+            let limit = Duration::from_secs_f64(WRITE_TIMEOUT_SECS);
+            let Some(conn) = Conn::accept(sock, websocket, limit).await else {
+                stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
+                return;
+            };
+            serve_client(conn, topo, frames, shutdown, stats).await;
+        });
     }
-    drop((tcp, ws));
+    drop((tcp, ws, refusals));
     let _ = dispatcher.await;
     let _ = tokio::time::timeout(Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0), async {
         while clients.join_next().await.is_some() {}
     })
     .await;
+}
+
+/// Encodes each frame published to `slot` once and hands the bytes to every client,
+/// until shutdown.
+async fn dispatch(
+    slot: Arc<LatestSlot<DeformedFrame>>,
+    frames_tx: watch::Sender<Option<Arc<Encoded>>>,
+    mut shutdown: ShutdownRx,
+) {
+    loop {
+        tokio::select! {
+            f = slot.next() => {
+                let mut bytes = Vec::with_capacity(64 + 12 * f.vertices_m.len());
+                encode_frame(&f.wire(), &mut bytes);
+                let e = Encoded { frame: f.frame, bytes };
+                drop(f);
+                frames_tx.send_replace(Some(Arc::new(e)));
+            }
+            _ = shutdown.changed() => break,
+        }
+    }
+}
+
+/// Sends a connection the server had no room for the `goodbye` (after the WebSocket
+/// handshake, over WebSocket) and closes it; each step bounded by
+/// [`GOODBYE_TIMEOUT_SECS`].
+async fn refuse(sock: TcpStream, websocket: bool, goodbye: Arc<Vec<u8>>) {
+    let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
+    if let Some(mut conn) = Conn::accept(sock, websocket, limit).await {
+        if conn.send(&goodbye, GOODBYE_TIMEOUT_SECS).await {
+            conn.close().await;
+        }
+    }
 }
 
 async fn serve_client(
@@ -316,4 +442,18 @@ async fn serve_client(
         stats.write_errors.fetch_add(1, Ordering::Relaxed);
     }
     stats.clients.fetch_sub(1, Ordering::Relaxed);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failed_accepts_wait_longer_up_to_a_second_and_a_success_starts_over() {
+        let mut b = AcceptBackoff::default();
+        let waits: Vec<f64> = (0..6).map(|_| b.failed()).collect();
+        assert_eq!(waits, [0.1, 0.2, 0.4, 0.8, 1.0, 1.0]);
+        b.succeeded();
+        assert_eq!(b.failed(), 0.1);
+    }
 }

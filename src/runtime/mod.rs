@@ -1,11 +1,13 @@
 //! Ground floor: what every layer uses at run time. The clock (system or manual, time
 //! passed in so tests drive it), the latest-value slots between threads, the socket
-//! waits of the network inputs and senders, a seeded random generator, percentiles of
-//! measurements, and TOML documents read with every problem at its line.
+//! waits of the network inputs and senders (and how often they say what went wrong), a
+//! seeded random generator, percentiles of measurements, and TOML documents read with
+//! every problem at its line.
 
 pub mod clock;
 pub mod net;
 pub mod rng;
+pub mod said;
 pub mod slot;
 pub mod stats;
 pub mod toml_doc;

@@ -94,3 +94,47 @@ pub fn client_summary(addr: &str, args: &[&str]) -> serde_json::Value {
     let v: serde_json::Value = serde_json::from_str(text.trim()).expect("client JSON");
     v["summary"].clone()
 }
+
+/// Log lines written through `tracing` while [`Self::subscriber`] was the default
+/// (plain text, one event a line), for tests that count what a component says.
+#[derive(Clone, Default)]
+pub struct LogCapture(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl LogCapture {
+    /// A subscriber that writes every event at `max_level` or above here.
+    pub fn subscriber(&self, max_level: tracing::Level) -> impl tracing::Subscriber + Send + Sync {
+        let me = self.clone();
+        tracing_subscriber::fmt()
+            .with_ansi(false)
+            .with_max_level(max_level)
+            .with_writer(move || me.clone())
+            .finish()
+    }
+
+    /// The lines so far.
+    pub fn lines(&self) -> Vec<String> {
+        String::from_utf8_lossy(&self.0.lock().unwrap())
+            .lines()
+            .map(str::to_owned)
+            .collect()
+    }
+
+    /// The lines so far at level `level` ("WARN", "INFO", ...) that contain `text`.
+    pub fn count(&self, level: &str, text: &str) -> usize {
+        self.lines()
+            .iter()
+            .filter(|l| l.contains(level) && l.contains(text))
+            .count()
+    }
+}
+
+impl std::io::Write for LogCapture {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
