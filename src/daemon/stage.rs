@@ -666,7 +666,8 @@ fn assemble(
     sinks: &Sinks,
 ) -> (Pipeline, Option<Arc<PinSlot>>) {
     let rig = Arc::clone(solver.rig());
-    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
+    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint)
+        .with_names(&rig.marker_names);
     let mut pipeline = Pipeline::new(solver, buffer, rx, sinks.slots.clone());
     let rerun = &cfg.outputs.rerun;
     if sinks.rerun_target != RerunTarget::Off && rerun.control_mesh {
