@@ -8,7 +8,7 @@ use rigless::character::demo::demo_hand;
 use rigless::config::parse_stage;
 use rigless::daemon::stage::{Stage, StartOptions, Summary};
 use rigless::output::frame::DeformedFrame;
-use rigless::protocol::osc::encode_native;
+use rigless::protocol::osc::{encode_native, time_tag_of_unix};
 use rigless::runtime::clock::{Clock, ManualClock};
 use rigless::runtime::slot::LatestSlot;
 use std::net::UdpSocket;
@@ -33,7 +33,6 @@ struct Run {
     frames: Vec<Arc<DeformedFrame>>,
     summary: Summary,
     /// When packet `n` was sent, seconds on the stage's clock.
-    #[allow(dead_code)] // read by the time tag test (next commit)
     sent_s: Vec<f64>,
 }
 
@@ -153,4 +152,33 @@ fn a_marker_sent_at_1e30_m_three_times_does_not_throw_the_mesh() {
             assert!(m.abs().max_element() < 20.0, "a published marker at {m}");
         }
     }
+}
+#[test]
+fn one_bundle_with_a_far_future_time_tag_does_not_pin_the_source_times() {
+    // Every bundle tagged with its send time (the manual clock's Unix time is its own
+    // time), except packet 30: 0xFFFFFFFF seconds since 1900, 2085978495 s Unix.
+    let run = run_osc(61, &|n, t| Packet {
+        time_tag: if n == 30 {
+            (u32::MAX, 0)
+        } else {
+            time_tag_of_unix(t)
+        },
+        far: false,
+    });
+    assert_eq!(run.frames.len(), 61);
+    // Frame `n` carries packet n's time: its own time tag, or for the bad packet and the
+    // few after it (until the tags are steady again), its receive time plus the offset
+    // the tags had before. Exact up to the tag's resolution as f64 seconds since 1900
+    // (2^-21 s, 0.5 µs, at 2.2e9 s).
+    for (n, (f, sent)) in run.frames.iter().zip(&run.sent_s).enumerate() {
+        assert!(
+            (f.source_time_s - sent).abs() < 1e-6,
+            "frame {n}: source time {} for a packet sent at {sent}",
+            f.source_time_s
+        );
+    }
+    assert_eq!(run.summary.source_clock_jumps, vec![1]);
+    // The bad packet and the nine after it (the first disagrees with the bad one; ten in
+    // a row with the same offset make the clock trusted again).
+    assert_eq!(run.summary.source_clock_untrusted, vec![10]);
 }

@@ -234,6 +234,8 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
             "stream": s.stream,
             "source_samples": s.source_samples,
             "source_dropped": s.source_dropped,
+            "source_clock_jumps": s.source_clock_jumps,
+            "source_clock_untrusted": s.source_clock_untrusted,
             "stopped": s.stopped.reason(),
             "inputs": s.inputs,
             "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
