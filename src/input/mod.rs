@@ -508,30 +508,43 @@ mod tests {
             }
         };
         let mut got = Vec::new();
-        for n in 0..30 {
-            let t = n as f64 * 0.25;
-            let samples = [MarkerSample {
-                marker: 0,
-                time_s: t,
-                source_time_s: source(n),
-                position_m: glam::DVec3::ZERO,
-                occluded: false,
-            }];
-            assert!(sink.frame(&InputFrame {
-                time_s: t,
-                receive_unix_s: 0.0,
-                source_time_s: Some(source(n)),
-                frame: None,
-                samples: &samples,
-                names: &[],
-            }));
-            got.push(rx.try_recv().unwrap().source_time_s);
-        }
+        let ((), logs) = crate::runtime::logs::captured(|| {
+            for n in 0..30 {
+                let t = n as f64 * 0.25;
+                let samples = [MarkerSample {
+                    marker: 0,
+                    time_s: t,
+                    source_time_s: source(n),
+                    position_m: glam::DVec3::ZERO,
+                    occluded: false,
+                }];
+                assert!(sink.frame(&InputFrame {
+                    time_s: t,
+                    receive_unix_s: 0.0,
+                    source_time_s: Some(source(n)),
+                    frame: None,
+                    samples: &samples,
+                    names: &[],
+                }));
+                got.push(rx.try_recv().unwrap().source_time_s);
+            }
+        });
         // Every sample carries 1000 + n/4, the bad one included: packets 12 to 21 (the
         // bad one and the nine until ten agree) are stamped receive + 1000, exactly that.
         let want: Vec<f64> = (0..30).map(|n| 1000.0 + n as f64 * 0.25).collect();
         assert_eq!(got, want);
         assert_eq!(counters.clock_jumps.load(Ordering::Relaxed), 1);
         assert_eq!(counters.clock_untrusted.load(Ordering::Relaxed), 10);
+        // Logged once per episode: when it jumped, and when it was steady again.
+        let lines: Vec<&str> = logs.lines().collect();
+        assert_eq!(lines.len(), 2, "{logs}");
+        assert!(
+            lines[0].contains("WARN") && lines[0].contains("input 0: the source clock jumped"),
+            "{logs}"
+        );
+        assert!(
+            lines[1].contains("INFO") && lines[1].contains("steady again after 10 packets"),
+            "{logs}"
+        );
     }
 }

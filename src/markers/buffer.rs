@@ -834,6 +834,33 @@ mod tests {
     }
 
     #[test]
+    fn an_implausible_marker_is_logged_once_with_its_name_and_value() {
+        let (rest, joint) = layout();
+        let names: Vec<String> = (0..5).map(|k| format!("M{k}")).collect();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint).with_names(&names);
+        let ((), text) = crate::runtime::logs::captured(|| {
+            for i in 0..100 {
+                b.push(&sample(0, i as f64 * 0.01, DVec3::splat(1e30)));
+            }
+            b.push(&sample(3, 0.0, DVec3::new(0.0, 50.0, 0.0)));
+            b.push(&sample(3, 0.01, DVec3::new(0.0, 60.0, 0.0)));
+        });
+        assert_eq!(b.counters().implausible, 102);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 2, "one line per marker:\n{text}");
+        assert!(lines[0].contains("WARN"), "{text}");
+        assert!(lines[0].contains("marker M0"), "{text}");
+        assert!(
+            lines[0].contains("1000000000000000000000000000000"),
+            "{text}"
+        );
+        assert!(
+            lines[1].contains("marker M3") && lines[1].contains("50"),
+            "{text}"
+        );
+    }
+
+    #[test]
     fn a_frame_carries_the_newest_samples_source_time_not_the_largest() {
         let (rest, joint) = layout();
         let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);

@@ -4,6 +4,8 @@
 //! of measurements.
 
 pub mod clock;
+#[cfg(test)]
+pub mod logs;
 pub mod net;
 pub mod rng;
 pub mod slot;
