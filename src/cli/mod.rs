@@ -210,10 +210,15 @@ fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
         return;
     }
     let [m, p, r, h] = st.fill_now;
-    let line = format!(
+    let mut line = format!(
         "frame {:>6}  {:>5.1} Hz  solve ms p50 {:.2} p99 {:.2} (frame {:.2} / {:.2})  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
         st.frames, st.frame_rate_hz, st.solve_ms_p50, st.solve_ms_p99, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
     );
+    // Only when a sender has sent something impossible (the JSON status always has it).
+    let implausible = st.buffer.implausible + st.buffer.implausible_fills;
+    if implausible > 0 {
+        line.push_str(&format!("  implausible {implausible}"));
+    }
     if tty {
         print!("\r{line}   ");
         flush(&mut std::io::stdout());
@@ -229,6 +234,8 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
             "stream": s.stream,
             "source_samples": s.source_samples,
             "source_dropped": s.source_dropped,
+            "source_clock_jumps": s.source_clock_jumps,
+            "source_clock_untrusted": s.source_clock_untrusted,
             "stopped": s.stopped.reason(),
             "inputs": s.inputs,
             "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
@@ -255,8 +262,8 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
         s.stopped.reason(), st.frames, st.frame_ms_p50, st.frame_ms_p99, st.deadline_stops, st.overruns, s.source_samples, s.source_dropped
     );
     println!(
-        "markers: {:.1} % measured, {:.1} % predicted, {:.1} % rigid-filled, {:.1} % held; {} samples, {} occluded, {} gated ({} label swaps), {} re-acquired",
-        pct(0), pct(1), pct(2), pct(3), b.accepted + b.occluded, b.occluded, b.gate_rejected, b.label_swaps, b.reacquired
+        "markers: {:.1} % measured, {:.1} % predicted, {:.1} % rigid-filled, {:.1} % held; {} samples, {} occluded, {} outside the stage volume, {} gated ({} label swaps), {} re-acquired, {} fills outside the volume held",
+        pct(0), pct(1), pct(2), pct(3), b.accepted + b.occluded, b.occluded, b.implausible, b.gate_rejected, b.label_swaps, b.reacquired, b.implausible_fills
     );
     println!("stream: {}", serde_json::to_string(&s.stream)?);
     for line in &s.inputs {

@@ -172,6 +172,10 @@ pub struct Summary {
     /// Samples the inputs sent into the channel, and dropped at a full channel.
     pub source_samples: u64,
     pub source_dropped: u64,
+    /// Per input (the config's order): times its source clock jumped, and packets whose
+    /// source time was not trusted (their samples carry one from the receive clock).
+    pub source_clock_jumps: Vec<u64>,
+    pub source_clock_untrusted: Vec<u64>,
     /// Each input's closing line (what it received), or its error.
     pub inputs: Vec<String>,
     pub stream: StreamSummary,
@@ -534,12 +538,26 @@ impl Stage {
             StopCause::InputsEnded
         };
         let mut inputs = Vec::new();
-        for (s, info) in self.sources.into_iter().zip(&self.info.inputs) {
-            inputs.push(match s.join() {
+        for ((s, info), c) in self
+            .sources
+            .into_iter()
+            .zip(&self.info.inputs)
+            .zip(&self.counters)
+        {
+            let mut line = match s.join() {
                 Ok(Ok(line)) => format!("{}: {line}", info.kind),
                 Ok(Err(e)) => format!("{}: {e}", info.kind),
                 Err(_) => format!("{}: the input's thread panicked", info.kind),
-            });
+            };
+            let jumps = c.clock_jumps.load(Ordering::Relaxed);
+            if jumps > 0 {
+                line.push_str(&format!(
+                    "; its source clock jumped {jumps} time{} ({} packets stamped from the receive clock)",
+                    if jumps == 1 { "" } else { "s" },
+                    c.clock_untrusted.load(Ordering::Relaxed)
+                ));
+            }
+            inputs.push(line);
         }
         // The pipeline and its recorder channel went with the solver thread.
         let recorded = match self.recorder {
@@ -571,12 +589,15 @@ impl Stage {
             None => Ok(None),
         };
         let sum = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).sum();
+        let each = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).collect();
         let s = &self.stream_stats;
         Ok(Summary {
             status: status?,
             stopped,
             source_samples: sum(|c| c.samples.load(Ordering::Relaxed)),
             source_dropped: sum(|c| c.dropped.load(Ordering::Relaxed)),
+            source_clock_jumps: each(|c| c.clock_jumps.load(Ordering::Relaxed)),
+            source_clock_untrusted: each(|c| c.clock_untrusted.load(Ordering::Relaxed)),
             inputs,
             stream: StreamSummary {
                 connections: s.connections.load(Ordering::Relaxed),
@@ -675,7 +696,8 @@ fn assemble(
     sinks: &Sinks,
 ) -> (Pipeline, Option<Arc<PinSlot>>) {
     let rig = Arc::clone(solver.rig());
-    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint);
+    let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint)
+        .with_names(&rig.marker_names);
     let mut pipeline = Pipeline::new(solver, buffer, rx, sinks.slots.clone());
     let rerun = &cfg.outputs.rerun;
     if sinks.rerun_target != RerunTarget::Off && rerun.control_mesh {
@@ -714,13 +736,14 @@ fn spawn_inputs(
         .map(|i| i.is_paced().then(|| Attached::new(clock)))
         .collect();
     let mut threads = Vec::new();
-    for ((input, place), c) in opened.into_iter().zip(places).zip(counters) {
+    for (index, ((input, place), c)) in opened.into_iter().zip(places).zip(counters).enumerate() {
         let pins = pins.as_ref().map(|slot| PinTarget {
             slot: Arc::clone(slot),
             rig: Arc::clone(rig),
         });
-        let mut sink = ChannelSink::new(tx.clone(), Arc::clone(c), pins);
         let kind = input.kind();
+        let mut sink = ChannelSink::new(tx.clone(), Arc::clone(c), pins)
+            .named(format!("input {index} ({kind})"));
         let (clock, stop) = (Arc::clone(clock), Arc::clone(stop));
         let run = move || input.run(&*clock, start_s, &stop, &mut sink);
         threads.push(match place {

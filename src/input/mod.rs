@@ -3,7 +3,8 @@
 //! marker names) and then runs on its own thread ([`Input::run`]): it receives, reads or
 //! plays its packets, decodes them with `protocol/`, converts units once, and hands each
 //! packet's [`MarkerSample`]s, marker indices already resolved, to an [`InputSink`]: the
-//! stage's bounded channel ([`ChannelSink`]) or `rigless listen`'s printer. [`Input`] is
+//! stage's bounded channel ([`ChannelSink`], which also judges the input's source clock
+//! with a [`source_clock::SourceClock`]) or `rigless listen`'s printer. [`Input`] is
 //! the one dispatch over input kinds in the crate; a new protocol is a codec in
 //! `protocol/`, an adapter file here and a variant of [`config::InputConfig`].
 
@@ -12,6 +13,7 @@ pub mod glove;
 pub mod natnet;
 pub mod osc;
 pub mod replay;
+pub mod source_clock;
 pub mod synthetic;
 pub mod udp;
 pub mod vrpn;
@@ -26,6 +28,7 @@ use crate::runtime::clock::Clock;
 use crate::runtime::slot::PinSlot;
 use config::InputConfig;
 use crossbeam_channel::{Sender, TrySendError};
+use source_clock::{ClockEvent, SourceClock, SourceClockParams};
 use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -247,6 +250,11 @@ pub struct SourceCounters {
     pub samples: AtomicU64,
     /// Samples dropped because the channel was full.
     pub dropped: AtomicU64,
+    /// Times the source clock jumped (episodes: a jump while it is already untrusted is
+    /// part of the same one).
+    pub clock_jumps: AtomicU64,
+    /// Packets whose source time was not trusted (stamped from the receive clock).
+    pub clock_untrusted: AtomicU64,
     /// When the newest frame arrived, seconds on the stage's clock (`f64` bits).
     last_frame_s: AtomicU64,
     /// The longest interval between consecutive frames since it was last taken, seconds
@@ -325,10 +333,15 @@ pub struct PinTarget {
 
 /// The stage's sink: samples go into the bounded channel without blocking (a full
 /// channel drops and counts), glove readings into the pin slot; every frame is counted.
+/// A packet's source time passes its input's [`SourceClock`] first: while that clock is
+/// not trusted, the samples carry a source time derived from their receive time.
 pub struct ChannelSink {
     tx: Sender<MarkerSample>,
     counters: Arc<SourceCounters>,
     pins: Option<PinTarget>,
+    clock: SourceClock,
+    /// The input, as logs name it.
+    name: String,
 }
 
 impl ChannelSink {
@@ -337,16 +350,70 @@ impl ChannelSink {
         counters: Arc<SourceCounters>,
         pins: Option<PinTarget>,
     ) -> Self {
-        Self { tx, counters, pins }
+        Self {
+            tx,
+            counters,
+            pins,
+            clock: SourceClock::new(SourceClockParams::default()),
+            name: "input".into(),
+        }
+    }
+
+    /// Names the input in what the sink logs (`input 0 (osc)`).
+    pub fn named(mut self, name: String) -> Self {
+        self.name = name;
+        self
+    }
+
+    /// Judges a packet's source time; returns the one its samples carry when it is not
+    /// their own. Logs once per episode.
+    fn source_time(&mut self, frame: &InputFrame<'_>) -> Option<f64> {
+        let source = frame.source_time_s?;
+        let stamp = self.clock.stamp(frame.time_s, source);
+        let c = &self.counters;
+        match stamp.event {
+            Some(ClockEvent::Jumped {
+                source_time_s,
+                offset_change_s,
+            }) => {
+                c.clock_jumps.fetch_add(1, Ordering::Relaxed);
+                if stamp.trusted {
+                    tracing::warn!(
+                        input = %self.name, source_time_s, offset_change_s,
+                        "{}: the source clock jumped before it settled; taking its new time", self.name
+                    );
+                } else {
+                    tracing::warn!(
+                        input = %self.name, source_time_s, offset_change_s,
+                        "{}: the source clock jumped (source time {source_time_s} s, {offset_change_s:+} s against the receive clock); its samples carry receive times until it is steady again", self.name
+                    );
+                }
+            }
+            Some(ClockEvent::Steady { untrusted_packets }) => tracing::info!(
+                input = %self.name, untrusted_packets,
+                "{}: the source clock is steady again after {untrusted_packets} packets", self.name
+            ),
+            None => {}
+        }
+        if stamp.trusted {
+            return None;
+        }
+        c.clock_untrusted.fetch_add(1, Ordering::Relaxed);
+        Some(stamp.source_time_s)
     }
 }
 
 impl InputSink for ChannelSink {
     fn frame(&mut self, frame: &InputFrame<'_>) -> bool {
+        self.counters.count_frame(frame.time_s);
+        let replaced = self.source_time(frame);
         let c = &self.counters;
-        c.count_frame(frame.time_s);
         for s in frame.samples {
-            match self.tx.try_send(*s) {
+            let mut s = *s;
+            if let Some(t) = replaced {
+                s.source_time_s = t;
+            }
+            match self.tx.try_send(s) {
                 Ok(()) => c.samples.fetch_add(1, Ordering::Relaxed),
                 Err(TrySendError::Full(_)) => c.dropped.fetch_add(1, Ordering::Relaxed),
                 Err(TrySendError::Disconnected(_)) => return false,
@@ -424,5 +491,60 @@ mod tests {
         drop(rx);
         assert!(!sink.frame(&frame(1.5)), "the receiver is gone");
         assert_eq!(counters.frames.load(Ordering::Relaxed), 3);
+    }
+
+    #[test]
+    fn a_jumping_source_clock_is_replaced_in_the_samples_and_counted() {
+        let (tx, rx) = crossbeam_channel::bounded(64);
+        let counters = Arc::new(SourceCounters::default());
+        let mut sink = ChannelSink::new(tx, Arc::clone(&counters), None).named("input 0".into());
+        // Packet n received at n/4 s, its source clock 1000 s ahead; packet 12 carries
+        // 2085978495 s (an OSC time tag of 0xFFFFFFFF s).
+        let source = |n: usize| {
+            if n == 12 {
+                2_085_978_495.0
+            } else {
+                1000.0 + n as f64 * 0.25
+            }
+        };
+        let mut got = Vec::new();
+        let ((), logs) = crate::runtime::logs::captured(|| {
+            for n in 0..30 {
+                let t = n as f64 * 0.25;
+                let samples = [MarkerSample {
+                    marker: 0,
+                    time_s: t,
+                    source_time_s: source(n),
+                    position_m: glam::DVec3::ZERO,
+                    occluded: false,
+                }];
+                assert!(sink.frame(&InputFrame {
+                    time_s: t,
+                    receive_unix_s: 0.0,
+                    source_time_s: Some(source(n)),
+                    frame: None,
+                    samples: &samples,
+                    names: &[],
+                }));
+                got.push(rx.try_recv().unwrap().source_time_s);
+            }
+        });
+        // Every sample carries 1000 + n/4, the bad one included: packets 12 to 21 (the
+        // bad one and the nine until ten agree) are stamped receive + 1000, exactly that.
+        let want: Vec<f64> = (0..30).map(|n| 1000.0 + n as f64 * 0.25).collect();
+        assert_eq!(got, want);
+        assert_eq!(counters.clock_jumps.load(Ordering::Relaxed), 1);
+        assert_eq!(counters.clock_untrusted.load(Ordering::Relaxed), 10);
+        // Logged once per episode: when it jumped, and when it was steady again.
+        let lines: Vec<&str> = logs.lines().collect();
+        assert_eq!(lines.len(), 2, "{logs}");
+        assert!(
+            lines[0].contains("WARN") && lines[0].contains("input 0: the source clock jumped"),
+            "{logs}"
+        );
+        assert!(
+            lines[1].contains("INFO") && lines[1].contains("steady again after 10 packets"),
+            "{logs}"
+        );
     }
 }

@@ -75,7 +75,8 @@ impl SyntheticInput {
         sink: &mut dyn InputSink,
     ) -> String {
         let frames = self.session.frames().max(1);
-        let period = 1.0 / self.session.params().rate_hz;
+        let rate_hz = self.session.params().rate_hz;
+        let period = 1.0 / rate_hz;
         let names: Vec<String> = self
             .session
             .character()
@@ -95,11 +96,17 @@ impl SyntheticInput {
             &mut |n, t| {
                 batch.clear();
                 self.session.frame(n % frames, t, &mut batch);
+                // The source clock runs on across loops, as a recording's does (a clock
+                // that went back at every loop would be a jump each time).
+                let source = n as f64 / rate_hz;
+                for s in &mut batch {
+                    s.source_time_s = source;
+                }
                 sent += 1;
                 let taken = sink.frame(&InputFrame {
                     time_s: t,
                     receive_unix_s: clock.unix_s(t),
-                    source_time_s: batch.first().map(|s| s.source_time_s),
+                    source_time_s: Some(source),
                     frame: Some(n as i64),
                     samples: &batch,
                     names: &names,

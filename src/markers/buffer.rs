@@ -15,10 +15,15 @@
 //! 3. `held`: no information; the solver leaves the marker's bound point where its bone
 //!    takes it.
 //!
-//! An innovation gate rejects samples that land too far from the marker's own
+//! A plausibility bound comes first: a sample outside the stage volume (`volume_min_m`
+//! to `volume_max_m`) is dropped and counted, and the first one of each marker is logged;
+//! so is any gap-filled position that would leave the volume (it is held instead). Then
+//! an innovation gate rejects samples that land too far from the marker's own
 //! prediction (jumps, and label swaps: a rejected sample near another marker's prediction
 //! is counted as a swap); a marker whose rejected samples agree with each other for
-//! `reacquire_samples` samples is re-acquired there.
+//! `reacquire_samples` samples is re-acquired there (never outside the volume: those
+//! samples never reach the gate). So no non-finite or out-of-volume position reaches the
+//! solver, whatever a sender sends.
 //!
 //! No allocation after construction: histories are fixed rings, frames are filled in
 //! place. Time is passed in; nothing here reads a clock.
@@ -53,6 +58,11 @@ pub struct BufferConfig {
     /// Consecutive rejected samples that agree with each other before the marker is
     /// re-acquired at their position.
     pub reacquire_samples: u32,
+    /// The stage volume's lowest corner `[x, y, z]`, metres, world frame (Y up): a sample
+    /// outside the volume is implausible (dropped, counted), as is a filled position.
+    pub volume_min_m: [f64; 3],
+    /// The stage volume's highest corner `[x, y, z]`, metres, world frame (Y up).
+    pub volume_max_m: [f64; 3],
 }
 
 impl Default for BufferConfig {
@@ -67,6 +77,8 @@ impl Default for BufferConfig {
             gate_floor_m: 0.02,
             gate_max_accel_m_s2: 200.0,
             reacquire_samples: 3,
+            volume_min_m: [-20.0, -5.0, -20.0],
+            volume_max_m: [20.0, 10.0, 20.0],
         }
     }
 }
@@ -75,6 +87,15 @@ impl BufferConfig {
     /// Gate radius for a prediction `dt` seconds past the last sample, metres.
     pub fn gate_m(&self, dt: f64) -> f64 {
         self.gate_floor_m + 0.5 * self.gate_max_accel_m_s2 * dt * dt
+    }
+
+    /// Whether `p` is finite and inside the stage volume (bounds included).
+    pub fn in_volume(&self, p: DVec3) -> bool {
+        let (lo, hi) = (
+            DVec3::from(self.volume_min_m),
+            DVec3::from(self.volume_max_m),
+        );
+        p.cmpge(lo).all() && p.cmple(hi).all()
     }
 
     /// Every problem with these settings (empty when valid), each naming its key.
@@ -109,6 +130,29 @@ impl BufferConfig {
         if self.reacquire_samples == 0 {
             out.push(("reacquire_samples".into(), "must be at least 1".into()));
         }
+        let (lo, hi) = (self.volume_min_m, self.volume_max_m);
+        for (key, corner) in [("volume_min_m", lo), ("volume_max_m", hi)] {
+            if !corner.iter().all(|v| v.is_finite()) {
+                out.push((
+                    key.into(),
+                    format!("must be three finite metres, got {corner:?}"),
+                ));
+            }
+        }
+        let axes = ["x", "y", "z"];
+        let empty: Vec<&str> = (0..3)
+            .filter(|&i| lo[i] >= hi[i])
+            .map(|i| axes[i])
+            .collect();
+        if lo.iter().chain(&hi).all(|v| v.is_finite()) && !empty.is_empty() {
+            out.push((
+                "volume_max_m".into(),
+                format!(
+                    "must be above volume_min_m on every axis, but is not on {} ({hi:?} against {lo:?})",
+                    empty.join(", ")
+                ),
+            ));
+        }
         out
     }
 }
@@ -120,6 +164,11 @@ pub struct BufferCounters {
     pub accepted: u64,
     /// Samples flagged occluded or with a non-finite position.
     pub occluded: u64,
+    /// Samples with a finite position outside the stage volume (dropped).
+    pub implausible: u64,
+    /// Gap-filled positions (predicted or rigid) that fell outside the stage volume; the
+    /// marker was held instead.
+    pub implausible_fills: u64,
     /// Samples naming a marker outside the layout, or with a non-finite time.
     pub invalid: u64,
     /// Samples older than the marker's newest (dropped).
@@ -147,6 +196,8 @@ struct Track {
     occluded_at: Option<f64>,
     /// A run of rejected samples that agree with each other: newest time, position, count.
     candidate: Option<(f64, DVec3, u32)>,
+    /// An implausible sample of this marker has been logged (once per marker).
+    warned: bool,
 }
 
 impl Track {
@@ -182,8 +233,11 @@ impl Track {
         self.candidate = None;
     }
 
-    /// Least-squares velocity over the samples within `window_s` of the newest, m/s
-    /// (zero with fewer than two).
+    /// Least-squares velocity over the samples within `window_s` of the newest, m/s;
+    /// zero with fewer than two, or when they span less than half the window. Receive
+    /// times are what the samples carry, and a network stall delivers its queued packets
+    /// microseconds apart: a slope over such a burst would be the real motion over the
+    /// stall divided by microseconds, and the prediction would fly off with it.
     fn velocity(&self, window_s: f64) -> DVec3 {
         let Some((t_new, _)) = self.newest() else {
             return DVec3::ZERO;
@@ -198,7 +252,7 @@ impl Track {
             sp += p;
             n += 1;
         }
-        if n < 2 {
+        if n < 2 || t_new - self.nth_newest(n - 1).0 < 0.5 * window_s {
             return DVec3::ZERO;
         }
         let (tm, pm) = (st / n as f64, sp / n as f64);
@@ -243,8 +297,13 @@ pub struct MarkerBuffer {
     /// Segment index of each marker.
     segment_of: Vec<usize>,
     counters: BufferCounters,
-    /// Newest source time seen.
+    /// Marker names for logs (`#k` where none is given).
+    names: Vec<String>,
+    /// The source time of the most recently received sample (a frame's source time), and
+    /// that sample's receive time. The newest, not the largest: a largest would let one
+    /// sample with a far-future time pin every later frame's.
     source_time_s: f64,
+    source_at_s: f64,
     /// Confidence of each marker in the last frame (1 measured, decay factor predicted,
     /// 1 rigid-filled, 0 held).
     confidence: Vec<f64>,
@@ -265,6 +324,7 @@ impl MarkerBuffer {
             len: 0,
             occluded_at: None,
             candidate: None,
+            warned: false,
         };
         let mut segments: Vec<Segment> = Vec::new();
         let mut joints: Vec<usize> = Vec::new();
@@ -293,11 +353,19 @@ impl MarkerBuffer {
             segments,
             segment_of,
             counters: BufferCounters::default(),
+            names: Vec::new(),
             source_time_s: 0.0,
+            source_at_s: f64::NEG_INFINITY,
             confidence: vec![0.0; n],
             scratch_ref: Vec::with_capacity(widest),
             scratch_cur: Vec::with_capacity(widest),
         }
+    }
+
+    /// Names the markers (layout order) in what the buffer logs.
+    pub fn with_names(mut self, names: &[String]) -> Self {
+        self.names = names.to_vec();
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -336,8 +404,9 @@ impl MarkerBuffer {
             self.counters.invalid += 1;
             return;
         }
-        if s.source_time_s.is_finite() {
-            self.source_time_s = self.source_time_s.max(s.source_time_s);
+        if s.source_time_s.is_finite() && s.time_s >= self.source_at_s {
+            self.source_time_s = s.source_time_s;
+            self.source_at_s = s.time_s;
         }
         let newest = self.tracks[k].newest();
         if let Some((t_last, _)) = newest {
@@ -352,6 +421,10 @@ impl MarkerBuffer {
             if newest.is_none_or(|(t_last, _)| s.time_s > t_last) {
                 tr.occluded_at = Some(s.time_s);
             }
+            return;
+        }
+        if !self.cfg.in_volume(s.position_m) {
+            self.implausible(k, s.position_m);
             return;
         }
         // Innovation gate (only while the marker's own prediction means something).
@@ -377,6 +450,26 @@ impl MarkerBuffer {
         tr.occluded_at = None;
         tr.candidate = None;
         self.counters.accepted += 1;
+    }
+
+    /// Counts a sample outside the stage volume; logs the first of each marker.
+    fn implausible(&mut self, k: usize, p: DVec3) {
+        self.counters.implausible += 1;
+        let tr = &mut self.tracks[k];
+        if !tr.warned {
+            tr.warned = true;
+            let (lo, hi) = (self.cfg.volume_min_m, self.cfg.volume_max_m);
+            match self.names.get(k) {
+                Some(name) => tracing::warn!(
+                    marker = %name, position_m = %p, volume_min_m = ?lo, volume_max_m = ?hi,
+                    "a sample of marker {name} outside the stage volume was dropped (counted as implausible; this marker is not logged again)"
+                ),
+                None => tracing::warn!(
+                    marker = k, position_m = %p, volume_min_m = ?lo, volume_max_m = ?hi,
+                    "a sample of marker #{k} outside the stage volume was dropped (counted as implausible; this marker is not logged again)"
+                ),
+            }
+        }
     }
 
     /// Handles a sample the gate rejected: counts it, checks for a label swap, and
@@ -479,6 +572,16 @@ impl MarkerBuffer {
                     out.states[k] = FillState::Predicted;
                     self.confidence[k] = c;
                 }
+            }
+        }
+        // A fill that leaves the volume (a rigid layout or a prediction gone wrong) is
+        // worth nothing to the solver: the marker is held at its last sample instead.
+        for (k, tr) in self.tracks.iter().enumerate() {
+            if out.states[k] != FillState::Held && !cfg.in_volume(out.positions[k]) {
+                self.counters.implausible_fills += 1;
+                out.states[k] = FillState::Held;
+                out.positions[k] = tr.newest().map_or(DVec3::ZERO, |(_, p)| p);
+                self.confidence[k] = 0.0;
             }
         }
         self.counters.frames += 1;
@@ -696,6 +799,174 @@ mod tests {
         assert_eq!(b.counters().invalid, 2);
         assert_eq!(b.counters().late, 1);
         assert_eq!(b.counters().accepted, 1);
+    }
+
+    #[test]
+    fn samples_outside_the_volume_are_dropped_counted_and_never_reacquired() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        for i in 0..10 {
+            b.push(&sample(0, i as f64 * 0.01, rest[0]));
+        }
+        // Three agreeing samples at 1e30 m (what re-acquires a marker inside the volume),
+        // and one just past a corner (x = 20.001 m, the default bound being 20 m).
+        let far = DVec3::splat(1e30);
+        for i in 10..13 {
+            b.push(&sample(0, i as f64 * 0.01, far));
+        }
+        b.push(&sample(0, 0.13, DVec3::new(20.001, 0.0, 0.0)));
+        let c = *b.counters();
+        assert_eq!((c.implausible, c.gate_rejected, c.reacquired), (4, 0, 0));
+        assert_eq!(c.accepted, 10);
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(0.13, &mut f);
+        // The marker coasts on its own history (still, at rest).
+        assert_eq!(f.states[0], FillState::Predicted);
+        assert_eq!(f.positions[0], rest[0]);
+        // A real sample is taken again at once: the implausible ones left no trace.
+        b.push(&sample(0, 0.14, rest[0]));
+        assert_eq!(b.counters().accepted, 11);
+        // On the volume's boundary is inside.
+        let edge = BufferConfig::default();
+        assert!(edge.in_volume(DVec3::new(20.0, 10.0, -20.0)));
+        assert!(!edge.in_volume(DVec3::new(0.0, -5.000_001, 0.0)));
+        assert!(!edge.in_volume(DVec3::new(f64::INFINITY, 0.0, 0.0)));
+    }
+
+    #[test]
+    fn an_implausible_marker_is_logged_once_with_its_name_and_value() {
+        let (rest, joint) = layout();
+        let names: Vec<String> = (0..5).map(|k| format!("M{k}")).collect();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint).with_names(&names);
+        let ((), text) = crate::runtime::logs::captured(|| {
+            for i in 0..100 {
+                b.push(&sample(0, i as f64 * 0.01, DVec3::splat(1e30)));
+            }
+            b.push(&sample(3, 0.0, DVec3::new(0.0, 50.0, 0.0)));
+            b.push(&sample(3, 0.01, DVec3::new(0.0, 60.0, 0.0)));
+        });
+        assert_eq!(b.counters().implausible, 102);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 2, "one line per marker:\n{text}");
+        assert!(lines[0].contains("WARN"), "{text}");
+        assert!(lines[0].contains("marker M0"), "{text}");
+        assert!(
+            lines[0].contains("1000000000000000000000000000000"),
+            "{text}"
+        );
+        assert!(
+            lines[1].contains("marker M3") && lines[1].contains("50"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_frame_carries_the_newest_samples_source_time_not_the_largest() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        let mut f = MarkerFrame::empty(0);
+        let at = |t: f64, source: f64| MarkerSample {
+            source_time_s: source,
+            ..sample(4, t, rest[4])
+        };
+        b.push(&at(0.00, 100.00));
+        b.sample_at(0.00, &mut f);
+        assert_eq!(f.source_time_s, 100.00);
+        // One sample with a far-future source time (an OSC time tag of 0xFFFFFFFF s):
+        // its frame shows it, the next frames do not.
+        b.push(&at(0.01, 2_085_978_495.0));
+        b.sample_at(0.01, &mut f);
+        assert_eq!(f.source_time_s, 2_085_978_495.0);
+        b.push(&at(0.02, 100.02));
+        b.sample_at(0.02, &mut f);
+        assert_eq!(f.source_time_s, 100.02);
+        // Non-finite source times are ignored, and a sample received before the newest
+        // does not win.
+        b.push(&at(0.03, f64::NAN));
+        b.push(&MarkerSample {
+            marker: 0,
+            ..at(0.015, 7.0)
+        });
+        b.sample_at(0.03, &mut f);
+        assert_eq!(f.source_time_s, 100.02);
+    }
+
+    #[test]
+    fn a_burst_of_samples_microseconds_apart_does_not_send_the_prediction_flying() {
+        let (rest, joint) = layout();
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        // Marker 4 moves at 1 m/s along X, sent at 120 Hz; the network stalls for 100 ms
+        // and then delivers the 12 queued packets within 120 µs (10 µs apart, as a
+        // receive clock stamps them); then the marker is occluded.
+        let v = DVec3::X;
+        for i in 0..12 {
+            let t = i as f64 / 120.0;
+            b.push(&sample(4, t, rest[4] + v * t));
+        }
+        let t_stall = 11.0 / 120.0 + 0.1;
+        for i in 12..24 {
+            let sent = i as f64 / 120.0;
+            b.push(&sample(
+                4,
+                t_stall + (i - 12) as f64 * 1e-5,
+                rest[4] + v * sent,
+            ));
+        }
+        assert_eq!(b.counters().gate_rejected, 0);
+        let last = rest[4] + v * (23.0 / 120.0);
+        // 50 ms later: the burst spans 110 µs, less than half the 50 ms velocity window,
+        // so no velocity comes of it and the marker coasts where it was last seen. (Before:
+        // a slope of ~0.09 m over 110 µs, ~800 m/s, predicted ~30 m away.)
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(t_stall + 0.05, &mut f);
+        assert_eq!(f.states[4], FillState::Predicted);
+        assert_eq!(f.positions[4], last);
+    }
+
+    #[test]
+    fn a_fill_outside_the_volume_is_held_and_counted() {
+        let (rest, joint) = layout();
+        let cfg = BufferConfig {
+            volume_max_m: [0.52, 10.0, 20.0],
+            ..BufferConfig::default()
+        };
+        let mut b = MarkerBuffer::new(cfg, &rest, &joint);
+        // Marker 4 moves at 1 m/s along X from x = 0.3 to 0.49 m, 3 cm inside the volume;
+        // 30 ms later its prediction is 0.49 + 0.1 · (1 − e^−0.3) = 0.516 m, inside; 50 ms
+        // later 0.49 + 0.1 · (1 − e^−0.5) = 0.529 m, outside.
+        let v = DVec3::X;
+        let start = DVec3::new(0.3, 0.5, 0.5);
+        for i in 0..20 {
+            let t = i as f64 * 0.01;
+            b.push(&sample(4, t, start + v * t));
+        }
+        let mut f = MarkerFrame::empty(0);
+        b.sample_at(0.22, &mut f);
+        assert_eq!(f.states[4], FillState::Predicted, "30 ms on: still inside");
+        b.sample_at(0.24, &mut f);
+        assert_eq!(f.states[4], FillState::Held);
+        assert_eq!(f.positions[4], start + v * 0.19);
+        assert_eq!(b.confidence()[4], 0.0);
+        assert_eq!(b.counters().implausible_fills, 1);
+    }
+
+    #[test]
+    fn volume_problems_are_reported_by_key() {
+        let cfg = BufferConfig {
+            volume_min_m: [0.0, f64::NAN, 0.0],
+            ..BufferConfig::default()
+        };
+        assert_eq!(cfg.problems().len(), 1, "{:?}", cfg.problems());
+        assert_eq!(cfg.problems()[0].0, "volume_min_m");
+        let cfg = BufferConfig {
+            volume_min_m: [1.0, 0.0, 3.0],
+            volume_max_m: [1.0, 1.0, 2.0],
+            ..BufferConfig::default()
+        };
+        let p = cfg.problems();
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, "volume_max_m");
+        assert!(p[0].1.contains("not on x, z"), "{}", p[0].1);
     }
 
     #[test]

@@ -5,6 +5,8 @@
 //! every problem at its line.
 
 pub mod clock;
+#[cfg(test)]
+pub mod logs;
 pub mod net;
 pub mod rng;
 pub mod said;
