@@ -228,7 +228,7 @@ impl Recording {
             let last = ((t1 - t0) * rate).round();
             let budget = position_budget(file_len);
             let most_frames = budget / n.max(1);
-            if !(last < most_frames as f64) {
+            if last.is_nan() || last >= most_frames as f64 {
                 return Err(RecordingError::TooLong {
                     path: name.to_owned(),
                     span_s: t1 - t0,
