@@ -6,8 +6,7 @@
 //! a byte), and a recording read has a rate within the limits and one position per label
 //! in every frame.
 //!
-//! `RIGLESS_ALLOC_REPORT=1` prints each case's figures (for the measurements in the
-//! commit that bounds the readers).
+//! `RIGLESS_ALLOC_REPORT=1` prints each case's figures. The kept fuzz corpus is read too.
 
 mod alloc_meter;
 
@@ -602,4 +601,36 @@ fn a_plausible_file_of_each_kind_reads() {
     };
     let r = Recording::from_session_bytes("p.rlsession", &session_file(&s)).unwrap();
     assert_eq!((r.frames.len(), r.labels.len()), (3, 2));
+}
+
+/// The kept fuzz corpus (`fuzz/corpus/<target>/`: the crafted files of
+/// `tests/hostile_recordings.rs` and whatever a fuzzing run found and was kept) reads
+/// within the same bounds, through the same entry points as the fuzz targets.
+#[test]
+fn the_kept_fuzz_corpus_reads_within_bounds() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
+    let mut read = 0;
+    for kind in ["c3d", "tsv", "bvh", "session"] {
+        let dir = root.join(kind);
+        let mut paths: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+            .map(|e| e.unwrap().path())
+            .collect();
+        paths.sort();
+        assert!(!paths.is_empty(), "{}: no seed", dir.display());
+        for path in paths {
+            let b = std::fs::read(&path).unwrap();
+            let name = path.display().to_string();
+            match kind {
+                "c3d" => check(&name, &b, |b| Recording::from_c3d("p.c3d", b)),
+                "tsv" => check(&name, &b, |b| Recording::from_tsv("p.tsv", b)),
+                "bvh" => check(&name, &b, |b| Recording::from_bvh("p.bvh", b, 0.01)),
+                _ => check(&name, &b, |b| {
+                    Recording::from_session_bytes("p.rlsession", b)
+                }),
+            }
+            read += 1;
+        }
+    }
+    println!("{read} corpus files read within bounds");
 }
