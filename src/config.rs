@@ -25,6 +25,7 @@ use crate::input::config::InputConfig;
 use crate::markers::buffer::BufferConfig;
 use crate::output::config::OutputsConfig;
 use crate::replay::config::RecorderConfig;
+use crate::runtime::files::{read_text_bounded, MAX_TEXT_BYTES};
 use crate::runtime::toml_doc::{in_file_order, syntax_error, typed, Lines};
 use crate::solve::config::SolverConfig;
 
@@ -204,7 +205,7 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
 /// Reads and parses a stage config file.
 pub fn load_stage(path: &std::path::Path) -> Result<StageConfig, ConfigError> {
     let shown = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    let text = read_text_bounded(path, MAX_TEXT_BYTES).map_err(|source| ConfigError::Read {
         path: shown.clone(),
         source,
     })?;
@@ -290,6 +291,30 @@ on = true
         ] {
             assert!(text.contains(want), "missing {want:?} in:\n{text}");
         }
+    }
+
+    #[test]
+    fn a_synthetic_session_is_bounded() {
+        // session_secs 1e300 made the session (all of it, before playing) until memory
+        // ran out.
+        let cfg = |secs: &str, rate: &str| {
+            format!("[character]\nprocedural = \"hand\"\n[[inputs]]\ntype = \"synthetic\"\nsession_secs = {secs}\nrate_hz = {rate}\n")
+        };
+        let e = parse_stage(&cfg("1e300", "120"), "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("session_secs") && e.contains("(0, 3600] s, got 1e300"),
+            "{e}"
+        );
+        let e = parse_stage(&cfg("3600", "1000"), "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("3600 s at 1000 Hz is more than a million frames"),
+            "{e}"
+        );
+        parse_stage(&cfg("600", "120"), "s.toml").unwrap();
     }
 
     #[test]

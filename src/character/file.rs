@@ -37,6 +37,7 @@ use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshErro
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
+use crate::runtime::files::{read_bounded, read_text_bounded, MAX_DATA_BYTES, MAX_TEXT_BYTES};
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -362,8 +363,14 @@ pub enum CharacterProblem {
     #[error("{setting} must be a positive number, got {value}")]
     NotPositive { setting: &'static str, value: f64 },
     /// `bind.cell_size_m` below 1/400 of the character's height (metres).
-    #[error("bind.cell_size_m {cell_size_m} is below 1/400 of the character's height {height_m:.3} m: the control mesh would be enormous")]
+    #[error("bind.cell_size_m {cell_size_m:?} is below 1/400 of the character's height {height_m:.3} m: the control mesh would be enormous")]
     CellTooSmall { cell_size_m: f64, height_m: f64 },
+    /// `bind.skeleton_step_m` below 1/100 of the cell size (metres).
+    #[error("bind.skeleton_step_m {step_m:?} is below 1/100 of the cell size {cell_size_m:?} m: the skeleton would be sampled absurdly finely")]
+    StepTooSmall { step_m: f64, cell_size_m: f64 },
+    /// `mesh.weld_tolerance_m` not a number from 0 to 1/100 of the character's height.
+    #[error("mesh.weld_tolerance_m {value_m:?} is not from 0 to 1/100 of the character's height {height_m:.3} m: a larger one welds distinct parts of the mesh together")]
+    WeldTolerance { value_m: f64, height_m: f64 },
     /// `correspondences[index]` repeats a joint listed before it.
     #[error("correspondences[{index}] (joint {joint:?}): the joint is listed twice")]
     CorrespondenceTwice { index: usize, joint: String },
@@ -434,7 +441,7 @@ pub fn read_spec(text: &str) -> Result<CharacterFile, Vec<String>> {
 /// Loads and validates a character file.
 pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     let shown = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| CharacterError::Read {
+    let text = read_text_bounded(path, MAX_TEXT_BYTES).map_err(|source| CharacterError::Read {
         path: shown.clone(),
         source,
     })?;
@@ -445,10 +452,11 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let mesh_path = dir.join(&spec.mesh.path);
     let mesh_shown = mesh_path.display().to_string();
-    let mesh_bytes = std::fs::read(&mesh_path).map_err(|source| CharacterError::Read {
-        path: mesh_shown.clone(),
-        source,
-    })?;
+    let mesh_bytes =
+        read_bounded(&mesh_path, MAX_DATA_BYTES).map_err(|source| CharacterError::Read {
+            path: mesh_shown.clone(),
+            source,
+        })?;
     let ext = mesh_path
         .extension()
         .map(|e| e.to_string_lossy().to_lowercase())
@@ -504,7 +512,17 @@ pub fn build(
     let frame = WorldFrame::of(&spec.mesh);
     let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
     let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
-    check_surface(&mesh, &vertices, weld_tol, &mut problems);
+    if height > 0.0 && !(0.0..=0.01 * height).contains(&weld_tol) {
+        problems.push(CharacterProblem::WeldTolerance {
+            value_m: weld_tol,
+            height_m: height,
+        });
+    }
+    // The surface is only judged once its vertices and weld tolerance are sound (a stray
+    // or non-finite vertex would show up again as a misleading topology problem).
+    if problems.is_empty() {
+        check_surface(&mesh, &vertices, weld_tol, &mut problems);
+    }
     let sk = &spec.skeleton;
     let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
         skin_joints(sk, &mesh, frame, &mut problems)
@@ -1015,6 +1033,12 @@ fn bind_params(b: &BindSpec, height: f64, problems: &mut Vec<CharacterProblem>) 
         problems.push(CharacterProblem::CellTooSmall {
             cell_size_m: params.cell_size_m,
             height_m: height,
+        });
+    }
+    if params.skeleton_step_m.is_finite() && params.skeleton_step_m < params.cell_size_m / 100.0 {
+        problems.push(CharacterProblem::StepTooSmall {
+            step_m: params.skeleton_step_m,
+            cell_size_m: params.cell_size_m,
         });
     }
     params

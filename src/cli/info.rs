@@ -20,7 +20,7 @@ pub struct InfoArgs {
 pub fn run(a: InfoArgs) -> Result<()> {
     if !(a.bvh_scale.is_finite() && a.bvh_scale > 0.0) {
         bail!(
-            "--bvh-scale must be a positive number of metres per unit, got {}",
+            "--bvh-scale must be a positive number of metres per unit, got {:?}",
             a.bvh_scale
         );
     }

@@ -41,7 +41,7 @@ pub fn run(a: ListenArgs) -> Result<()> {
     check_seconds(a.seconds)?;
     if !(a.scale.is_finite() && a.scale > 0.0) {
         bail!(
-            "--scale must be a positive number of metres per unit, got {}",
+            "--scale must be a positive number of metres per unit, got {:?}",
             a.scale
         );
     }

@@ -78,11 +78,11 @@ pub struct ReplayArgs {
 fn flag_problems(a: &ReplayArgs) -> Vec<String> {
     let mut problems = Vec::new();
     if !(a.speed.is_finite() && a.speed > 0.0 && a.speed <= 100.0) {
-        problems.push(format!("--speed must be in (0, 100], got {}", a.speed));
+        problems.push(format!("--speed must be in (0, 100], got {:?}", a.speed));
     }
     if !(a.start.is_finite() && a.start >= 0.0) {
         problems.push(format!(
-            "--start must be zero or more seconds, got {}",
+            "--start must be zero or more seconds, got {:?}",
             a.start
         ));
     }
@@ -91,18 +91,21 @@ fn flag_problems(a: &ReplayArgs) -> Vec<String> {
     }
     if !(0.0..=100.0).contains(&a.dropout_percent) {
         problems.push(format!(
-            "--dropout-percent must be 0 to 100, got {}",
+            "--dropout-percent must be 0 to 100, got {:?}",
             a.dropout_percent
         ));
     }
     if !(a.noise_mm.is_finite() && a.noise_mm >= 0.0) {
         problems.push(format!(
-            "--noise-mm must be zero or more, got {}",
+            "--noise-mm must be zero or more, got {:?}",
             a.noise_mm
         ));
     }
     if !(a.bvh_scale.is_finite() && a.bvh_scale > 0.0) {
-        problems.push(format!("--bvh-scale must be positive, got {}", a.bvh_scale));
+        problems.push(format!(
+            "--bvh-scale must be positive, got {:?}",
+            a.bvh_scale
+        ));
     }
     if a.solve.is_some() && a.start != 0.0 {
         problems.push("--start shapes what --to sends; with --solve the recording plays from its first frame (--end stops it early)".into());

@@ -161,7 +161,7 @@ pub struct SyntheticInputConfig {
     /// `"finger_play"` (the hand), `"walk"` or `"reach"` (the body); default: the
     /// character's first.
     pub motion: Option<String>,
-    /// Length of the session, seconds.
+    /// Length of the session, seconds (at most 3600, and a million frames).
     pub session_secs: f64,
     /// Capture rate, Hz.
     pub rate_hz: f64,
@@ -341,7 +341,7 @@ impl InputConfig {
                 if !(positive(o.scale) && o.scale <= 1e3) {
                     push(
                         "scale",
-                        format!("must be in (0, 1000] metres per unit, got {}", o.scale),
+                        format!("must be in (0, 1000] metres per unit, got {:?}", o.scale),
                     );
                 }
                 if !["Y", "Z", "y", "z"].contains(&o.up.as_str()) {
@@ -376,36 +376,46 @@ impl InputConfig {
                 if !(positive(r.bvh_scale) && r.bvh_scale <= 10.0) {
                     push(
                         "bvh_scale",
-                        format!("must be in (0, 10] metres per unit, got {}", r.bvh_scale),
+                        format!("must be in (0, 10] metres per unit, got {:?}", r.bvh_scale),
                     );
                 }
                 if !(positive(r.speed) && r.speed <= 100.0) {
-                    push("speed", format!("must be in (0, 100], got {}", r.speed));
+                    push("speed", format!("must be in (0, 100], got {:?}", r.speed));
                 }
             }
             InputConfig::Synthetic(s) => {
-                if !positive(s.session_secs) {
+                // The session is made whole before it plays: an hour at most, and at
+                // most a million frames.
+                if !(positive(s.session_secs) && s.session_secs <= 3600.0) {
                     push(
                         "session_secs",
-                        format!("must be positive, got {}", s.session_secs),
+                        format!("must be in (0, 3600] s, got {:?}", s.session_secs),
+                    );
+                } else if s.session_secs * s.rate_hz > 1e6 {
+                    push(
+                        "session_secs",
+                        format!(
+                            "{} s at {} Hz is more than a million frames",
+                            s.session_secs, s.rate_hz
+                        ),
                     );
                 }
                 if !(positive(s.rate_hz) && s.rate_hz <= 10_000.0) {
                     push(
                         "rate_hz",
-                        format!("must be in (0, 10000] Hz, got {}", s.rate_hz),
+                        format!("must be in (0, 10000] Hz, got {:?}", s.rate_hz),
                     );
                 }
                 if !(s.noise_mm.is_finite() && s.noise_mm >= 0.0) {
                     push(
                         "noise_mm",
-                        format!("must be zero or more, got {}", s.noise_mm),
+                        format!("must be zero or more, got {:?}", s.noise_mm),
                     );
                 }
                 if !(s.gap_percent.is_finite() && (0.0..=90.0).contains(&s.gap_percent)) {
                     push(
                         "gap_percent",
-                        format!("must be 0 to 90, got {}", s.gap_percent),
+                        format!("must be 0 to 90, got {:?}", s.gap_percent),
                     );
                 }
             }

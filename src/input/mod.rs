@@ -25,10 +25,11 @@ use crate::markers::MarkerSample;
 use crate::protocol::glove::GloveReading;
 use crate::rig::bind::Rig;
 use crate::runtime::clock::Clock;
+use crate::runtime::said::Throttle;
 use crate::runtime::slot::PinSlot;
 use config::InputConfig;
 use crossbeam_channel::{Sender, TrySendError};
-use source_clock::{ClockEvent, SourceClock, SourceClockParams};
+use source_clock::{ClockEvent, SourceClock, SourceClockParams, Stamp};
 use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -340,6 +341,10 @@ pub struct ChannelSink {
     counters: Arc<SourceCounters>,
     pins: Option<PinTarget>,
     clock: SourceClock,
+    /// Lines about the source clock jumping, and about it being steady again: each at
+    /// most once per [`CLOCK_LINE_INTERVAL_S`] of receive time, the rest counted.
+    jump_lines: Throttle,
+    steady_lines: Throttle,
     /// The input, as logs name it.
     name: String,
 }
@@ -355,6 +360,8 @@ impl ChannelSink {
             counters,
             pins,
             clock: SourceClock::new(SourceClockParams::default()),
+            jump_lines: Throttle::new(CLOCK_LINE_INTERVAL_S),
+            steady_lines: Throttle::new(CLOCK_LINE_INTERVAL_S),
             name: "input".into(),
         }
     }
@@ -377,29 +384,59 @@ impl ChannelSink {
                 offset_change_s,
             }) => {
                 c.clock_jumps.fetch_add(1, Ordering::Relaxed);
+                let Some(unsaid) = self.jump_lines.hit(frame.time_s) else {
+                    return self.untrusted(stamp);
+                };
+                let name = &self.name;
+                let unsaid = unsaid_note(unsaid);
                 if stamp.trusted {
                     tracing::warn!(
-                        input = %self.name, source_time_s, offset_change_s,
-                        "{}: the source clock jumped before it settled; taking its new time", self.name
+                        input = %name, source_time_s, offset_change_s,
+                        "{name}: the source clock jumped before it settled; taking its new time{unsaid}"
                     );
                 } else {
                     tracing::warn!(
-                        input = %self.name, source_time_s, offset_change_s,
-                        "{}: the source clock jumped (source time {source_time_s} s, {offset_change_s:+} s against the receive clock); its samples carry receive times until it is steady again", self.name
+                        input = %name, source_time_s, offset_change_s,
+                        "{name}: the source clock jumped (source time {source_time_s} s, {offset_change_s:+} s against the receive clock); its samples carry receive times until it is steady again{unsaid}"
                     );
                 }
             }
-            Some(ClockEvent::Steady { untrusted_packets }) => tracing::info!(
-                input = %self.name, untrusted_packets,
-                "{}: the source clock is steady again after {untrusted_packets} packets", self.name
-            ),
+            Some(ClockEvent::Steady { untrusted_packets }) => {
+                if let Some(unsaid) = self.steady_lines.hit(frame.time_s) {
+                    let (name, unsaid) = (&self.name, unsaid_note(unsaid));
+                    tracing::info!(
+                        input = %name, untrusted_packets,
+                        "{name}: the source clock is steady again after {untrusted_packets} packets{unsaid}"
+                    );
+                }
+            }
             None => {}
         }
+        self.untrusted(stamp)
+    }
+
+    /// The source time to stamp the samples with when the packet's own is not trusted
+    /// (counted).
+    fn untrusted(&self, stamp: Stamp) -> Option<f64> {
         if stamp.trusted {
             return None;
         }
-        c.clock_untrusted.fetch_add(1, Ordering::Relaxed);
+        self.counters
+            .clock_untrusted
+            .fetch_add(1, Ordering::Relaxed);
         Some(stamp.source_time_s)
+    }
+}
+
+/// Seconds of receive time between two lines of a kind about an input's source clock.
+pub const CLOCK_LINE_INTERVAL_S: f64 = 5.0;
+
+/// `" (N more since the last line)"`, or nothing.
+fn unsaid_note(unsaid: u64) -> String {
+    if unsaid == 0 {
+        String::new()
+    } else {
+        format!(" ({unsaid} more since the last line)")
     }
 }
 
@@ -491,6 +528,42 @@ mod tests {
         drop(rx);
         assert!(!sink.frame(&frame(1.5)), "the receiver is gone");
         assert_eq!(counters.frames.load(Ordering::Relaxed), 3);
+    }
+
+    #[test]
+    fn a_clock_that_never_settles_is_said_once_per_interval_not_per_packet() {
+        // Time tags alternating between 0 and 1e6 s, 1000 packets a second for 10 s: a
+        // jump every packet, said at most once per CLOCK_LINE_INTERVAL_S.
+        let (tx, rx) = crossbeam_channel::bounded(16);
+        let counters = Arc::new(SourceCounters::default());
+        let mut sink = ChannelSink::new(tx, Arc::clone(&counters), None).named("input 0".into());
+        let samples = [MarkerSample {
+            marker: 0,
+            time_s: 0.0,
+            source_time_s: 0.0,
+            position_m: glam::DVec3::ZERO,
+            occluded: false,
+        }];
+        let ((), logs) = crate::runtime::logs::captured(|| {
+            for n in 0..10_000 {
+                let source = if n % 2 == 0 { 0.0 } else { 1e6 };
+                assert!(sink.frame(&InputFrame {
+                    time_s: n as f64 * 1e-3,
+                    receive_unix_s: 0.0,
+                    source_time_s: Some(source),
+                    frame: None,
+                    samples: &samples,
+                    names: &[],
+                }));
+                while rx.try_recv().is_ok() {}
+            }
+        });
+        let jumps = counters.clock_jumps.load(Ordering::Relaxed);
+        assert!(jumps >= 9_990, "{jumps}");
+        // 10 s of receive time: lines at 0 s and 5 s (the second saying how many were not).
+        let lines: Vec<&str> = logs.lines().collect();
+        assert_eq!(lines.len(), 2, "{logs}");
+        assert!(lines[1].contains("more since the last line"), "{logs}");
     }
 
     #[test]

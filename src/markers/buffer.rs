@@ -118,13 +118,13 @@ impl BufferConfig {
         if !(self.rigid_after_secs.is_finite() && self.rigid_after_secs >= 0.0) {
             out.push((
                 "rigid_after_secs".into(),
-                format!("must be zero or more, got {}", self.rigid_after_secs),
+                format!("must be zero or more, got {:?}", self.rigid_after_secs),
             ));
         }
         if !(2..=4096).contains(&self.history_len) {
             out.push((
                 "history_len".into(),
-                format!("must be between 2 and 4096, got {}", self.history_len),
+                format!("must be between 2 and 4096, got {:?}", self.history_len),
             ));
         }
         if self.reacquire_samples == 0 {

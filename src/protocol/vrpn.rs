@@ -41,6 +41,8 @@ pub enum VrpnError {
     Length { len: u32 },
     #[error("description payload malformed")]
     Description,
+    #[error("a description names something with {len} bytes (at most {MAX_NAME_LEN})")]
+    NameTooLong { len: usize },
     #[error("connection request {text:?} is not \"IP PORT\" with a numeric IP")]
     Request { text: String },
     #[error("UDP description {text:?} (port {port}) is not a numeric IP and a port")]
@@ -198,6 +200,11 @@ pub fn description_payload(name: &str) -> Vec<u8> {
 /// The name a description carries.
 pub fn parse_description(payload: &[u8]) -> Result<String, VrpnError> {
     let n = payload.get(..4).map(be_u32).ok_or(VrpnError::Description)? as usize;
+    // VRPN's own names are `char[100]`; a longer one would let a peer pin up to a
+    // message's length (1 MiB) per name, times MAX_NAMES, in the tables.
+    if n > MAX_NAME_LEN + 1 {
+        return Err(VrpnError::NameTooLong { len: n });
+    }
     let name = payload.get(4..4 + n).ok_or(VrpnError::Description)?;
     let name = name.strip_suffix(&[0]).unwrap_or(name);
     Ok(String::from_utf8_lossy(name).into_owned())
@@ -313,6 +320,9 @@ pub struct Names {
 
 /// Cap on descriptions kept per direction (a hostile peer cannot grow the tables).
 pub const MAX_NAMES: usize = 4096;
+/// Longest sender or type name accepted, bytes without the NUL (VRPN's `cName` holds
+/// 99): the tables hold at most `2 × MAX_NAMES × MAX_NAME_LEN` bytes of names, 2 MiB.
+pub const MAX_NAME_LEN: usize = 255;
 
 impl Names {
     /// Takes in a description; true when `m` was one.
@@ -363,6 +373,44 @@ mod tests {
         encode_message(&mut b, 0, 0, port, UDP_DESCRIPTION, &payload);
         let (m, _) = decode_message(&b).unwrap().unwrap();
         assert_eq!(parse_udp_description(&m), Ok(a));
+    }
+
+    #[test]
+    fn names_are_bounded_so_the_tables_are() {
+        // 4,096 senders of names of almost a message's 1 MiB each used to be kept: 4 GiB
+        // a table.
+        let mut names = Names::default();
+        let long = "x".repeat((1 << 20) - 64);
+        let mut out = Vec::new();
+        encode_message(
+            &mut out,
+            0,
+            0,
+            5,
+            SENDER_DESCRIPTION,
+            &description_payload(&long),
+        );
+        let (m, _) = decode_message(&out).unwrap().unwrap();
+        assert_eq!(
+            names.observe(&m),
+            Err(VrpnError::NameTooLong {
+                len: (1 << 20) - 63
+            })
+        );
+        assert!(names.senders.is_empty());
+        let longest = "y".repeat(MAX_NAME_LEN);
+        out.clear();
+        encode_message(
+            &mut out,
+            0,
+            0,
+            5,
+            SENDER_DESCRIPTION,
+            &description_payload(&longest),
+        );
+        let (m, _) = decode_message(&out).unwrap().unwrap();
+        assert_eq!(names.observe(&m), Ok(true));
+        assert_eq!(names.sender(5), Some(longest.as_str()));
     }
 
     #[test]

@@ -12,6 +12,7 @@ use super::c3d::{read_c3d, C3dError};
 use super::session::{read_session, Session, SessionError};
 use super::tsv::{parse_tsv, TsvError};
 use crate::markers::MarkerSample;
+use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use glam::DVec3;
 use std::path::Path;
 
@@ -129,7 +130,7 @@ impl Recording {
         if !["c3d", "tsv", "bvh", "rlsession"].contains(&ext.as_str()) {
             return Err(RecordingError::Format { path: shown });
         }
-        let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+        let bytes = read_bounded(path, MAX_DATA_BYTES).map_err(|source| RecordingError::Read {
             path: shown.clone(),
             source,
         })?;

@@ -12,11 +12,12 @@
 
 use super::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use super::factor::FactorError;
-use super::green::GreenEmbedding;
+use super::green::{GreenCoefficients, GreenCoefficientsError, GreenEmbedding};
 use super::ik_model::IkModel;
-use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells};
+use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, surface_samples};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
+use crate::character::file::fnv1a;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
@@ -88,7 +89,29 @@ pub enum BindError {
     Factor(#[from] FactorError),
     #[error("the mesh has no vertices or triangles")]
     EmptyMesh,
+    /// The lattice over the mesh's bounds would be too large to build.
+    #[error("a lattice of {cell_size_m:?} m cells over a mesh {extent_m:?} m across would have {cells:.3e} cells ({per_axis:?} a side; at most {MAX_AXIS_CELLS} a side and {MAX_CELLS} in all): choose a larger [bind] cell_size_m, or check the mesh's units and stray vertices")]
+    LatticeTooLarge {
+        cell_size_m: f64,
+        extent_m: [f64; 3],
+        per_axis: [f64; 3],
+        cells: f64,
+    },
+    /// Sampling the surface or the skeleton at the cell size would take too many points.
+    #[error("{what}: {samples:.3e} points at {step_m} m apart, more than {MAX_SAMPLES}: choose a larger [bind] cell_size_m or skeleton_step_m")]
+    TooManySamples {
+        what: &'static str,
+        samples: f64,
+        step_m: f64,
+    },
 }
+
+/// Most lattice cells along one axis.
+pub const MAX_AXIS_CELLS: usize = 4096;
+/// Most lattice cells in all (the grid's flags and flood fill take a few bytes a cell).
+pub const MAX_CELLS: usize = 1 << 25;
+/// Most surface or skeleton sample points a bind takes (each a few nanoseconds).
+pub const MAX_SAMPLES: usize = 1 << 28;
 
 /// One skeleton sub-edge between consecutive samples along a segment (for
 /// `bone_length_error`).
@@ -100,9 +123,8 @@ pub struct SkeletonEdge {
     pub rest_length_m: f64,
 }
 
-/// An immutable, bound character. Serializable for the bake cache: the factorization
-/// is not stored but redone on load (see [`ArapSystem`]).
-#[derive(serde::Serialize, serde::Deserialize)]
+/// An immutable, bound character. The bake cache stores only its Green coordinates
+/// ([`Rig::stored_green`]); everything else is rebuilt on load.
 pub struct Rig {
     pub skeleton: Skeleton,
     /// Rest twist axis per joint ([`Skeleton::twist_axis`]), precomputed for the solver.
@@ -141,6 +163,9 @@ pub struct Rig {
     pub height_m: f64,
     /// The harmonic method's correspondences given by the character file.
     pub correspondences: Vec<crate::character::Correspondence>,
+    /// Hash of the control mesh, the vertices' tets and the mesh vertices: the key of
+    /// the Green coordinates in the bake cache.
+    pub lattice_key: u64,
 }
 
 /// Segments of a skeleton: `(owner joint, child joint)`, grouped by owner (ascending).
@@ -210,15 +235,48 @@ impl CellInstances {
     }
 }
 
-/// The lattice over the mesh bounds `lo..hi`, with cells of `params.cell_size_m`.
-fn lattice_grid(lo: DVec3, hi: DVec3, params: &BindParams) -> Grid {
+/// The lattice over the mesh bounds `lo..hi`, with cells of `params.cell_size_m`, if it
+/// stays within [`MAX_AXIS_CELLS`] a side and [`MAX_CELLS`] in all (counted in `f64`
+/// before any integer conversion, so no size overflows).
+fn lattice_grid(lo: DVec3, hi: DVec3, params: &BindParams) -> Result<Grid, BindError> {
+    let cell = params.cell_size_m;
+    let extent = hi - lo;
+    // The grid's cells a side: the extent's, the offset's one and the padding's four.
+    let per_axis = [0, 1, 2].map(|a| (extent[a] / cell).floor() + 6.0);
+    let cells = per_axis.iter().product::<f64>();
+    let fits = |n: f64| n.is_finite() && n <= MAX_AXIS_CELLS as f64;
+    if !(cell.is_finite() && cell > 0.0)
+        || !per_axis.iter().all(|&n| fits(n))
+        || cells > MAX_CELLS as f64
+    {
+        return Err(BindError::LatticeTooLarge {
+            cell_size_m: cell,
+            extent_m: extent.to_array(),
+            per_axis,
+            cells,
+        });
+    }
     // The lattice is offset from the mesh bounds by a fraction of a cell that no
     // rational ratio reaches (1/π, (√2 − 1)/2, √2 − 1): meshes made on a grid (marching cubes or tets) would
     // otherwise put vertices exactly on lattice planes, where Green coordinates lose
     // precision and fall back to barycentric ones.
     use std::f64::consts::{FRAC_1_PI, SQRT_2};
     let offset = DVec3::new(FRAC_1_PI, (SQRT_2 - 1.0) / 2.0, SQRT_2 - 1.0) * params.cell_size_m;
-    Grid::covering(lo - offset, hi, params.cell_size_m, 2)
+    Ok(Grid::covering(lo - offset, hi, params.cell_size_m, 2))
+}
+
+/// Refuses sampling `what` at `step_m` when it would take more than [`MAX_SAMPLES`]
+/// points (`samples`, counted in `f64`).
+fn check_samples(what: &'static str, samples: f64, step_m: f64) -> Result<(), BindError> {
+    if samples.is_finite() && samples <= MAX_SAMPLES as f64 {
+        Ok(())
+    } else {
+        Err(BindError::TooManySamples {
+            what,
+            samples,
+            step_m,
+        })
+    }
 }
 
 /// Cell instances of the surface samples and of the interior cells, each labelled with
@@ -479,7 +537,10 @@ fn marker_rows(
     let sk = &ch.skeleton;
     let (grid, control) = (loc.grid, loc.control);
     let mut rows = LinearRows::new();
-    let search = (params.max_marker_distance_m / grid.cell_size).ceil() as usize + 1;
+    // At most the grid's largest side: no cell beyond it holds anything.
+    let largest_side = grid.dims.iter().copied().max().unwrap_or(1);
+    let search = ((params.max_marker_distance_m / grid.cell_size).ceil() + 1.0)
+        .min(largest_side as f64) as usize;
     let mut marker_joint = Vec::with_capacity(ch.markers.len());
     for m in &ch.markers {
         let label = m
@@ -584,6 +645,19 @@ impl Rig {
         params: &BindParams,
         progress: &mut dyn FnMut(BindStage, f64),
     ) -> Result<Self, BindError> {
+        Self::bind_reusing(ch, params, progress, None).map(|(rig, _)| rig)
+    }
+
+    /// [`Self::bind_with_progress`], taking the Green coordinates from `stored` (the
+    /// bake cache) when they were computed for this very lattice and mesh (the same
+    /// [`Rig::lattice_key`]) and fit it. Everything else is rebuilt, so stored data never
+    /// supplies an index. Returns the rig and, when `stored` was given but not used, why.
+    pub fn bind_reusing(
+        ch: &Character,
+        params: &BindParams,
+        progress: &mut dyn FnMut(BindStage, f64),
+        stored: Option<StoredGreen>,
+    ) -> Result<(Self, Option<StoredGreenMiss>), BindError> {
         if ch.vertices.is_empty() || ch.triangles.is_empty() {
             return Err(BindError::EmptyMesh);
         }
@@ -594,13 +668,20 @@ impl Rig {
         let seconds_lattice = t0.elapsed().as_secs_f64();
         let t_gc = std::time::Instant::now();
         let height_m = hi.y - lo.y;
-        let green = GreenEmbedding::new_with_progress(
-            &lattice.control,
-            &ch.vertices,
-            &lattice.vertex_tets,
-            height_m,
-            &mut |f| progress(BindStage::GreenCoordinates, f),
-        );
+        let lattice_key = lattice_key(&lattice, &ch.vertices);
+        let (green, miss) = match stored.map(|s| reuse(&lattice, lattice_key, s)) {
+            Some(Ok(green)) => (green, None),
+            computed => {
+                let green = GreenEmbedding::new_with_progress(
+                    &lattice.control,
+                    &ch.vertices,
+                    &lattice.vertex_tets,
+                    height_m,
+                    &mut |f| progress(BindStage::GreenCoordinates, f),
+                );
+                (green, computed.and_then(Result::err))
+            }
+        };
         let seconds_green = t_gc.elapsed().as_secs_f64();
         progress(BindStage::Factorization, 0.0);
         let t_factor = std::time::Instant::now();
@@ -624,7 +705,17 @@ impl Rig {
             seconds_green,
             seconds_weights_factor,
         };
-        Ok(Self::assemble(ch, lattice, green, system, stats, height_m))
+        let mut rig = Self::assemble(ch, lattice, green, system, stats, height_m);
+        rig.lattice_key = lattice_key;
+        Ok((rig, miss))
+    }
+
+    /// The Green coordinates to store, with the key of the lattice they belong to.
+    pub fn stored_green(&self) -> StoredGreen {
+        StoredGreen {
+            lattice_key: self.lattice_key,
+            coefficients: self.green.coefficients(),
+        }
     }
 
     /// The lattice stage ([`BindStage::Lattice`]): the labelled lattice's cell instances
@@ -639,7 +730,20 @@ impl Rig {
     ) -> Result<(LatticeBinding, LinearRows), BindError> {
         let sk = &ch.skeleton;
         let segs = segments(sk);
-        let grid = lattice_grid(lo, hi, params);
+        let grid = lattice_grid(lo, hi, params)?;
+        check_samples(
+            "the surface",
+            surface_samples(grid.cell_size, &ch.vertices, &ch.triangles),
+            0.5 * grid.cell_size,
+        )?;
+        let skeleton_samples: f64 = segs
+            .iter()
+            .map(|&(a, b)| {
+                let len = (sk.joints[b].rest - sk.joints[a].rest).length();
+                (len / params.skeleton_step_m).ceil() + 1.0
+            })
+            .sum();
+        check_samples("the skeleton", skeleton_samples, params.skeleton_step_m)?;
         // 1. Cell instances (cell, label); skeleton samples, each in a cell instance
         // labelled by its segment's owner.
         let mut inst = label_cells(ch, &segs, &grid);
@@ -722,6 +826,69 @@ impl Rig {
             stats,
             height_m,
             correspondences: ch.correspondences.clone(),
+            lattice_key: 0,
         }
     }
+}
+
+/// Green coordinates as the bake cache stores them: computed for the lattice and mesh
+/// of key `lattice_key`.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct StoredGreen {
+    pub lattice_key: u64,
+    pub coefficients: GreenCoefficients,
+}
+
+/// Why stored Green coordinates were not used.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum StoredGreenMiss {
+    #[error("they were computed for another control mesh")]
+    OtherLattice,
+    #[error(transparent)]
+    Unfit(#[from] GreenCoefficientsError),
+}
+
+/// A hash of what the Green coordinates depend on: the control mesh, the tet of each
+/// mesh vertex, and the mesh vertices.
+fn lattice_key(lattice: &LatticeBinding, vertices: &[DVec3]) -> u64 {
+    let bits = |v: &[DVec3]| -> Vec<u8> {
+        v.iter()
+            .flat_map(|p| p.to_array())
+            .flat_map(f64::to_le_bytes)
+            .collect()
+    };
+    let tets: Vec<u8> = lattice
+        .control
+        .tets
+        .iter()
+        .flatten()
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    let vertex_tets: Vec<u8> = lattice
+        .vertex_tets
+        .iter()
+        .flat_map(|&t| (t as u64).to_le_bytes())
+        .collect();
+    fnv1a(&[
+        &bits(&lattice.control.positions),
+        &tets,
+        &vertex_tets,
+        &bits(vertices),
+    ])
+}
+
+/// The embedding from stored coordinates, if they belong to this lattice and fit it.
+fn reuse(
+    lattice: &LatticeBinding,
+    key: u64,
+    stored: StoredGreen,
+) -> Result<GreenEmbedding, StoredGreenMiss> {
+    if stored.lattice_key != key {
+        return Err(StoredGreenMiss::OtherLattice);
+    }
+    Ok(GreenEmbedding::from_coefficients(
+        &lattice.control,
+        &lattice.vertex_tets,
+        stored.coefficients,
+    )?)
 }

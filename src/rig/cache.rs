@@ -1,6 +1,9 @@
-//! The bake cache: a bound [`Rig`] stored next to its character file, keyed by a hash of
-//! the inputs, so the next start skips binding. The factorization is not stored; loading
-//! redoes it (it is the cheap part of binding).
+//! The bake cache: the expensive part of a bound [`Rig`], its Green coordinates, stored
+//! next to its character file and keyed by a hash of the inputs, so the next start skips
+//! computing them. Loading rebuilds everything else (lattice, factorization, posture
+//! model: milliseconds) and takes the stored coordinates only if they were made for the
+//! very control mesh it rebuilt ([`Rig::lattice_key`]) and fit it: the file supplies no
+//! index, count or structure the solver trusts.
 //!
 //! File layout (little-endian):
 //!
@@ -10,22 +13,24 @@
 //! 16   8  u64 inputs hash (character file, mesh file, crate version)
 //! 24   8  u64 payload length in bytes
 //! 32   8  u64 FNV-1a of the payload
-//! 40   …  payload: the rig, bincode (default options)
+//! 40   …  payload: the Green coordinates with their lattice key (`StoredGreen`),
+//!          bincode (default options)
 //! ```
 //!
 //! The file is untrusted input: a wrong magic, version, key, length or checksum makes it
 //! stale (the caller rebuilds), and decoding is limited to the payload's length, so a
 //! corrupt length field cannot make it allocate.
 
-use super::bind::{BindError, BindStage, Rig};
+use super::bind::{BindError, BindStage, Rig, StoredGreen, StoredGreenMiss};
 use crate::character::file::{fnv1a, LoadedCharacter};
+use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use bincode::Options;
 use std::path::{Path, PathBuf};
 
 /// Magic bytes at the start of a cache file.
 pub const MAGIC: &[u8; 12] = b"RIGLESS-RIG\0";
 /// Bumped whenever the stored rig's layout changes.
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 const HEADER_LEN: usize = 40;
 
 /// Why a cache file was not used (the caller rebinds and says why).
@@ -43,8 +48,10 @@ pub enum CacheMiss {
     Stale,
     #[error("the cache file is truncated or corrupt")]
     Corrupt,
-    #[error("the cached rig could not be rebuilt: {0}")]
+    #[error("the cache file could not be decoded: {0}")]
     Decode(String),
+    #[error("the cached Green coordinates do not fit the rebuilt control mesh: {0}")]
+    Unfit(StoredGreenMiss),
 }
 
 /// Errors writing a cache file.
@@ -68,10 +75,15 @@ fn options() -> impl Options {
     bincode::DefaultOptions::new()
 }
 
-/// Encodes a rig with its inputs hash (pure: bytes out).
+/// Encodes a rig's stored part with its inputs hash (pure: bytes out).
 pub fn encode(rig: &Rig, inputs_hash: u64) -> Result<Vec<u8>, CacheWriteError> {
+    encode_stored(&rig.stored_green(), inputs_hash)
+}
+
+/// Encodes stored Green coordinates with an inputs hash (pure: bytes out).
+pub fn encode_stored(stored: &StoredGreen, inputs_hash: u64) -> Result<Vec<u8>, CacheWriteError> {
     let payload = options()
-        .serialize(rig)
+        .serialize(stored)
         .map_err(|e| CacheWriteError::Encode(e.to_string()))?;
     let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
     out.extend_from_slice(MAGIC);
@@ -84,7 +96,7 @@ pub fn encode(rig: &Rig, inputs_hash: u64) -> Result<Vec<u8>, CacheWriteError> {
 }
 
 /// Decodes a cache file's bytes, checking them against the expected inputs hash (pure).
-pub fn decode(bytes: &[u8], inputs_hash: u64) -> Result<Rig, CacheMiss> {
+pub fn decode(bytes: &[u8], inputs_hash: u64) -> Result<StoredGreen, CacheMiss> {
     if bytes.len() < HEADER_LEN || &bytes[..12] != MAGIC {
         return Err(CacheMiss::BadMagic);
     }
@@ -113,10 +125,10 @@ pub fn decode(bytes: &[u8], inputs_hash: u64) -> Result<Rig, CacheMiss> {
         .map_err(|e| CacheMiss::Decode(e.to_string()))
 }
 
-/// Loads the cached rig of a character file if it is there and current.
-pub fn load(character: &Path, inputs_hash: u64) -> Result<Rig, CacheMiss> {
+/// Loads the stored part of a character file's rig if it is there and current.
+pub fn load(character: &Path, inputs_hash: u64) -> Result<StoredGreen, CacheMiss> {
     let path = cache_path(character);
-    let bytes = match std::fs::read(&path) {
+    let bytes = match read_bounded(&path, MAX_DATA_BYTES) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(CacheMiss::Absent),
         Err(e) => return Err(CacheMiss::Io(e)),
@@ -186,24 +198,28 @@ pub fn load_or_bind(
     progress: &mut dyn FnMut(BindStage, f64),
 ) -> Result<(Rig, RigSource), LoadOrBindError> {
     let t0 = std::time::Instant::now();
-    let miss = match (force, load(path, loaded.inputs_hash)) {
-        (false, Ok(rig)) => {
+    let (stored, mut miss) = match (force, load(path, loaded.inputs_hash)) {
+        (true, _) => (None, None),
+        (false, Ok(stored)) => (Some(stored), None),
+        (false, Err(miss)) => (None, Some(miss)),
+    };
+    let reusing = stored.is_some();
+    let (rig, unused) = Rig::bind_reusing(&loaded.character, &loaded.bind, progress, stored)
+        .map_err(|source| LoadOrBindError::Bind {
+            path: path.display().to_string(),
+            source,
+        })?;
+    match unused {
+        None if reusing => {
             let source = RigSource::Cache {
                 path: cache_path(path),
                 seconds: t0.elapsed().as_secs_f64(),
             };
             return Ok((rig, source));
         }
-        (true, _) => None,
-        (false, Err(miss)) => Some(miss),
-    };
-    let rig =
-        Rig::bind_with_progress(&loaded.character, &loaded.bind, progress).map_err(|source| {
-            LoadOrBindError::Bind {
-                path: path.display().to_string(),
-                source,
-            }
-        })?;
+        None => {}
+        Some(unfit) => miss = Some(CacheMiss::Unfit(unfit)),
+    }
     let written = store(path, &rig, loaded.inputs_hash)?;
     Ok((rig, RigSource::Bound { miss, written }))
 }

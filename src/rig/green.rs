@@ -143,6 +143,31 @@ pub struct GreenEmbedding {
     pub max_rest_error_m: f64,
 }
 
+/// The per-vertex part of a [`GreenEmbedding`]: what is expensive to compute.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct GreenCoefficients {
+    /// Per vertex, `φ` per vertex of its tet.
+    pub phi: Vec<[f64; 4]>,
+    /// Per vertex, `ψ` per face of its tet ([`TET_FACES`] order, signed for the stored
+    /// face orientation the embedding's layout gives).
+    pub psi: Vec<[f64; 4]>,
+    pub fallback_vertices: usize,
+    pub max_rest_error_m: f64,
+}
+
+/// Why stored coordinates do not fit a control mesh's vertices.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum GreenCoefficientsError {
+    #[error("{phi} φ and {psi} ψ rows for {vertices} vertices")]
+    Count {
+        phi: usize,
+        psi: usize,
+        vertices: usize,
+    },
+    #[error("the coordinates of vertex {vertex} are not finite")]
+    NotFinite { vertex: usize },
+}
+
 /// Per-solver scratch of [`GreenEmbedding::deform`]: `s_j n(t'_j)` per distinct face.
 #[derive(Clone, Debug, Default)]
 pub struct GreenScratch {
@@ -165,20 +190,55 @@ impl GreenEmbedding {
         size_m: f64,
         progress: &mut dyn FnMut(f64),
     ) -> Self {
-        let mut index: HashMap<usize, u32> = HashMap::new();
-        // Distinct faces by their sorted vertex triple: (face index, stored orientation).
-        let mut face_index: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
-        // Per used tet, +1 or −1 per face: whether the stored face is oriented outward
-        // from this tet (else its normal is the opposite of this tet's).
-        let mut face_sign: Vec<[f64; 4]> = Vec::new();
-        let mut out = Self::default();
+        let (mut out, face_sign) = Self::structure(control, vertex_tets);
         let tol = REPRODUCTION_TOLERANCE * size_m;
         let mut phi = [0.0; 4];
         let mut psi = [0.0; 4];
+        out.phi.reserve_exact(vertices.len());
+        out.psi.reserve_exact(vertices.len());
         for (vi, (&x, &t)) in vertices.iter().zip(vertex_tets).enumerate() {
             if vi % 1024 == 0 {
                 progress(vi as f64 / vertices.len() as f64);
             }
+            let cage = control.tets[t].map(|i| control.positions[i as usize]);
+            green_coordinates(&cage, &TET_FACES, x, &mut phi, &mut psi);
+            let normals =
+                TET_FACES.map(|[a, b, c]| (cage[b] - cage[a]).cross(cage[c] - cage[a]).normalize());
+            let rebuilt: DVec3 = (0..4).map(|k| cage[k] * phi[k] + normals[k] * psi[k]).sum();
+            let err = (rebuilt - x).length();
+            if err.is_nan() || err > tol {
+                // Barycentric coordinates reproduce x exactly (ψ = 0).
+                phi = super::lattice::barycentric(cage, x);
+                psi = [0.0; 4];
+                out.fallback_vertices += 1;
+                let rebuilt: DVec3 = (0..4).map(|k| cage[k] * phi[k]).sum();
+                out.max_rest_error_m = out.max_rest_error_m.max((rebuilt - x).length());
+            } else {
+                out.max_rest_error_m = out.max_rest_error_m.max(err);
+            }
+            // A face stored oriented for the neighbouring tet has the opposite normal.
+            let slot = out.vertex_tet[vi] as usize;
+            for (p, sign) in psi.iter_mut().zip(face_sign[slot]) {
+                *p *= sign;
+            }
+            out.phi.push(phi);
+            out.psi.push(psi);
+        }
+        out
+    }
+
+    /// The embedding's tets and faces for vertices in `vertex_tets` (indices into
+    /// `control.tets`), with no coordinates yet; and per used tet, +1 or −1 per face:
+    /// whether the stored face is oriented outward from that tet (else its normal is the
+    /// opposite of the tet's). Deterministic: the same inputs give the same layout.
+    fn structure(control: &TetMesh, vertex_tets: &[usize]) -> (Self, Vec<[f64; 4]>) {
+        let mut index: HashMap<usize, u32> = HashMap::new();
+        // Distinct faces by their sorted vertex triple: (face index, stored orientation).
+        let mut face_index: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
+        let mut face_sign: Vec<[f64; 4]> = Vec::new();
+        let mut out = Self::default();
+        out.vertex_tet.reserve_exact(vertex_tets.len());
+        for &t in vertex_tets {
             let tv = control.tets[t];
             let slot = *index.entry(t).or_insert_with(|| {
                 out.tets.push(tv);
@@ -198,44 +258,60 @@ impl GreenEmbedding {
                         });
                         ((out.faces.len() - 1) as u32, oriented)
                     });
-                    (
-                        f,
-                        if same_orientation(stored, oriented) {
-                            1.0
-                        } else {
-                            -1.0
-                        },
-                    )
+                    let sign = if same_orientation(stored, oriented) {
+                        1.0
+                    } else {
+                        -1.0
+                    };
+                    (f, sign)
                 });
                 out.tet_faces.push(faces.map(|(f, _)| f));
                 face_sign.push(faces.map(|(_, sign)| sign));
                 (out.tets.len() - 1) as u32
             });
-            let cage = tv.map(|i| control.positions[i as usize]);
-            green_coordinates(&cage, &TET_FACES, x, &mut phi, &mut psi);
-            let normals =
-                TET_FACES.map(|[a, b, c]| (cage[b] - cage[a]).cross(cage[c] - cage[a]).normalize());
-            let rebuilt: DVec3 = (0..4).map(|k| cage[k] * phi[k] + normals[k] * psi[k]).sum();
-            let err = (rebuilt - x).length();
-            if err.is_nan() || err > tol {
-                // Barycentric coordinates reproduce x exactly (ψ = 0).
-                phi = super::lattice::barycentric(cage, x);
-                psi = [0.0; 4];
-                out.fallback_vertices += 1;
-                let rebuilt: DVec3 = (0..4).map(|k| cage[k] * phi[k]).sum();
-                out.max_rest_error_m = out.max_rest_error_m.max((rebuilt - x).length());
-            } else {
-                out.max_rest_error_m = out.max_rest_error_m.max(err);
-            }
-            // A face stored oriented for the neighbouring tet has the opposite normal.
-            for (p, sign) in psi.iter_mut().zip(face_sign[slot as usize]) {
-                *p *= sign;
-            }
             out.vertex_tet.push(slot);
-            out.phi.push(phi);
-            out.psi.push(psi);
         }
-        out
+        (out, face_sign)
+    }
+
+    /// The per-vertex coordinates and what computing them measured, to store (the bake
+    /// cache) and give back to [`Self::from_coefficients`] with the same control mesh and
+    /// vertex tets.
+    pub fn coefficients(&self) -> GreenCoefficients {
+        GreenCoefficients {
+            phi: self.phi.clone(),
+            psi: self.psi.clone(),
+            fallback_vertices: self.fallback_vertices,
+            max_rest_error_m: self.max_rest_error_m,
+        }
+    }
+
+    /// The embedding of vertices in `vertex_tets` with stored coordinates `c`, if they fit
+    /// (one `φ` and one `ψ` per vertex, all finite). The tets and faces are rebuilt from
+    /// `control`, never read, so stored data can hold no out-of-range index.
+    pub fn from_coefficients(
+        control: &TetMesh,
+        vertex_tets: &[usize],
+        c: GreenCoefficients,
+    ) -> Result<Self, GreenCoefficientsError> {
+        let n = vertex_tets.len();
+        if c.phi.len() != n || c.psi.len() != n {
+            return Err(GreenCoefficientsError::Count {
+                phi: c.phi.len(),
+                psi: c.psi.len(),
+                vertices: n,
+            });
+        }
+        let finite = |v: &[f64; 4]| v.iter().all(|x| x.is_finite());
+        if let Some(vertex) = (0..n).find(|&i| !finite(&c.phi[i]) || !finite(&c.psi[i])) {
+            return Err(GreenCoefficientsError::NotFinite { vertex });
+        }
+        let (mut out, _) = Self::structure(control, vertex_tets);
+        out.phi = c.phi;
+        out.psi = c.psi;
+        out.fallback_vertices = c.fallback_vertices;
+        out.max_rest_error_m = c.max_rest_error_m;
+        Ok(out)
     }
 
     /// Scratch sized for this embedding.

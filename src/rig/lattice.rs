@@ -36,6 +36,20 @@ pub fn sample_surface(
     }
 }
 
+/// How many points [`sample_surface`] visits at `cell_size` (in `f64`, so a count that
+/// would overflow an integer is still a number to compare with a limit).
+pub fn surface_samples(cell_size: f64, vertices: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+            let steps = (longest / (0.5 * cell_size)).ceil().max(1.0);
+            (steps + 1.0) * (steps + 2.0) / 2.0
+        })
+        .sum()
+}
+
 /// Marks the cells touched by the surface (triangles sampled at most half a cell apart)
 /// and the cells enclosed by it (everything the outside flood fill does not reach).
 pub fn cells_of_closed_surface(

@@ -6,6 +6,7 @@
 //! Sign convention: a tet `[a, b, c, d]` is positively oriented when
 //! `det(b − a, c − a, d − a) > 0`; [`TetMesh::new`] reorients every tet to that.
 
+use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use glam::DVec3;
 use std::path::Path;
 
@@ -183,7 +184,7 @@ pub struct CapsuleProblem {
 
 /// Reads a capsule benchmark file (layout in `../shared/data/README.md`).
 pub fn read_capsule(path: &Path) -> Result<CapsuleProblem, TetMeshError> {
-    let bytes = std::fs::read(path).map_err(|source| TetMeshError::Io {
+    let bytes = read_bounded(path, MAX_DATA_BYTES).map_err(|source| TetMeshError::Io {
         path: path.display().to_string(),
         source,
     })?;

@@ -79,25 +79,25 @@ impl SolverConfig {
         if !(positive(self.rate_hz) && self.rate_hz <= 2000.0) {
             push(
                 "rate_hz",
-                format!("must be in (0, 2000] Hz, got {}", self.rate_hz),
+                format!("must be in (0, 2000] Hz, got {:?}", self.rate_hz),
             );
         }
         if self.max_iterations == 0 || self.max_iterations > 10_000 {
             push(
                 "max_iterations",
-                format!("must be 1 to 10000, got {}", self.max_iterations),
+                format!("must be 1 to 10000, got {:?}", self.max_iterations),
             );
         }
         if !positive(self.tolerance) {
             push(
                 "tolerance",
-                format!("must be positive, got {}", self.tolerance),
+                format!("must be positive, got {:?}", self.tolerance),
             );
         }
         if !(positive(self.deadline_fraction) && self.deadline_fraction <= 1.0) {
             push(
                 "deadline_fraction",
-                format!("must be in (0, 1], got {}", self.deadline_fraction),
+                format!("must be in (0, 1], got {:?}", self.deadline_fraction),
             );
         }
         for (key, v) in [
@@ -111,20 +111,20 @@ impl SolverConfig {
         if !(self.volume_gain.is_finite() && (0.0..=2.0).contains(&self.volume_gain)) {
             push(
                 "volume_gain",
-                format!("must be in [0, 2], got {}", self.volume_gain),
+                format!("must be in [0, 2], got {:?}", self.volume_gain),
             );
         }
         if !(self.harmonic_margin.is_finite() && (0.0..0.5).contains(&self.harmonic_margin)) {
             push(
                 "harmonic_margin",
-                format!("must be in [0, 0.5), got {}", self.harmonic_margin),
+                format!("must be in [0, 0.5), got {:?}", self.harmonic_margin),
             );
         }
         if !(16..=1 << 24).contains(&self.channel_capacity) {
             push(
                 "channel_capacity",
                 format!(
-                    "must be 16 to 16777216 samples, got {}",
+                    "must be 16 to 16777216 samples, got {:?}",
                     self.channel_capacity
                 ),
             );
