@@ -177,13 +177,6 @@ fn same(s: &str) -> String {
 
 #[test]
 fn bad_files_are_clear_errors() {
-    // An open mesh: drop the last triangle.
-    let e = broken(same, |o| {
-        let mut lines: Vec<&str> = o.lines().collect();
-        lines.pop();
-        lines.join("\n")
-    });
-    assert!(e.contains("the mesh is open: 3 edges border a hole"), "{e}");
     // A NaN vertex names its line.
     let e = broken(same, |o| o.replacen("\nv ", "\nv NaN ", 1));
     assert!(e.contains("line 3") && e.contains("not finite"), "{e}");
@@ -291,6 +284,28 @@ fn correspondences_load_write_back_and_bad_ones_are_named() {
     ] {
         assert!(e.contains(want), "missing {want:?} in:\n{e}");
     }
+}
+
+/// An open mesh (the last triangle dropped) is no longer refused: it loads with a
+/// warning naming the hole and binds (the inside is the winding number's).
+#[test]
+fn an_open_mesh_binds_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let obj = path.with_extension("obj");
+    let o = std::fs::read_to_string(&obj).unwrap();
+    let mut lines: Vec<&str> = o.lines().collect();
+    lines.pop();
+    std::fs::write(&obj, lines.join("\n")).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let said: Vec<String> = loaded.warnings.iter().map(ToString::to_string).collect();
+    assert_eq!(said.len(), 1, "{said:?}");
+    assert!(
+        said[0].starts_with("the mesh is open: 3 edges border a hole"),
+        "{said:?}"
+    );
+    let rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
+    assert_eq!(rig.stats.mesh_vertices, loaded.character.vertices.len());
 }
 
 /// Replaces the value of `key = ...` (one line) in `text`.

@@ -216,6 +216,28 @@ pub struct BindSpec {
     pub max_marker_distance_m: Option<f64>,
 }
 
+/// What is unusual about a mesh but does not stop the bind: the lattice's inside is
+/// decided by the generalized winding number, which needs no closed, manifold or
+/// consistently oriented surface. Shown as warnings in `rigless bake`'s summary.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshWarning {
+    /// Edges used by one triangle only, with an example edge (file vertices).
+    #[error("the mesh is open: {edges} edges border a hole or an open part{}", example_edge(.example))]
+    Open {
+        edges: usize,
+        example: Option<(usize, usize)>,
+    },
+    /// Edges used by more than two triangles, with an example edge (file vertices).
+    #[error("the mesh is not manifold: {edges} edges are shared by more than two triangles{}", example_edge(.example))]
+    NonManifold {
+        edges: usize,
+        example: Option<(usize, usize)>,
+    },
+    /// Edges whose two triangles run them in the same direction.
+    #[error("the mesh is not consistently oriented: {edges} edges join flipped triangles")]
+    InconsistentOrientation { edges: usize },
+}
+
 /// Errors loading a character file.
 #[derive(Debug, thiserror::Error)]
 pub enum CharacterError {
@@ -268,21 +290,6 @@ pub enum CharacterProblem {
         position: DVec3,
         extent_m: f64,
     },
-    /// Edges used by one triangle only, with an example edge (file vertices).
-    #[error("the mesh is open: {edges} edges border a hole{}; the solver needs a closed surface", example_edge(.example))]
-    OpenMesh {
-        edges: usize,
-        example: Option<(usize, usize)>,
-    },
-    /// Edges used by more than two triangles, with an example edge (file vertices).
-    #[error("the mesh is not manifold: {edges} edges are shared by more than two triangles{}", example_edge(.example))]
-    NonManifoldMesh {
-        edges: usize,
-        example: Option<(usize, usize)>,
-    },
-    /// Edges whose two triangles run them in the same direction.
-    #[error("the mesh is not consistently oriented: {edges} edges join flipped triangles")]
-    InconsistentOrientation { edges: usize },
     /// `skeleton.from_skin = true` for a mesh without a skin.
     #[error("skeleton.from_skin is true but the mesh has no skin")]
     NoSkin,
@@ -402,6 +409,8 @@ fn example_edge(example: &Option<(usize, usize)>) -> String {
 pub struct LoadedCharacter {
     pub character: Character,
     pub bind: BindParams,
+    /// What is unusual about the mesh but does not stop the bind.
+    pub warnings: Vec<MeshWarning>,
     /// Hash of the inputs (character file, mesh file, this crate's version): the cache
     /// key of the bound rig.
     pub inputs_hash: u64,
@@ -483,7 +492,7 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "character".into())
     });
-    let (character, bind) =
+    let (character, bind, warnings) =
         build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
             path: shown,
             problems,
@@ -496,18 +505,19 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     Ok(LoadedCharacter {
         character,
         bind,
+        warnings,
         inputs_hash,
         mesh_path,
     })
 }
 
-/// Converts the mesh to the world frame and builds the character; every problem found
-/// is returned at once.
+/// Converts the mesh to the world frame and builds the character, with what is unusual
+/// about the mesh; every problem found is returned at once.
 pub fn build(
     spec: &CharacterFile,
     name: String,
     mesh: MeshData,
-) -> Result<(Character, BindParams), Vec<CharacterProblem>> {
+) -> Result<(Character, BindParams, Vec<MeshWarning>), Vec<CharacterProblem>> {
     let mut problems = Vec::new();
     let frame = WorldFrame::of(&spec.mesh);
     let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
@@ -520,9 +530,11 @@ pub fn build(
     }
     // The surface is only judged once its vertices and weld tolerance are sound (a stray
     // or non-finite vertex would show up again as a misleading topology problem).
-    if problems.is_empty() {
-        check_surface(&mesh, &vertices, weld_tol, &mut problems);
-    }
+    let warnings = if problems.is_empty() {
+        check_surface(&mesh, &vertices, weld_tol)
+    } else {
+        Vec::new()
+    };
     let sk = &spec.skeleton;
     let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
         skin_joints(sk, &mesh, frame, &mut problems)
@@ -552,6 +564,7 @@ pub fn build(
                 correspondences,
             },
             params,
+            warnings,
         )),
         _ => Err(problems),
     }
@@ -659,12 +672,7 @@ fn is_far(v: DVec3, lo: DVec3, hi: DVec3) -> bool {
 
 /// Checks that the mesh, its world-frame `vertices` welded within `weld_tol` metres, is
 /// a closed, manifold, consistently oriented surface.
-fn check_surface(
-    mesh: &MeshData,
-    vertices: &[DVec3],
-    weld_tol: f64,
-    problems: &mut Vec<CharacterProblem>,
-) {
+fn check_surface(mesh: &MeshData, vertices: &[DVec3], weld_tol: f64) -> Vec<MeshWarning> {
     let (map, _) = weld(vertices, weld_tol);
     let welded_tris: Vec<[u32; 3]> = mesh
         .triangles
@@ -672,8 +680,9 @@ fn check_surface(
         .map(|t| t.map(|i| map[i as usize]))
         .collect();
     let issues = surface_issues(&welded_tris);
+    let mut warnings = Vec::new();
     if issues.is_clean() {
-        return;
+        return warnings;
     }
     // An edge of welded vertices, as the first file vertex of each.
     let at = |e: Option<(u32, u32)>| {
@@ -683,22 +692,23 @@ fn check_surface(
         })
     };
     if issues.open_edges > 0 {
-        problems.push(CharacterProblem::OpenMesh {
+        warnings.push(MeshWarning::Open {
             edges: issues.open_edges,
             example: at(issues.open_example),
         });
     }
     if issues.non_manifold_edges > 0 {
-        problems.push(CharacterProblem::NonManifoldMesh {
+        warnings.push(MeshWarning::NonManifold {
             edges: issues.non_manifold_edges,
             example: at(issues.non_manifold_example),
         });
     }
     if issues.inconsistent_edges > 0 {
-        problems.push(CharacterProblem::InconsistentOrientation {
+        warnings.push(MeshWarning::InconsistentOrientation {
             edges: issues.inconsistent_edges,
         });
     }
+    warnings
 }
 
 /// The joints of the glTF skin, parents first (`skeleton.parents` overriding the file's

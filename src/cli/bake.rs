@@ -46,6 +46,7 @@ pub fn run(a: BakeArgs) -> Result<()> {
                 "markers": ch.markers.len(),
                 "height_m": rig.height_m,
                 "stats": s,
+                "warnings": loaded.warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
                 "cache": source.to_string(),
             })
         );
@@ -68,6 +69,9 @@ pub fn run(a: BakeArgs) -> Result<()> {
         "mesh in cage   {} of {} vertices inside the control mesh; Green coordinates rest error {:.1e} m, {} barycentric fallbacks",
         s.mesh_vertices_inside, s.mesh_vertices, s.green_max_rest_error_m, s.green_fallback_vertices
     );
+    for w in &loaded.warnings {
+        println!("warning        {w} (bound anyway)");
+    }
     if s.mesh_vertices_inside < s.mesh_vertices {
         println!(
             "warning        {} mesh vertices lie outside their control tet",

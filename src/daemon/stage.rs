@@ -273,6 +273,9 @@ fn bind_character(
     }
     let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
     let loaded = load_character(&path)?;
+    for w in &loaded.warnings {
+        tracing::warn!("{}: {w} (bound anyway)", path.display());
+    }
     let (rig, source) = load_or_bind(&path, &loaded, false, progress)?;
     Ok(Bound {
         rig: Arc::new(rig),

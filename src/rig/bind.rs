@@ -14,13 +14,15 @@ use super::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use super::factor::FactorError;
 use super::green::{GreenCoefficients, GreenCoefficientsError, GreenEmbedding};
 use super::ik_model::IkModel;
-use super::lattice::{barycentric, enclosed_or, sample_surface, surface_cells, surface_samples};
+use super::lattice::{barycentric, sample_surface, solid_or, surface_cells, surface_samples};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
 use crate::character::file::fnv1a;
+use crate::character::mesh::weld;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
+use crate::geom::winding::{orient_parts, WindingNumber};
 use glam::DVec3;
 use std::collections::HashMap;
 
@@ -54,8 +56,12 @@ pub struct BindStats {
     pub mesh_vertices: usize,
     /// Of those, the ones inside the control tet that carries them.
     pub mesh_vertices_inside: usize,
-    /// Points sampled along the skeleton's bones (each an ARAP row).
+    /// Points sampled along the skeleton's bones (each an ARAP row), anchors included.
     pub skeleton_samples: usize,
+    /// Parts of the control mesh no marker or bone reaches (parts hanging in the air),
+    /// each pinned to its nearest joint's motion by up to four anchor samples.
+    #[serde(default)]
+    pub free_parts: usize,
     /// Stored values of the Cholesky factor (its fill).
     pub factor_len: usize,
     /// Mesh vertices whose Green coordinates fell back to barycentric ones.
@@ -245,10 +251,8 @@ fn lattice_grid(lo: DVec3, hi: DVec3, params: &BindParams) -> Result<Grid, BindE
     let per_axis = [0, 1, 2].map(|a| (extent[a] / cell).floor() + 6.0);
     let cells = per_axis.iter().product::<f64>();
     let fits = |n: f64| n.is_finite() && n <= MAX_AXIS_CELLS as f64;
-    if !(cell.is_finite() && cell > 0.0)
-        || !per_axis.iter().all(|&n| fits(n))
-        || cells > MAX_CELLS as f64
-    {
+    let sane = cell.is_finite() && cell > 0.0 && per_axis.iter().all(|&n| fits(n));
+    if !sane || cells > MAX_CELLS as f64 {
         return Err(BindError::LatticeTooLarge {
             cell_size_m: cell,
             extent_m: extent.to_array(),
@@ -288,8 +292,12 @@ fn label_cells(ch: &Character, segs: &[(usize, usize)], grid: &Grid) -> CellInst
         let c = grid.cell_index(grid.cell_of(p));
         inst.add(c, nearest_owner(sk, segs, p));
     });
+    // Vertices on no triangle (a file may hold them) get their cell too.
+    for &v in &ch.vertices {
+        inst.add(grid.cell_index(grid.cell_of(v)), nearest_owner(sk, segs, v));
+    }
     let surface = surface_cells(grid, &ch.vertices, &ch.triangles);
-    let keep = enclosed_or(grid, &surface);
+    let keep = solid_or(grid, &surface, &winding_of(ch));
     for z in 0..grid.dims[2] {
         for y in 0..grid.dims[1] {
             for x in 0..grid.dims[0] {
@@ -302,6 +310,79 @@ fn label_cells(ch: &Character, segs: &[(usize, usize)], grid: &Grid) -> CellInst
         }
     }
     inst
+}
+
+/// Control vertices to pin to their owner joints' motion, for every part of the control
+/// mesh that no row reaches (a hat or a prop hanging in the air, a stray vertex): the
+/// ARAP system has no unique solution for such a part, so up to four of its vertices,
+/// spread as far apart as possible (two, then the farthest from their line, then the
+/// farthest from their plane), become skeleton samples that follow the owner joint of
+/// their cell rigidly, like the bone samples. A part with rows is left alone.
+fn anchors_of_free_parts(control: &TetMesh, rows: &LinearRows) -> (Vec<usize>, usize) {
+    let n = control.positions.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    for t in &control.tets {
+        for k in 1..4 {
+            let (a, b) = (
+                find(&mut parent, t[0] as usize),
+                find(&mut parent, t[k] as usize),
+            );
+            parent[a] = b;
+        }
+    }
+    let mut reached = vec![false; n];
+    for &i in &rows.idx {
+        let r = find(&mut parent, i as usize);
+        reached[r] = true;
+    }
+    let mut parts: HashMap<usize, Vec<usize>> = HashMap::new();
+    for v in 0..n {
+        let r = find(&mut parent, v);
+        if !reached[r] {
+            parts.entry(r).or_default().push(v);
+        }
+    }
+    let mut roots: Vec<usize> = parts.keys().copied().collect();
+    let free_parts = roots.len();
+    roots.sort_unstable();
+    let p = &control.positions;
+    let mut anchors = Vec::new();
+    for r in roots {
+        let part = &parts[&r];
+        let farthest = |score: &dyn Fn(DVec3) -> f64| {
+            part.iter()
+                .copied()
+                .max_by(|&a, &b| score(p[a]).total_cmp(&score(p[b])))
+                .unwrap_or(part[0])
+        };
+        let a = part[0];
+        let b = farthest(&|x| (x - p[a]).length_squared());
+        let line = (p[b] - p[a]).normalize_or_zero();
+        let c = farthest(&|x| (x - p[a]).reject_from_normalized(line).length_squared());
+        let normal = (p[b] - p[a]).cross(p[c] - p[a]).normalize_or_zero();
+        let d = farthest(&|x| (x - p[a]).dot(normal).abs());
+        for v in [a, b, c, d] {
+            if !anchors.contains(&v) {
+                anchors.push(v);
+            }
+        }
+    }
+    (anchors, free_parts)
+}
+
+/// The generalized winding number of the character's surface, its parts oriented
+/// outward first (seams and duplicated vertices welded at 1e-9 of its size, so that
+/// parts split by UV seams still orient as one).
+fn winding_of(ch: &Character) -> WindingNumber {
+    let (lo, hi) = bounds(&ch.vertices);
+    let (ids, unique) = weld(&ch.vertices, 1e-9 * (hi - lo).length());
+    let welded: Vec<[u32; 3]> = ch
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| ids[i as usize]))
+        .collect();
+    let (oriented, _) = orient_parts(&unique, &welded);
+    WindingNumber::new(&unique, &oriented)
 }
 
 /// Skeleton samples, each in a cell instance labelled by its segment's owner: their
@@ -618,6 +699,8 @@ struct LatticeBinding {
     control: TetMesh,
     /// Owner joint of each control vertex.
     control_label: Vec<u32>,
+    /// Parts of the control mesh pinned by anchors ([`anchors_of_free_parts`]).
+    free_parts: usize,
     /// Cell instances, and the distinct cells among them.
     cell_instances: usize,
     distinct_cells: usize,
@@ -698,6 +781,7 @@ impl Rig {
             mesh_vertices: ch.vertices.len(),
             mesh_vertices_inside: lattice.inside,
             skeleton_samples: lattice.sample_pos.len(),
+            free_parts: lattice.free_parts,
             factor_len: system.factor_len(),
             green_fallback_vertices: green.fallback_vertices,
             green_max_rest_error_m: green.max_rest_error_m,
@@ -762,11 +846,20 @@ impl Rig {
         let (vertex_tets, inside) = locate_vertices(ch, &segs, &loc)?;
         // 4. Rows: markers, then skeleton samples (absolute positions).
         let (mut rows, marker_joint) = marker_rows(ch, &segs, params, &loc)?;
-        let samples = sample_rows(sk, params, &sample_pos, &loc, &mut rows)?;
+        let mut samples = sample_rows(sk, params, &sample_pos, &loc, &mut rows)?;
+        let mut sample_pos = sample_pos;
+        let (anchors, free_parts) = anchors_of_free_parts(&control, &rows);
+        for v in anchors {
+            let entry = [(v as u32, 1.0)];
+            samples.push(&entry, 1.0);
+            rows.push(&entry, params.w_skeleton);
+            sample_pos.push((control.positions[v], control_label[v]));
+        }
         let edges = skeleton_edges(&seg_samples, &sample_pos);
         let lattice = LatticeBinding {
             control,
             control_label,
+            free_parts,
             cell_instances: inst.list.len(),
             distinct_cells,
             vertex_tets,

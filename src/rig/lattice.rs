@@ -1,5 +1,6 @@
-//! Lattice control meshes: the cells of a regular grid that touch or lie inside a closed
-//! triangle mesh, each split into six tetrahedra (Freudenthal/Kuhn split along the
+//! Lattice control meshes: the cells of a regular grid that touch or lie inside a
+//! triangle mesh (closed, or open and made of many parts: inside is decided by the
+//! generalized winding number), each split into six tetrahedra (Freudenthal/Kuhn split along the
 //! main diagonal, identical in every cell, so neighbouring cells share faces exactly).
 //!
 //! Why a lattice and not a Delaunay mesh of the cage: every tet is a Kuhn simplex
@@ -12,6 +13,7 @@
 
 use super::tetmesh::{TetMesh, TetMeshError};
 use crate::geom::lattice::{Grid, KUHN};
+use crate::geom::winding::WindingNumber;
 use glam::DVec3;
 use std::collections::VecDeque;
 
@@ -104,6 +106,28 @@ pub fn enclosed_or(grid: &Grid, surface: &[bool]) -> Vec<bool> {
         }
     }
     outside.iter().map(|o| !o).collect()
+}
+
+/// `surface` plus every cell it encloses: those the outside flood fill cannot reach, and
+/// those whose centre has a generalized winding number `|w| ≥ 1/2` (see
+/// [`crate::geom::winding`]), so that a body whose surface is open (open eyes, a
+/// shirt over it, a missing triangle) still gets a solid interior. For a closed
+/// surface the two agree; the union only adds what the flood fill leaked out of.
+pub fn solid_or(grid: &Grid, surface: &[bool], winding: &WindingNumber) -> Vec<bool> {
+    let mut keep = enclosed_or(grid, surface);
+    let [nx, ny, nz] = grid.dims;
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let k = grid.cell_index([x, y, z]);
+                if !keep[k] {
+                    let centre = grid.node_position([x, y, z]) + DVec3::splat(0.5 * grid.cell_size);
+                    keep[k] = winding.at(centre).abs() >= 0.5;
+                }
+            }
+        }
+    }
+    keep
 }
 
 /// A lattice tet mesh plus, for each of its tets, the grid cell it came from.
