@@ -216,8 +216,7 @@ fn stage_logs_the_control_mesh_and_the_input_series() {
     // sink skipped.
     let meshes = rows("/character/mesh") - 1;
     assert!(
-        meshes <= 240 / 4 + 1
-            && meshes >= (240 / 4u64).saturating_sub(240 - logged.min(240)),
+        meshes <= 240 / 4 + 1 && meshes >= (240 / 4u64).saturating_sub(240 - logged.min(240)),
         "{meshes} of {logged}"
     );
     assert_eq!(rows("/character/control_mesh"), meshes, "{v}");
