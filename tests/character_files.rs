@@ -360,33 +360,28 @@ fn settings_and_meshes_that_would_hang_the_bind_are_refused() {
     assert_eq!(r, Ok(()));
 }
 
-/// A closed box 1000 m by 1 cm by 1000 m: the default cell (a fraction of the height)
-/// asked for about 3e14 cells; the bind refuses it before allocating.
+/// A closed box 1000 m by 1 cm by 1000 m used to get a default cell from its height (1 cm:
+/// 3e14 cells, a hang and an abort); a 1000 m cube with the smallest cell the file
+/// accepts (1/400 of its size) still asks for 6e7 cells: the bind refuses it before
+/// allocating, with the size.
 #[test]
 fn a_lattice_too_large_to_build_is_refused_with_its_size() {
     let dir = tempfile::tempdir().unwrap();
     let path = write_hand(dir.path());
-    let obj = "v 0 0 0\nv 1000 0 0\nv 1000 0.01 0\nv 0 0.01 0\nv 0 0 1000\nv 1000 0 1000\n\
-               v 1000 0.01 1000\nv 0 0.01 1000\nf 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\n\
+    let obj = "v 0 0 0\nv 1000 0 0\nv 1000 1000 0\nv 0 1000 0\nv 0 0 1000\nv 1000 0 1000\n\
+               v 1000 1000 1000\nv 0 1000 1000\nf 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\n\
                f 1 2 6\nf 1 6 5\nf 4 8 7\nf 4 7 3\nf 1 5 8\nf 1 8 4\nf 2 3 7\nf 2 7 6\n";
     std::fs::write(path.with_extension("obj"), obj).unwrap();
     let text = std::fs::read_to_string(&path).unwrap();
-    // Keep the character's own skeleton and markers; let the cell follow the mesh.
-    let text = text[..text.find("[bind]").unwrap()].to_string()
-        + &text[text.find("[bind]").unwrap()..]
-            .lines()
-            .filter(|l| {
-                !l.starts_with("cell_size_m")
-                    && !l.starts_with("skeleton_step_m")
-                    && !l.starts_with("max_marker")
-            })
-            .collect::<Vec<_>>()
-            .join("\n");
+    // Keep the character's own skeleton and markers; the smallest cell accepted.
+    let text = set_key(&text, "cell_size_m", "2.5");
+    let text = set_key(&text, "skeleton_step_m", "2.5");
+    let text = set_key(&text, "max_marker_distance_m", "2000.0");
     std::fs::write(&path, text).unwrap();
     let e = match load_character(&path) {
         Ok(loaded) => Rig::bind(&loaded.character, &loaded.bind)
             .err()
-            .expect("no lattice of 3e14 cells")
+            .expect("no lattice of 6e7 cells")
             .to_string(),
         Err(e) => e.to_string(),
     };
@@ -405,4 +400,64 @@ fn a_mesh_path_that_is_not_a_regular_file_is_refused() {
         e.contains("/dev/zero") && e.contains("not a regular file"),
         "{e}"
     );
+}
+
+/// A character declared with the wrong up axis lies down: the height (Y extent) is a
+/// fraction of its length. The default cell no longer follows the height (which gave a
+/// 370-vertex figure 74,110 control vertices): it follows the shortest marked bone
+/// within a control-mesh window, the summary says so, and the posture is warned about.
+#[test]
+fn a_character_lying_down_gets_a_sensible_default_cell_and_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let text = std::fs::read_to_string(&path).unwrap();
+    let text: String = text
+        .replacen("up = \"y\"", "up = \"z\"", 1)
+        .lines()
+        .filter(|l| {
+            !l.starts_with("cell_size_m")
+                && !l.starts_with("skeleton_step_m")
+                && !l.starts_with("max_marker_distance_m")
+        })
+        // Offsets are in the world frame: put the markers on their joints, which turn
+        // with the mesh.
+        .map(|l| {
+            if l.starts_with("offset_m") {
+                "offset_m = [0.0, 0.0, 0.0]".to_string()
+            } else if let Some(r) = l.strip_prefix("rest_m = [") {
+                // Joint rests are in the world frame too: turn them as the mesh turns,
+                // (x, y, z) → (x, z, −y).
+                let v: Vec<f64> = r
+                    .trim_end_matches(']')
+                    .split(',')
+                    .map(|x| x.trim().parse().unwrap())
+                    .collect();
+                format!("rest_m = [{:?}, {:?}, {:?}]", v[0], v[2], -v[1])
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(&path, text).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let said: Vec<String> = loaded.warnings.iter().map(ToString::to_string).collect();
+    assert!(
+        said.iter()
+            .any(|w| w.contains("looks lying down for up = \"z\"")),
+        "{said:?}"
+    );
+    let choice = loaded.cell_choice.as_ref().expect("a default cell");
+    assert!(
+        choice.reason.contains("shortest bone carrying a marker"),
+        "{choice:?}"
+    );
+    let rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
+    // The window's top (3,000) with the estimate's 30 % slack.
+    let n = rig.stats.control_vertices;
+    assert!(
+        (300..=3900).contains(&n),
+        "{n} control vertices with {choice:?}"
+    );
+    println!("{n} control vertices: {choice:?}");
 }

@@ -52,6 +52,7 @@ struct Tracked {
 fn track(toml_path: &Path, seconds: f64) -> Tracked {
     let loaded = load_character(toml_path).unwrap_or_else(|e| panic!("{e}"));
     let ch = &loaded.character;
+    eprintln!("{}: cell {:?}", toml_path.display(), loaded.cell_choice);
     let t0 = Instant::now();
     let rig = Arc::new(Rig::bind(ch, &loaded.bind).unwrap_or_else(|e| panic!("{e}")));
     let s = &rig.stats;
@@ -356,9 +357,15 @@ fn makehuman_with_all_its_parts_bakes_and_tracks() {
     };
     let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
     let said: Vec<String> = loaded.warnings.iter().map(ToString::to_string).collect();
-    eprintln!("{} vertices, warnings: {said:?}", loaded.character.vertices.len());
+    eprintln!(
+        "{} vertices, warnings: {said:?}",
+        loaded.character.vertices.len()
+    );
     assert!(loaded.character.vertices.len() > 13_380);
-    assert!(said.iter().any(|w| w.starts_with("the mesh is open")), "{said:?}");
+    assert!(
+        said.iter().any(|w| w.starts_with("the mesh is open")),
+        "{said:?}"
+    );
     let t = track(&path, 1.0);
     assert_tracked(&t, 2.0 * 1.66 / 0.2);
 }

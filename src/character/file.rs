@@ -33,6 +33,7 @@
 //! lattice; every file vertex gets its own Green coordinates.
 
 use super::bind_params::BindParams;
+use super::cell_size::{default_cell_size, CellChoice};
 use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
@@ -115,6 +116,15 @@ pub enum UpAxis {
     Z,
 }
 
+impl std::fmt::Display for UpAxis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            UpAxis::Y => "y",
+            UpAxis::Z => "z",
+        })
+    }
+}
+
 /// `[mesh]`.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -131,7 +141,7 @@ pub struct MeshSpec {
     #[serde(default)]
     pub groups: Vec<String>,
     /// Positions closer than this are welded for the checks and the lattice, metres
-    /// (default 1e-6 of the character's height).
+    /// (default 1e-6 of the character's size, its longest extent).
     pub weld_tolerance_m: Option<f64>,
 }
 
@@ -201,7 +211,7 @@ pub struct MarkerSpec {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BindSpec {
-    /// Lattice cell edge, metres (default 3.2 % of the character's height).
+    /// Lattice cell edge, metres (default: the shortest bone carrying a marker, kept to a control mesh of 500 to 3,000 vertices; `rigless bake` says how it was chosen).
     pub cell_size_m: Option<f64>,
     /// Spacing of skeleton samples along each bone, metres (default 0.9 cell).
     pub skeleton_step_m: Option<f64>,
@@ -212,7 +222,7 @@ pub struct BindSpec {
     /// Skeleton sample row weight `w_d` (default 1000).
     pub w_skeleton: Option<f64>,
     /// A marker farther than this from the control mesh is an error, metres (default 10 %
-    /// of the character's height).
+    /// of the character's size, its longest extent).
     pub max_marker_distance_m: Option<f64>,
 }
 
@@ -236,6 +246,13 @@ pub enum MeshWarning {
     /// Edges whose two triangles run them in the same direction.
     #[error("the mesh is not consistently oriented: {edges} edges join flipped triangles")]
     InconsistentOrientation { edges: usize },
+    /// The mesh is less tall (along the declared up axis) than half its longest extent.
+    #[error("the mesh is {height_m:.3} m tall but {longest_m:.3} m long: it looks lying down for up = \"{up}\"; check [mesh] up")]
+    LyingDown {
+        height_m: f64,
+        longest_m: f64,
+        up: UpAxis,
+    },
 }
 
 /// Errors loading a character file.
@@ -369,15 +386,15 @@ pub enum CharacterProblem {
     /// A binding setting (`bind.NAME`, given or defaulted) is not a positive number.
     #[error("{setting} must be a positive number, got {value}")]
     NotPositive { setting: &'static str, value: f64 },
-    /// `bind.cell_size_m` below 1/400 of the character's height (metres).
-    #[error("bind.cell_size_m {cell_size_m:?} is below 1/400 of the character's height {height_m:.3} m: the control mesh would be enormous")]
-    CellTooSmall { cell_size_m: f64, height_m: f64 },
+    /// `bind.cell_size_m` below 1/400 of the character's size (longest extent, metres).
+    #[error("bind.cell_size_m {cell_size_m:?} is below 1/400 of the character's size {size_m:.3} m (its longest extent): the control mesh would be enormous")]
+    CellTooSmall { cell_size_m: f64, size_m: f64 },
     /// `bind.skeleton_step_m` below 1/100 of the cell size (metres).
     #[error("bind.skeleton_step_m {step_m:?} is below 1/100 of the cell size {cell_size_m:?} m: the skeleton would be sampled absurdly finely")]
     StepTooSmall { step_m: f64, cell_size_m: f64 },
-    /// `mesh.weld_tolerance_m` not a number from 0 to 1/100 of the character's height.
-    #[error("mesh.weld_tolerance_m {value_m:?} is not from 0 to 1/100 of the character's height {height_m:.3} m: a larger one welds distinct parts of the mesh together")]
-    WeldTolerance { value_m: f64, height_m: f64 },
+    /// `mesh.weld_tolerance_m` not a number from 0 to 1/100 of the character's size.
+    #[error("mesh.weld_tolerance_m {value_m:?} is not from 0 to 1/100 of the character's size {size_m:.3} m (its longest extent): a larger one welds distinct parts of the mesh together")]
+    WeldTolerance { value_m: f64, size_m: f64 },
     /// `correspondences[index]` repeats a joint listed before it.
     #[error("correspondences[{index}] (joint {joint:?}): the joint is listed twice")]
     CorrespondenceTwice { index: usize, joint: String },
@@ -411,6 +428,8 @@ pub struct LoadedCharacter {
     pub bind: BindParams,
     /// What is unusual about the mesh but does not stop the bind.
     pub warnings: Vec<MeshWarning>,
+    /// The default cell size and why, when the file does not set one.
+    pub cell_choice: Option<CellChoice>,
     /// Hash of the inputs (character file, mesh file, this crate's version): the cache
     /// key of the bound rig.
     pub inputs_hash: u64,
@@ -492,7 +511,7 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "character".into())
     });
-    let (character, bind, warnings) =
+    let (character, bind, warnings, cell_choice) =
         build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
             path: shown,
             problems,
@@ -506,9 +525,23 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         character,
         bind,
         warnings,
+        cell_choice,
         inputs_hash,
         mesh_path,
     })
+}
+
+/// What [`build`] makes of a character file: the character, its binding settings, what
+/// is unusual about its mesh, and how the default cell size was chosen (if it was).
+pub type Built = (Character, BindParams, Vec<MeshWarning>, Option<CellChoice>);
+
+/// The extent of the vertices' bounding box, metres.
+fn extent(vertices: &[DVec3]) -> DVec3 {
+    let (lo, hi) = vertices.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), &v| (lo.min(v), hi.max(v)),
+    );
+    (hi - lo).max(DVec3::ZERO)
 }
 
 /// Converts the mesh to the world frame and builds the character, with what is unusual
@@ -517,15 +550,22 @@ pub fn build(
     spec: &CharacterFile,
     name: String,
     mesh: MeshData,
-) -> Result<(Character, BindParams, Vec<MeshWarning>), Vec<CharacterProblem>> {
+) -> Result<Built, Vec<CharacterProblem>> {
     let mut problems = Vec::new();
     let frame = WorldFrame::of(&spec.mesh);
     let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
-    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * height);
-    if height > 0.0 && !(0.0..=0.01 * height).contains(&weld_tol) {
+    // Settings scale with the character's size (its longest extent), not its height: a
+    // mesh declared with the wrong up axis must not get a lattice from a sliver.
+    let size_m = if problems.is_empty() {
+        extent(&vertices).max_element()
+    } else {
+        height
+    };
+    let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * size_m);
+    if size_m > 0.0 && !(0.0..=0.01 * size_m).contains(&weld_tol) {
         problems.push(CharacterProblem::WeldTolerance {
             value_m: weld_tol,
-            height_m: height,
+            size_m,
         });
     }
     // The surface is only judged once its vertices and weld tolerance are sound (a stray
@@ -545,7 +585,25 @@ pub fn build(
     apply_limits(sk, &mut joints, &skin_x_axis, &mut problems);
     let skeleton = finish_skeleton(joints, &mut problems);
     let markers = place_markers(&spec.markers, skeleton.as_ref(), &mut problems);
-    let params = bind_params(&spec.bind, height, &mut problems);
+    let cell_choice = match (&skeleton, spec.bind.cell_size_m, problems.is_empty()) {
+        (Some(sk), None, true) => Some(default_cell_size(
+            &vertices,
+            &mesh.triangles,
+            sk,
+            &markers,
+            size_m,
+        )),
+        _ => None,
+    };
+    let mut warnings = warnings;
+    if height > 0.0 && height < 0.5 * size_m && problems.is_empty() {
+        warnings.push(MeshWarning::LyingDown {
+            height_m: height,
+            longest_m: size_m,
+            up: spec.mesh.up,
+        });
+    }
+    let params = bind_params(&spec.bind, size_m, cell_choice.as_ref(), &mut problems);
     let correspondences = correspondences(
         &spec.correspondences,
         skeleton.as_ref(),
@@ -565,6 +623,7 @@ pub fn build(
             },
             params,
             warnings,
+            cell_choice,
         )),
         _ => Err(problems),
     }
@@ -1012,17 +1071,25 @@ fn marker_rest(
     }
 }
 
-/// The binding settings of `[bind]`, defaults scaled to the character's height
-/// (metres); each must be a positive number, and the cell not absurdly small.
-fn bind_params(b: &BindSpec, height: f64, problems: &mut Vec<CharacterProblem>) -> BindParams {
-    let cell = b.cell_size_m.unwrap_or(0.032 * height);
+/// The binding settings of `[bind]`, defaults scaled to the character's size (its longest extent,
+/// metres); each must be a positive number, and the cell not absurdly small.
+fn bind_params(
+    b: &BindSpec,
+    size_m: f64,
+    default_cell: Option<&CellChoice>,
+    problems: &mut Vec<CharacterProblem>,
+) -> BindParams {
+    let cell = b
+        .cell_size_m
+        .or(default_cell.map(|c| c.cell_size_m))
+        .unwrap_or(0.032 * size_m);
     let params = BindParams {
         cell_size_m: cell,
         skeleton_step_m: b.skeleton_step_m.unwrap_or(0.9 * cell),
         w_shape: b.w_shape.unwrap_or(1.0),
         w_marker: b.w_marker.unwrap_or(30.0),
         w_skeleton: b.w_skeleton.unwrap_or(1000.0),
-        max_marker_distance_m: b.max_marker_distance_m.unwrap_or(0.1 * height),
+        max_marker_distance_m: b.max_marker_distance_m.unwrap_or(0.1 * size_m),
     };
     for (name, v) in [
         ("bind.cell_size_m", params.cell_size_m),
@@ -1039,10 +1106,10 @@ fn bind_params(b: &BindSpec, height: f64, problems: &mut Vec<CharacterProblem>) 
             });
         }
     }
-    if params.cell_size_m.is_finite() && height > 0.0 && params.cell_size_m < height / 400.0 {
+    if params.cell_size_m.is_finite() && size_m > 0.0 && params.cell_size_m < size_m / 400.0 {
         problems.push(CharacterProblem::CellTooSmall {
             cell_size_m: params.cell_size_m,
-            height_m: height,
+            size_m,
         });
     }
     if params.skeleton_step_m.is_finite() && params.skeleton_step_m < params.cell_size_m / 100.0 {

@@ -4,6 +4,7 @@
 
 pub mod bind_params;
 pub mod body;
+pub mod cell_size;
 pub mod config;
 pub mod demo;
 pub mod file;

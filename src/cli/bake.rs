@@ -47,6 +47,8 @@ pub fn run(a: BakeArgs) -> Result<()> {
                 "height_m": rig.height_m,
                 "stats": s,
                 "warnings": loaded.warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
+                "cell_size_m": loaded.bind.cell_size_m,
+                "cell_size_reason": loaded.cell_choice.as_ref().map(|c| c.reason.clone()),
                 "cache": source.to_string(),
             })
         );
@@ -69,6 +71,12 @@ pub fn run(a: BakeArgs) -> Result<()> {
         "mesh in cage   {} of {} vertices inside the control mesh; Green coordinates rest error {:.1e} m, {} barycentric fallbacks",
         s.mesh_vertices_inside, s.mesh_vertices, s.green_max_rest_error_m, s.green_fallback_vertices
     );
+    if let Some(c) = &loaded.cell_choice {
+        println!(
+            "cell size      {:.4} m: {} (about {:.0} control vertices expected)",
+            c.cell_size_m, c.reason, c.estimated_control_vertices
+        );
+    }
     for w in &loaded.warnings {
         println!("warning        {w} (bound anyway)");
     }
