@@ -41,7 +41,7 @@ use crate::geom::axes::y_up_from_z_up;
 use crate::runtime::files::{read_bounded, read_text_bounded, MAX_DATA_BYTES, MAX_TEXT_BYTES};
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 /// The whole character file.
@@ -785,45 +785,41 @@ fn skin_joints(
     if !sk.joints.is_empty() {
         problems.push(CharacterProblem::JointsWithSkin);
     }
-    let names: Vec<&str> = mesh.skin_joints.iter().map(|j| j.name.as_str()).collect();
+    // The first joint of each name (as a search in file order would find it).
+    let mut index_of: HashMap<&str, usize> = HashMap::with_capacity(mesh.skin_joints.len());
+    for (k, j) in mesh.skin_joints.iter().enumerate() {
+        index_of.entry(j.name.as_str()).or_insert(k);
+    }
     for (child, parent) in &sk.parents {
         for n in [child, parent] {
-            if !names.contains(&n.as_str()) {
+            if !index_of.contains_key(n.as_str()) {
                 problems.push(CharacterProblem::UnknownSkinJoint { name: n.clone() });
             }
         }
     }
     // Parent by name overrides the file's hierarchy; order parents first.
-    let parent_of = |k: usize| -> Option<usize> {
-        match sk.parents.get(&mesh.skin_joints[k].name) {
-            Some(p) => names.iter().position(|n| *n == p.as_str()),
-            None => mesh.skin_joints[k].parent,
-        }
-    };
-    let n = mesh.skin_joints.len();
-    let mut order = Vec::with_capacity(n);
-    let mut placed = vec![false; n];
-    for _ in 0..n {
-        for k in 0..n {
-            if !placed[k] && parent_of(k).is_none_or(|p| placed[p]) {
-                placed[k] = true;
-                order.push(k);
-            }
-        }
-    }
-    if order.len() < n {
+    let parent: Vec<Option<usize>> = mesh
+        .skin_joints
+        .iter()
+        .map(|j| match sk.parents.get(&j.name) {
+            Some(p) => index_of.get(p.as_str()).copied(),
+            None => j.parent,
+        })
+        .collect();
+    let order = parents_first(&parent);
+    if order.len() < parent.len() {
         problems.push(CharacterProblem::ParentCycle);
     }
     let mut joints = Vec::with_capacity(order.len());
     let mut skin_x_axis = Vec::with_capacity(order.len());
-    let mut slot = vec![usize::MAX; n];
+    let mut slot = vec![usize::MAX; parent.len()];
     for (i, &k) in order.iter().enumerate() {
         slot[k] = i;
         let sj = &mesh.skin_joints[k];
         let m: DMat4 = sj.world_from_joint;
         joints.push(Joint {
             name: sj.name.clone(),
-            parent: parent_of(k).map(|p| slot[p]),
+            parent: parent[k].map(|p| slot[p]),
             rest: frame.point(m.w_axis.truncate()),
             limits: None,
             bend_axis: DVec3::X,
@@ -833,6 +829,44 @@ fn skin_joints(
         ));
     }
     (joints, skin_x_axis)
+}
+
+/// The joints in the order of passes over them in index order, each pass placing every
+/// joint whose parent is placed (so a parent listed after its child puts the child in
+/// the next pass), in n log n time: a joint's pass is its parent's, or the
+/// one after when the parent comes later. Joints on or below a cycle are left out.
+fn parents_first(parent: &[Option<usize>]) -> Vec<usize> {
+    let n = parent.len();
+    let mut pass: Vec<Option<usize>> = vec![None; n];
+    let mut visited = vec![false; n];
+    let mut chain = Vec::new();
+    for start in 0..n {
+        // Up to a joint visited before (done, or on this walk: a cycle) or a root ...
+        chain.clear();
+        let mut k = start;
+        while !visited[k] {
+            visited[k] = true;
+            chain.push(k);
+            match parent[k] {
+                Some(p) if p < n => k = p,
+                _ => break,
+            }
+        }
+        // ... then down, each joint's pass from its parent's (none yet on a cycle).
+        for &c in chain.iter().rev() {
+            pass[c] = match parent[c] {
+                None => Some(0),
+                Some(p) => pass
+                    .get(p)
+                    .copied()
+                    .flatten()
+                    .map(|q| if p < c { q } else { q + 1 }),
+            };
+        }
+    }
+    let mut order: Vec<usize> = (0..n).filter(|&k| pass[k].is_some()).collect();
+    order.sort_by_key(|&k| (pass[k], k));
+    order
 }
 
 /// The joints listed in `skeleton.joints`, in their order, with no default bend axes.
@@ -1294,6 +1328,52 @@ mod tests {
                 .starts_with("1 mesh vertices lie far from the rest of the mesh, e.g. vertex 17"),
             "{text:?}"
         );
+    }
+
+    /// The order before [`parents_first`]: passes over the joints in index order, each
+    /// placing every joint whose parent is placed (quadratic in the joints).
+    fn passes(parent: &[Option<usize>]) -> Vec<usize> {
+        let n = parent.len();
+        let mut order = Vec::new();
+        let mut placed = vec![false; n];
+        for _ in 0..n {
+            for k in 0..n {
+                if !placed[k] && parent[k].is_none_or(|p| placed[p]) {
+                    placed[k] = true;
+                    order.push(k);
+                }
+            }
+        }
+        order
+    }
+
+    #[test]
+    fn parents_first_orders_as_the_passes_did_in_n_log_n_time() {
+        // Every parent array of up to 6 joints (each joint's parent: none or any joint,
+        // itself included), against the passes.
+        for n in 0..=6usize {
+            let mut choice = vec![0usize; n];
+            loop {
+                let parent: Vec<Option<usize>> = choice.iter().map(|&c| c.checked_sub(1)).collect();
+                assert_eq!(parents_first(&parent), passes(&parent), "{parent:?}");
+                let Some(k) = (0..n).find(|&k| choice[k] < n) else {
+                    break;
+                };
+                choice[k] += 1;
+                choice[..k].iter_mut().for_each(|c| *c = 0);
+            }
+        }
+        // A million joints, each the parent of the one before it (the passes placed one a
+        // pass: 10^12 steps), and a million on a cycle.
+        let n = 1_000_000;
+        let chain: Vec<Option<usize>> = (0..n).map(|k| (k + 1 < n).then_some(k + 1)).collect();
+        let t0 = std::time::Instant::now();
+        let order = parents_first(&chain);
+        assert_eq!(order.len(), n);
+        assert_eq!((order[0], order[n - 1]), (n - 1, 0));
+        let cycle: Vec<Option<usize>> = (0..n).map(|k| Some((k + 1) % n)).collect();
+        assert!(parents_first(&cycle).is_empty());
+        assert!(t0.elapsed().as_secs_f64() < 2.0, "{:?}", t0.elapsed());
     }
 
     #[test]

@@ -1,11 +1,15 @@
 //! Character meshes from files: Wavefront OBJ (our own reader: `v`, `f`, `g`/`o`, so the
-//! output keeps the file's vertex order) and glTF 2.0 (`gltf` crate: triangle primitives,
-//! node transforms, the first skin's joints); unit and up-axis conversion; welding of
-//! coincident positions; the closed-manifold check the solver needs.
+//! output keeps the file's vertex order) and glTF 2.0 (our own reader over the `gltf`
+//! crate's JSON types: triangle primitives, node transforms, the first skin's joints);
+//! unit and up-axis conversion; welding of coincident positions; the closed-manifold check
+//! the solver needs.
 //!
 //! The parsers take bytes and return typed data or an error naming the line (OBJ) or the
-//! primitive (glTF); they never panic on hostile input and never allocate more than a
-//! small multiple of the input's size.
+//! glTF object at fault (primitive, accessor, buffer view, buffer, node or skin) and the
+//! value; they never panic on hostile input and never allocate more than a small multiple
+//! of the input's size. For glTF this holds because the document is checked here before
+//! anything is sized by it, the buffers are loaded and read here, and the calls left into
+//! the `gltf` crate run under `catch_unwind` ([`parse_gltf`] lists the checks and limits).
 
 use glam::{DMat4, DVec3};
 use std::collections::HashMap;
@@ -35,7 +39,8 @@ pub struct SkinJoint {
     pub world_from_joint: DMat4,
 }
 
-/// Errors reading a mesh file.
+/// Errors reading a mesh file. The glTF variants name the object at fault as the JSON
+/// does (`accessors[3]`, `meshes[0] "body" primitives[1]`, `buffers[0]`) and the value.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
     #[error("{path}: {source}")]
@@ -45,14 +50,257 @@ pub enum MeshError {
     },
     #[error("line {line}: {message}")]
     Obj { line: usize, message: String },
-    #[error("glTF: {0}")]
-    Gltf(String),
     #[error("the file has no triangles{}", if .groups.is_empty() { String::new() } else { format!(" in groups {:?}", .groups) })]
     NoTriangles { groups: Vec<String> },
     #[error("OBJ groups not found: {missing:?} (the file has {found:?})")]
     MissingGroups {
         missing: Vec<String>,
         found: Vec<String>,
+    },
+    /// A GLB container whose header or chunks do not fit the file.
+    #[error("GLB: {problem}")]
+    Glb { problem: GlbProblem },
+    /// The JSON does not parse into glTF's types (serde's message, with line and column).
+    #[error("glTF JSON: {message}")]
+    Json { message: String },
+    /// The JSON's top-level arrays would take more memory than [`GLTF_JSON_ALLOWANCE`]
+    /// plus [`GLTF_JSON_BYTES_PER_BYTE`] per byte of JSON.
+    #[error("glTF JSON: {objects} top-level objects would take {bytes} bytes in memory, more than the {limit} allowed for {json_len} bytes of JSON")]
+    TooManyObjects {
+        objects: u64,
+        bytes: u64,
+        json_len: usize,
+        limit: u64,
+    },
+    /// An index past the end of the array it points into.
+    #[error("glTF {field} is {index}, but the document has {count} {array}")]
+    Reference {
+        field: String,
+        index: usize,
+        array: &'static str,
+        count: usize,
+    },
+    /// The first problem the `gltf` crate's validation found: where (a JSON path) and
+    /// what.
+    #[error("glTF {path}: {problem}")]
+    Invalid { path: String, problem: String },
+    /// A buffer view that does not fit in its buffer (as declared).
+    #[error("glTF bufferViews[{view}]: {length} bytes from byte {offset} run past the end of buffers[{buffer}] ({buffer_length} bytes)")]
+    ViewOutsideBuffer {
+        view: usize,
+        buffer: usize,
+        offset: u64,
+        length: u64,
+        buffer_length: u64,
+    },
+    #[error("glTF accessors[{accessor}]: {problem}")]
+    Accessor {
+        accessor: usize,
+        problem: AccessorProblem,
+    },
+    #[error("glTF buffers[{buffer}]: {problem}")]
+    Buffer {
+        buffer: usize,
+        problem: BufferProblem,
+    },
+    #[error("glTF nodes[{node}]: {problem}")]
+    Node { node: usize, problem: NodeProblem },
+    #[error("glTF skins[{skin}]: {problem}")]
+    Skin { skin: usize, problem: SkinProblem },
+    #[error("glTF {at}: {problem}")]
+    Primitive {
+        at: PrimitiveAt,
+        problem: PrimitiveProblem,
+    },
+    /// The `gltf` crate panicked on this file (a bug of the crate that the checks before
+    /// it did not foresee); `stage` says what it was doing.
+    #[error("{file}: the gltf crate panicked while {stage}: {message}")]
+    Panicked {
+        file: String,
+        stage: &'static str,
+        message: String,
+    },
+}
+
+/// What is wrong with a GLB container.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum GlbProblem {
+    #[error("{length} bytes are too few for a GLB header (12)")]
+    TooShort { length: usize },
+    #[error("version {version} (only 2 is read)")]
+    Version { version: u32 },
+    #[error("the header's length {declared} does not fit the file's {actual} bytes")]
+    Length { declared: u32, actual: usize },
+    #[error("the chunk at byte {offset} declares {length} bytes, but {remaining} remain")]
+    Chunk {
+        offset: usize,
+        length: u64,
+        remaining: usize,
+    },
+    #[error("the first chunk has type 0x{chunk_type:08x}, not JSON")]
+    FirstChunk { chunk_type: u32 },
+    #[error("no JSON chunk")]
+    NoJson,
+}
+
+/// What is wrong with an accessor (any accessor of the document, used or not).
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum AccessorProblem {
+    #[error("it has neither a bufferView nor sparse values")]
+    NoData,
+    #[error("bufferViews[{view}].byteStride {stride} is smaller than its {element}-byte elements")]
+    StrideTooSmall {
+        view: usize,
+        stride: u64,
+        element: u64,
+    },
+    #[error("{count} elements of {element} bytes, {stride} bytes apart from byte {offset}, run past the end of bufferViews[{view}] ({view_length} bytes)")]
+    OutsideView {
+        view: usize,
+        offset: u64,
+        stride: u64,
+        count: u64,
+        element: u64,
+        view_length: u64,
+    },
+    #[error("count {count} of {element}-byte elements without a bufferView is more than the {limit} bytes of all buffers")]
+    TooLarge {
+        count: u64,
+        element: u64,
+        limit: u64,
+    },
+    #[error("sparse.count {sparse} is more than its count {count}")]
+    SparseCount { sparse: u64, count: u64 },
+    #[error("sparse.{part}: {count} of {size} bytes from byte {offset} run past the end of bufferViews[{view}] ({view_length} bytes)")]
+    SparseOutsideView {
+        part: &'static str,
+        view: usize,
+        offset: u64,
+        count: u64,
+        size: u64,
+        view_length: u64,
+    },
+    #[error("sparse index {index} (entry {entry}) is outside its {count} elements")]
+    SparseIndex {
+        entry: usize,
+        index: u32,
+        count: u64,
+    },
+    #[error("{field} is not an array of {expected} numbers")]
+    MinMax {
+        field: &'static str,
+        expected: usize,
+    },
+    #[error("its bytes lie outside its buffer's data")]
+    Unreadable,
+}
+
+/// What is wrong with a buffer or its data.
+#[derive(Debug, thiserror::Error)]
+pub enum BufferProblem {
+    #[error("it has no uri and there is no GLB BIN chunk for it")]
+    NoData,
+    #[error("it holds {actual} bytes, fewer than its byteLength {declared}")]
+    Short { declared: u64, actual: u64 },
+    #[error("uri {uri:?}: only base64 data: URIs and relative file paths are read")]
+    Scheme { uri: String },
+    #[error("uri {uri:?}: it is not a relative path")]
+    Absolute { uri: String },
+    #[error("uri {uri:?}: a bad percent-escape, or the path is not UTF-8")]
+    PercentEncoding { uri: String },
+    #[error("uri: bad base64 at character {offset} of the data")]
+    Base64 { offset: usize },
+    #[error("uri {uri:?} names a file, but the document was given without its folder")]
+    NoFolder { uri: String },
+    #[error("{path}: not a regular file")]
+    NotAFile { path: String },
+    #[error("{path} has {actual} bytes, but byteLength is {declared} (the file must hold exactly that, or up to 3 bytes of padding more)")]
+    FileLength {
+        path: String,
+        declared: u64,
+        actual: u64,
+    },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}
+
+/// What is wrong with the node hierarchy.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum NodeProblem {
+    #[error("it is a child of nodes[{first}] and again of nodes[{second}]")]
+    TwoParents { first: usize, second: usize },
+    #[error("it is its own ancestor (the children make a cycle)")]
+    Cycle,
+}
+
+/// What is wrong with a skin.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum SkinProblem {
+    #[error("{joints} joints, more than the {max} read")]
+    TooManyJoints { joints: usize, max: usize },
+    #[error("nodes[{node}] is one of its joints twice")]
+    DuplicateJoint { node: usize },
+    #[error("inverseBindMatrices accessors[{accessor}] is {accessor_type} of componentType {component_type}; it must be MAT4 of 5126 (float)")]
+    MatrixFormat {
+        accessor: usize,
+        accessor_type: &'static str,
+        component_type: u32,
+    },
+    #[error("{joints} joints but {matrices} inverse bind matrices")]
+    MatrixCount { joints: usize, matrices: usize },
+}
+
+/// A primitive of a mesh, as errors name it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PrimitiveAt {
+    pub mesh: usize,
+    pub name: Option<String>,
+    pub primitive: usize,
+}
+
+impl std::fmt::Display for PrimitiveAt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.name {
+            Some(n) => write!(
+                f,
+                "meshes[{}] {n:?} primitives[{}]",
+                self.mesh, self.primitive
+            ),
+            None => write!(f, "meshes[{}] primitives[{}]", self.mesh, self.primitive),
+        }
+    }
+}
+
+/// What is wrong with a triangle primitive.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum PrimitiveProblem {
+    #[error("it has no POSITION attribute")]
+    NoPositions,
+    #[error("POSITION accessors[{accessor}] is {accessor_type} of componentType {component_type}; it must be VEC3 of 5126 (float)")]
+    PositionFormat {
+        accessor: usize,
+        accessor_type: &'static str,
+        component_type: u32,
+    },
+    #[error("indices accessors[{accessor}] is {accessor_type} of componentType {component_type}; indices must be SCALAR of 5121, 5123 or 5125 (unsigned 8, 16 or 32 bits)")]
+    IndexFormat {
+        accessor: usize,
+        accessor_type: &'static str,
+        component_type: u32,
+    },
+    #[error("{count} {}, not a multiple of 3 (a triangle list)", if *.indexed { "indices" } else { "vertices without indices" })]
+    NotTriangles { count: usize, indexed: bool },
+    #[error("index {index} is outside its {vertices} vertices")]
+    IndexOutOfRange { index: u32, vertices: u32 },
+    #[error("it takes the file's {what} to {total}, over the budget of {budget} for {input_len} bytes of input")]
+    OverBudget {
+        what: &'static str,
+        total: u64,
+        budget: u64,
+        input_len: u64,
     },
 }
 
@@ -168,166 +416,1335 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
     })
 }
 
-/// Reads a glTF 2.0 file (`.glb` or `.gltf` with its buffers next to it): every triangle
-/// primitive of every mesh node in the default scene (or all nodes), in document order;
-/// unskinned nodes are placed by their world transform, skinned ones stay in bind space
-/// (as the glTF specification says). Images are not decoded.
+/// Most joints a glTF skin may have (a hand has about 25, a body with fingers and a face a
+/// few hundred); a skin with more is an error naming its count.
+pub const MAX_SKIN_JOINTS: usize = 1024;
+
+/// Vertices a glTF file may give in all: this many plus one per four bytes of input (the
+/// file and the external buffers it reads). A vertex takes 12 bytes of a buffer, so every
+/// vertex may be drawn three times (instanced meshes), and 65,536 more.
+pub const GLTF_VERTEX_ALLOWANCE: u64 = 1 << 16;
+
+/// Indices (three a triangle) a glTF file may give in all: this many plus one per byte of
+/// input.
+pub const GLTF_INDEX_ALLOWANCE: u64 = 1 << 16;
+
+/// Bytes the JSON's top-level objects (nodes, accessors, materials, ...) may take in
+/// memory before they are built: this many plus [`GLTF_JSON_BYTES_PER_BYTE`] per byte of
+/// JSON. A node takes 224 bytes, so 3 MB of empty nodes `{}` are refused, while a real
+/// file (dozens of bytes of JSON an object) is far below.
+pub const GLTF_JSON_ALLOWANCE: u64 = 1 << 20;
+
+/// See [`GLTF_JSON_ALLOWANCE`].
+pub const GLTF_JSON_BYTES_PER_BYTE: u64 = 16;
+
+/// Reads a glTF 2.0 file (`.glb`, or `.gltf` with its buffers next to it): every triangle
+/// primitive of every mesh node, in document order (scenes are not consulted); unskinned
+/// nodes are placed by their world transform, skinned ones stay in bind space (as the
+/// glTF specification says). Images are not decoded.
 pub fn read_gltf(path: &Path) -> Result<MeshData, MeshError> {
     let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
         path: path.display().to_string(),
         source,
     })?;
-    parse_gltf(&bytes, path.parent())
+    parse_glb_or_gltf(&bytes, path.parent(), &path.display().to_string())
 }
 
 /// [`read_gltf`] on bytes; `base` is the folder external buffers are relative to (none:
 /// only embedded or GLB buffers).
+///
+/// The `gltf` crate only parses the JSON into its types and validates them; everything
+/// it would do with numbers from the file is done here, checked first:
+///
+/// 1. The GLB container is split here: chunk lengths within the header's length, which is
+///    within the file; the first chunk JSON, the first `BIN` chunk kept, others skipped.
+/// 2. A census of the JSON's top-level arrays, which allocates nothing, refuses a
+///    document whose objects would take more than [`GLTF_JSON_ALLOWANCE`] plus
+///    [`GLTF_JSON_BYTES_PER_BYTE`] per byte of JSON; then the crate parses it.
+/// 3. Every index of an accessor, buffer view, buffer, mesh, node or skin is in range
+///    (the crate's validation indexes with some of them unchecked), then the crate's
+///    validation runs (its first problem is the error).
+/// 4. Every buffer view lies within its buffer; every accessor within its view, its
+///    stride no smaller than its element; a sparse accessor's indices and values within
+///    their views and its count within the accessor's, and one without a view no larger
+///    than all the buffers; `min` and `max` hold one number per component. All with
+///    checked arithmetic: a sum or product that overflows is out of bounds.
+/// 5. The nodes make a forest (one parent each, no cycle); a skin has at most
+///    [`MAX_SKIN_JOINTS`] joints, each once.
+/// 6. Buffers are loaded here: the GLB `BIN` chunk (borrowed), base64 `data:` URIs, and
+///    relative paths (percent-decoded here, to UTF-8 or an error) to regular files whose
+///    length is the declared `byteLength` (plus up to 3 bytes of padding), checked before
+///    reading. Other schemes and absolute paths are refused.
+/// 7. Triangle primitives: POSITION is VEC3 float, indices SCALAR unsigned 8, 16 or 32
+///    bits, their count a multiple of three; all of them together within
+///    [`GLTF_VERTEX_ALLOWANCE`] plus one vertex per four bytes of input and
+///    [`GLTF_INDEX_ALLOWANCE`] plus one index per byte, so the output is allocated once,
+///    at its final size. Then the data is read, every index checked.
+///
+/// Every allocation is bounded by the input's length or these limits. The calls into the
+/// crate (parsing, validation, node transforms) run under `catch_unwind`, so a panic the
+/// checks did not foresee becomes [`MeshError::Panicked`] naming the file instead of
+/// taking the daemon down (the release profile unwinds).
 pub fn parse_gltf(bytes: &[u8], base: Option<&Path>) -> Result<MeshData, MeshError> {
-    let g = gltf::Gltf::from_slice(bytes).map_err(|e| MeshError::Gltf(e.to_string()))?;
-    let buffers = gltf::import_buffers(&g.document, base, g.blob.clone())
-        .map_err(|e| MeshError::Gltf(e.to_string()))?;
-    let doc = &g.document;
-    let n_nodes = doc.nodes().len();
-    let mut parent: Vec<Option<usize>> = vec![None; n_nodes];
-    for n in doc.nodes() {
-        for c in n.children() {
-            if c.index() < n_nodes {
-                parent[c.index()] = Some(n.index());
-            }
-        }
-    }
-    // World transforms (depth-limited walk up the parents: a cycle cannot hang us).
-    let local: Vec<DMat4> = doc
-        .nodes()
-        .map(|n| DMat4::from_cols_array_2d(&n.transform().matrix().map(|c| c.map(f64::from))))
-        .collect();
-    let world = |mut i: usize| {
-        let mut m = local[i];
-        for _ in 0..n_nodes {
-            match parent[i] {
-                Some(p) => {
-                    m = local[p] * m;
-                    i = p;
-                }
-                None => break,
-            }
-        }
-        m
+    parse_glb_or_gltf(bytes, base, "glTF bytes")
+}
+
+/// [`parse_gltf`], naming the file as `file` in a [`MeshError::Panicked`].
+fn parse_glb_or_gltf(bytes: &[u8], base: Option<&Path>, file: &str) -> Result<MeshData, MeshError> {
+    let (json, bin) = if bytes.starts_with(b"glTF") {
+        split_glb(bytes).map_err(|problem| MeshError::Glb { problem })?
+    } else {
+        (bytes, None)
     };
-    let mut out = MeshData::default();
-    let mut first_skin = None;
-    for node in doc.nodes() {
-        let Some(mesh) = node.mesh() else { continue };
-        let xf = if node.skin().is_some() {
-            DMat4::IDENTITY
-        } else {
-            world(node.index())
-        };
-        if first_skin.is_none() {
-            first_skin = node.skin();
-        }
-        for (pi, prim) in mesh.primitives().enumerate() {
-            if prim.mode() != gltf::mesh::Mode::Triangles {
-                continue;
-            }
-            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let Some(pos) = reader.read_positions() else {
-                return Err(MeshError::Gltf(format!(
-                    "mesh {:?} primitive {pi} has no positions",
-                    mesh.name().unwrap_or("")
-                )));
-            };
-            let base_index = out.positions.len() as u32;
-            let before = out.positions.len();
-            out.positions
-                .extend(pos.map(|p| xf.transform_point3(DVec3::from_array(p.map(f64::from)))));
-            let count = (out.positions.len() - before) as u32;
-            let idx: Vec<u32> = match reader.read_indices() {
-                Some(i) => i.into_u32().collect(),
-                None => (0..count).collect(),
-            };
-            for t in idx.chunks_exact(3) {
-                if t.iter().any(|&i| i >= count) {
-                    return Err(MeshError::Gltf(format!(
-                        "mesh {:?} primitive {pi}: index {} is outside its {count} vertices",
-                        mesh.name().unwrap_or(""),
-                        t.iter().max().copied().unwrap_or(0)
-                    )));
-                }
-                out.triangles
-                    .push([t[0] + base_index, t[1] + base_index, t[2] + base_index]);
-            }
-        }
-    }
+    let root = read_json(json, file)?;
+    check_references(&root)?;
+    crate_validation(&root, file)?;
+    let layouts = accessor_layouts(&root)?;
+    let forest = node_forest(&root)?;
+    check_skins(&root)?;
+    let buffers = load_buffers(&root, bin, base)?;
+    let input_len = (bytes.len() as u64).saturating_add(buffers.external_bytes);
+    let totals = check_primitives(&root, &layouts, input_len)?;
+    let world = world_matrices(&root, &forest, file)?;
+    let mut out = read_meshes(&root, &layouts, &buffers, &world, &totals)?;
     if out.triangles.is_empty() {
         return Err(MeshError::NoTriangles { groups: Vec::new() });
     }
     out.source_positions = out.positions.clone();
+    let first_skin = root
+        .nodes
+        .iter()
+        .filter(|n| n.mesh.is_some())
+        .find_map(|n| n.skin);
     if let Some(skin) = first_skin {
-        let joints: Vec<gltf::Node> = skin.joints().collect();
-        let ibm: Vec<DMat4> = match skin
-            .reader(|b| buffers.get(b.index()).map(|d| &d.0[..]))
-            .read_inverse_bind_matrices()
-        {
-            Some(r) => r
-                .map(|m| DMat4::from_cols_array_2d(&m.map(|c| c.map(f64::from))))
-                .collect(),
-            None => vec![DMat4::IDENTITY; joints.len()],
-        };
-        if ibm.len() != joints.len() {
-            return Err(MeshError::Gltf(format!(
-                "skin has {} joints but {} inverse bind matrices",
-                joints.len(),
-                ibm.len()
-            )));
+        out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest)?;
+    }
+    Ok(out)
+}
+
+/// Runs a call into the `gltf` crate, turning a panic into [`MeshError::Panicked`]. The
+/// crate's code is not ours to fix, and a panic on a crafted file must not take the
+/// daemon down; `AssertUnwindSafe` holds because nothing the call touches outlives a
+/// panic (the document is only read, and the results are dropped).
+fn guarded<T>(file: &str, stage: &'static str, f: impl FnOnce() -> T) -> Result<T, MeshError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|payload| {
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "(no message)".to_string());
+        MeshError::Panicked {
+            file: file.to_string(),
+            stage,
+            message,
         }
-        let slot: HashMap<usize, usize> = joints
-            .iter()
-            .enumerate()
-            .map(|(k, n)| (n.index(), k))
-            .collect();
-        // Parent joint: nearest ancestor node that is a joint.
-        let joint_parent = |k: usize| {
-            let mut i = joints[k].index();
-            for _ in 0..n_nodes {
-                i = parent[i]?;
-                if let Some(&s) = slot.get(&i) {
-                    return Some(s);
+    })
+}
+
+/// The JSON and `BIN` chunks of a GLB container.
+fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), GlbProblem> {
+    let word = |bytes: &[u8], at: usize| {
+        bytes
+            .get(at..at.checked_add(4)?)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let (Some(version), Some(declared)) = (word(bytes, 4), word(bytes, 8)) else {
+        return Err(GlbProblem::TooShort {
+            length: bytes.len(),
+        });
+    };
+    if version != 2 {
+        return Err(GlbProblem::Version { version });
+    }
+    let total = declared as usize;
+    if total < 12 || total > bytes.len() {
+        return Err(GlbProblem::Length {
+            declared,
+            actual: bytes.len(),
+        });
+    }
+    let bytes = bytes.get(..total).unwrap_or_default();
+    let (mut json, mut bin) = (None, None);
+    let mut at = 12;
+    while at < total {
+        let remaining = total - at;
+        let (Some(length), Some(kind)) = (word(bytes, at), word(bytes, at + 4)) else {
+            return Err(GlbProblem::Chunk {
+                offset: at,
+                length: 0,
+                remaining,
+            });
+        };
+        let end = (at + 8)
+            .checked_add(length as usize)
+            .filter(|&e| e <= total)
+            .ok_or(GlbProblem::Chunk {
+                offset: at,
+                length: length.into(),
+                remaining: remaining.saturating_sub(8),
+            })?;
+        let data = bytes.get(at + 8..end).unwrap_or_default();
+        match (json.is_none(), &kind.to_le_bytes()) {
+            (true, b"JSON") => json = Some(data),
+            (true, _) => return Err(GlbProblem::FirstChunk { chunk_type: kind }),
+            (false, b"BIN\0") if bin.is_none() => bin = Some(data),
+            _ => {}
+        }
+        at = end;
+    }
+    Ok((json.ok_or(GlbProblem::NoJson)?, bin))
+}
+
+/// The lengths of a glTF JSON's top-level arrays, counted without building anything
+/// (`IgnoredAny` takes no memory, nor a vector of it).
+#[derive(serde::Deserialize)]
+struct Census {
+    #[serde(default)]
+    accessors: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    animations: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    buffers: Vec<serde::de::IgnoredAny>,
+    #[serde(default, rename = "bufferViews")]
+    buffer_views: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    cameras: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    images: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    materials: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    meshes: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    nodes: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    samplers: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    scenes: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    skins: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    textures: Vec<serde::de::IgnoredAny>,
+    #[serde(default, rename = "extensionsUsed")]
+    extensions_used: Vec<serde::de::IgnoredAny>,
+    #[serde(default, rename = "extensionsRequired")]
+    extensions_required: Vec<serde::de::IgnoredAny>,
+}
+
+impl Census {
+    /// The objects counted, and the bytes the crate's types for them take.
+    fn memory(&self) -> (u64, u64) {
+        use gltf::json as j;
+        use std::mem::size_of;
+        [
+            (self.accessors.len(), size_of::<j::Accessor>()),
+            (self.animations.len(), size_of::<j::Animation>()),
+            (self.buffers.len(), size_of::<j::Buffer>()),
+            (self.buffer_views.len(), size_of::<j::buffer::View>()),
+            (self.cameras.len(), size_of::<j::Camera>()),
+            (self.images.len(), size_of::<j::Image>()),
+            (self.materials.len(), size_of::<j::Material>()),
+            (self.meshes.len(), size_of::<j::Mesh>()),
+            (self.nodes.len(), size_of::<j::Node>()),
+            (self.samplers.len(), size_of::<j::texture::Sampler>()),
+            (self.scenes.len(), size_of::<j::Scene>()),
+            (self.skins.len(), size_of::<j::Skin>()),
+            (self.textures.len(), size_of::<j::Texture>()),
+            (self.extensions_used.len(), size_of::<String>()),
+            (self.extensions_required.len(), size_of::<String>()),
+        ]
+        .iter()
+        .fold((0u64, 0u64), |(n, b), &(count, size)| {
+            (
+                n.saturating_add(count as u64),
+                b.saturating_add((count as u64).saturating_mul(size as u64)),
+            )
+        })
+    }
+}
+
+/// The document's JSON in the crate's types, after the census allowed it.
+fn read_json(json: &[u8], file: &str) -> Result<gltf::json::Root, MeshError> {
+    let census: Census = serde_json::from_slice(json).map_err(|e| MeshError::Json {
+        message: e.to_string(),
+    })?;
+    let (objects, bytes) = census.memory();
+    let limit = GLTF_JSON_ALLOWANCE
+        .saturating_add(GLTF_JSON_BYTES_PER_BYTE.saturating_mul(json.len() as u64));
+    if bytes > limit {
+        return Err(MeshError::TooManyObjects {
+            objects,
+            bytes,
+            json_len: json.len(),
+            limit,
+        });
+    }
+    guarded(file, "parsing the JSON", || {
+        gltf::json::deserialize::from_slice::<gltf::json::Root>(json)
+    })?
+    .map_err(|e| MeshError::Json {
+        message: e.to_string(),
+    })
+}
+
+/// `Ok` when `index` is within an array of `count` (`array`, as the JSON calls it);
+/// `field` names the reference.
+fn in_range(
+    index: usize,
+    count: usize,
+    array: &'static str,
+    field: impl FnOnce() -> String,
+) -> Result<(), MeshError> {
+    if index < count {
+        return Ok(());
+    }
+    Err(MeshError::Reference {
+        field: field(),
+        index,
+        array,
+        count,
+    })
+}
+
+/// Checks every reference to an accessor, buffer view, buffer, mesh, node or skin.
+fn check_references(root: &gltf::json::Root) -> Result<(), MeshError> {
+    let (n_acc, n_views) = (root.accessors.len(), root.buffer_views.len());
+    let acc = |i: usize, field: &dyn Fn() -> String| in_range(i, n_acc, "accessors", field);
+    let view = |i: usize, field: &dyn Fn() -> String| in_range(i, n_views, "bufferViews", field);
+    for (a, x) in root.accessors.iter().enumerate() {
+        if let Some(v) = x.buffer_view {
+            view(v.value(), &|| format!("accessors[{a}].bufferView"))?;
+        }
+        if let Some(s) = &x.sparse {
+            let v = s.indices.buffer_view.value();
+            view(v, &|| format!("accessors[{a}].sparse.indices.bufferView"))?;
+            let v = s.values.buffer_view.value();
+            view(v, &|| format!("accessors[{a}].sparse.values.bufferView"))?;
+        }
+    }
+    for (v, x) in root.buffer_views.iter().enumerate() {
+        let b = x.buffer.value();
+        in_range(b, root.buffers.len(), "buffers", || {
+            format!("bufferViews[{v}].buffer")
+        })?;
+    }
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let at = format!("meshes[{m}].primitives[{p}]");
+            for (name, a) in &prim.attributes {
+                acc(a.value(), &|| {
+                    format!("{at}.attributes.{}", name.to_string())
+                })?;
+            }
+            if let Some(a) = prim.indices {
+                acc(a.value(), &|| format!("{at}.indices"))?;
+            }
+            for (t, target) in prim.targets.iter().flatten().enumerate() {
+                for a in [target.positions, target.normals, target.tangents]
+                    .into_iter()
+                    .flatten()
+                {
+                    acc(a.value(), &|| format!("{at}.targets[{t}]"))?;
                 }
+            }
+        }
+    }
+    for (k, anim) in root.animations.iter().enumerate() {
+        for (s, sampler) in anim.samplers.iter().enumerate() {
+            for (a, what) in [(sampler.input, "input"), (sampler.output, "output")] {
+                acc(a.value(), &|| {
+                    format!("animations[{k}].samplers[{s}].{what}")
+                })?;
+            }
+        }
+    }
+    check_node_references(root)
+}
+
+/// Checks every reference of the nodes and skins to a node, mesh, skin or accessor.
+fn check_node_references(root: &gltf::json::Root) -> Result<(), MeshError> {
+    let n_nodes = root.nodes.len();
+    for (n, node) in root.nodes.iter().enumerate() {
+        for (k, c) in node.children.iter().flatten().enumerate() {
+            in_range(c.value(), n_nodes, "nodes", || {
+                format!("nodes[{n}].children[{k}]")
+            })?;
+        }
+        if let Some(m) = node.mesh {
+            in_range(m.value(), root.meshes.len(), "meshes", || {
+                format!("nodes[{n}].mesh")
+            })?;
+        }
+        if let Some(s) = node.skin {
+            in_range(s.value(), root.skins.len(), "skins", || {
+                format!("nodes[{n}].skin")
+            })?;
+        }
+    }
+    for (s, skin) in root.skins.iter().enumerate() {
+        for (k, j) in skin.joints.iter().enumerate() {
+            in_range(j.value(), n_nodes, "nodes", || {
+                format!("skins[{s}].joints[{k}]")
+            })?;
+        }
+        if let Some(j) = skin.skeleton {
+            in_range(j.value(), n_nodes, "nodes", || {
+                format!("skins[{s}].skeleton")
+            })?;
+        }
+        if let Some(a) = skin.inverse_bind_matrices {
+            in_range(a.value(), root.accessors.len(), "accessors", || {
+                format!("skins[{s}].inverseBindMatrices")
+            })?;
+        }
+    }
+    Ok(())
+}
+
+/// The `gltf` crate's validation of the document (its first problem is the error).
+fn crate_validation(root: &gltf::json::Root, file: &str) -> Result<(), MeshError> {
+    use gltf::json::validation::Validate;
+    let first = guarded(file, "validating the document", || {
+        let mut first: Option<(String, String)> = None;
+        root.validate(root, gltf::json::Path::new, &mut |path, error| {
+            if first.is_none() {
+                first = Some((path().as_str().to_string(), error.to_string()));
+            }
+        });
+        first
+    })?;
+    match first {
+        Some((path, problem)) => Err(MeshError::Invalid { path, problem }),
+        None => Ok(()),
+    }
+}
+
+/// Where an accessor's elements are and what they are, checked against the declared
+/// lengths of its views and buffers.
+#[derive(Clone, Copy, Debug)]
+struct Layout {
+    kind: gltf::json::accessor::Type,
+    component: gltf::json::accessor::ComponentType,
+    count: usize,
+    /// Bytes of one element (matrix columns padded to four bytes, as glTF lays them out).
+    element: usize,
+    /// Buffer, first byte and stride of the elements; none: zeros (sparse accessors).
+    dense: Option<(usize, usize, usize)>,
+    sparse: Option<SparseLayout>,
+}
+
+/// Where a sparse accessor's substitutions are.
+#[derive(Clone, Copy, Debug)]
+struct SparseLayout {
+    count: usize,
+    /// Bytes of one index (1, 2 or 4).
+    index_size: usize,
+    /// Buffer and first byte of the indices, and of the values.
+    indices: (usize, usize),
+    values: (usize, usize),
+}
+
+/// The glTF name of an accessor type.
+fn type_name(kind: gltf::json::accessor::Type) -> &'static str {
+    use gltf::json::accessor::Type::*;
+    match kind {
+        Scalar => "SCALAR",
+        Vec2 => "VEC2",
+        Vec3 => "VEC3",
+        Vec4 => "VEC4",
+        Mat2 => "MAT2",
+        Mat3 => "MAT3",
+        Mat4 => "MAT4",
+    }
+}
+
+/// Bytes of one element: components times their size, matrix columns padded to a
+/// multiple of four bytes.
+fn element_size(
+    kind: gltf::json::accessor::Type,
+    component: gltf::json::accessor::ComponentType,
+) -> usize {
+    use gltf::json::accessor::Type::*;
+    let size = component.size();
+    match kind {
+        Mat2 if size == 1 => 8,
+        Mat3 if size == 1 => 12,
+        Mat3 if size == 2 => 24,
+        _ => kind.multiplicity() * size,
+    }
+}
+
+/// A number from the file as an index or length here, once checked against a declared
+/// length (only a 32-bit machine can fail it).
+fn to_usize(
+    value: Option<u64>,
+    accessor: usize,
+    count: u64,
+    element: u64,
+) -> Result<usize, MeshError> {
+    value
+        .and_then(|v| usize::try_from(v).ok())
+        .ok_or(MeshError::Accessor {
+            accessor,
+            problem: AccessorProblem::TooLarge {
+                count,
+                element,
+                limit: usize::MAX as u64,
+            },
+        })
+}
+
+/// The layout of every accessor, after checking that every buffer view lies in its
+/// buffer.
+fn accessor_layouts(root: &gltf::json::Root) -> Result<Vec<Layout>, MeshError> {
+    let mut views = Vec::with_capacity(root.buffer_views.len());
+    for (v, view) in root.buffer_views.iter().enumerate() {
+        let buffer = view.buffer.value();
+        let buffer_length = root.buffers.get(buffer).map_or(0, |b| b.byte_length.0);
+        let offset = view.byte_offset.map_or(0, |o| o.0);
+        let length = view.byte_length.0;
+        if offset
+            .checked_add(length)
+            .is_none_or(|end| end > buffer_length)
+        {
+            return Err(MeshError::ViewOutsideBuffer {
+                view: v,
+                buffer,
+                offset,
+                length,
+                buffer_length,
+            });
+        }
+        views.push((buffer, offset, length));
+    }
+    let all_buffers = root
+        .buffers
+        .iter()
+        .fold(0u64, |sum, b| sum.saturating_add(b.byte_length.0));
+    root.accessors
+        .iter()
+        .enumerate()
+        .map(|(a, accessor)| accessor_layout(root, &views, a, accessor, all_buffers))
+        .collect()
+}
+
+/// One accessor's layout; `views` holds each buffer view's buffer, offset and length.
+fn accessor_layout(
+    root: &gltf::json::Root,
+    views: &[(usize, u64, u64)],
+    a: usize,
+    accessor: &gltf::json::Accessor,
+    all_buffers: u64,
+) -> Result<Layout, MeshError> {
+    use gltf::json::validation::Checked;
+    let err = |problem| MeshError::Accessor {
+        accessor: a,
+        problem,
+    };
+    let (Checked::Valid(kind), Checked::Valid(component)) =
+        (accessor.type_, accessor.component_type)
+    else {
+        return Err(MeshError::Invalid {
+            path: format!("accessors[{a}]"),
+            problem: "type or componentType is not valid".into(),
+        });
+    };
+    let component = component.0;
+    let element = element_size(kind, component);
+    let (count, el) = (accessor.count.0, element as u64);
+    for (field, value) in [("min", &accessor.min), ("max", &accessor.max)] {
+        let expected = kind.multiplicity();
+        let fits = |v: &serde_json::Value| {
+            v.as_array()
+                .is_some_and(|x| x.len() == expected && x.iter().all(|n| n.is_number()))
+        };
+        if value.as_ref().is_some_and(|v| !fits(v)) {
+            return Err(err(AccessorProblem::MinMax { field, expected }));
+        }
+    }
+    let dense = match accessor.buffer_view {
+        Some(v) => {
+            let v = v.value();
+            let (buffer, view_offset, view_length) = views.get(v).copied().unwrap_or_default();
+            let stride = root
+                .buffer_views
+                .get(v)
+                .and_then(|x| x.byte_stride)
+                .map_or(el, |s| s.0 as u64);
+            if stride < el {
+                return Err(err(AccessorProblem::StrideTooSmall {
+                    view: v,
+                    stride,
+                    element: el,
+                }));
+            }
+            let offset = accessor.byte_offset.map_or(0, |o| o.0);
+            let needed = match count {
+                0 => Some(offset),
+                _ => stride
+                    .checked_mul(count - 1)
+                    .and_then(|b| b.checked_add(el))
+                    .and_then(|b| b.checked_add(offset)),
+            };
+            if needed.is_none_or(|n| n > view_length) {
+                return Err(err(AccessorProblem::OutsideView {
+                    view: v,
+                    offset,
+                    stride,
+                    count,
+                    element: el,
+                    view_length,
+                }));
+            }
+            let first = to_usize(view_offset.checked_add(offset), a, count, el)?;
+            Some((buffer, first, to_usize(Some(stride), a, count, el)?))
+        }
+        None if accessor.sparse.is_none() => return Err(err(AccessorProblem::NoData)),
+        None => {
+            if count.checked_mul(el).is_none_or(|b| b > all_buffers) {
+                return Err(err(AccessorProblem::TooLarge {
+                    count,
+                    element: el,
+                    limit: all_buffers,
+                }));
             }
             None
+        }
+    };
+    let sparse = match &accessor.sparse {
+        Some(s) => Some(sparse_layout(views, a, s, count, el)?),
+        None => None,
+    };
+    Ok(Layout {
+        kind,
+        component,
+        count: to_usize(Some(count), a, count, el)?,
+        element,
+        dense,
+        sparse,
+    })
+}
+
+/// A sparse accessor's substitutions: at most its `count` elements of `element` bytes,
+/// indices and values within their views.
+fn sparse_layout(
+    views: &[(usize, u64, u64)],
+    a: usize,
+    s: &gltf::json::accessor::sparse::Sparse,
+    count: u64,
+    element: u64,
+) -> Result<SparseLayout, MeshError> {
+    use gltf::json::validation::Checked;
+    let err = |problem| MeshError::Accessor {
+        accessor: a,
+        problem,
+    };
+    let n = s.count.0;
+    if n > count {
+        return Err(err(AccessorProblem::SparseCount { sparse: n, count }));
+    }
+    let Checked::Valid(index_type) = s.indices.component_type else {
+        return Err(MeshError::Invalid {
+            path: format!("accessors[{a}].sparse.indices.componentType"),
+            problem: "not an unsigned integer type".into(),
+        });
+    };
+    let index_size = index_type.0.size() as u64;
+    let place = |part: &'static str, view: usize, offset: u64, size: u64| {
+        let (buffer, view_offset, view_length) = views.get(view).copied().unwrap_or_default();
+        let end = n.checked_mul(size).and_then(|b| b.checked_add(offset));
+        if end.is_none_or(|e| e > view_length) {
+            return Err(err(AccessorProblem::SparseOutsideView {
+                part,
+                view,
+                offset,
+                count: n,
+                size,
+                view_length,
+            }));
+        }
+        let first = to_usize(view_offset.checked_add(offset), a, count, element)?;
+        Ok((buffer, first))
+    };
+    let indices = place(
+        "indices",
+        s.indices.buffer_view.value(),
+        s.indices.byte_offset.0,
+        index_size,
+    )?;
+    let values = place(
+        "values",
+        s.values.buffer_view.value(),
+        s.values.byte_offset.0,
+        element,
+    )?;
+    Ok(SparseLayout {
+        count: to_usize(Some(n), a, count, element)?,
+        index_size: index_size as usize,
+        indices,
+        values,
+    })
+}
+
+/// The node hierarchy: each node's parent, and every node with parents before children.
+struct Forest {
+    parent: Vec<Option<usize>>,
+    order: Vec<usize>,
+}
+
+/// Checks that the nodes make a forest (one parent each, no cycle) and orders them.
+fn node_forest(root: &gltf::json::Root) -> Result<Forest, MeshError> {
+    let n = root.nodes.len();
+    let mut parent: Vec<Option<usize>> = vec![None; n];
+    for (p, node) in root.nodes.iter().enumerate() {
+        for c in node.children.iter().flatten() {
+            let Some(slot) = parent.get_mut(c.value()) else {
+                continue;
+            };
+            if let Some(first) = *slot {
+                return Err(MeshError::Node {
+                    node: c.value(),
+                    problem: NodeProblem::TwoParents { first, second: p },
+                });
+            }
+            *slot = Some(p);
+        }
+    }
+    // Breadth first from the roots: each node has one parent, so it is pushed once.
+    let mut order: Vec<usize> = (0..n).filter(|&i| parent[i].is_none()).collect();
+    let mut next = 0;
+    while let Some(&p) = order.get(next) {
+        next += 1;
+        for c in root.nodes[p].children.iter().flatten() {
+            if c.value() < n {
+                order.push(c.value());
+            }
+        }
+    }
+    if order.len() < n {
+        // The nodes not reached all have a parent not reached: walking up from one
+        // comes back to a node on the cycle.
+        let mut seen = vec![false; n];
+        for &i in &order {
+            seen[i] = true;
+        }
+        let mut i = (0..n).find(|&i| !seen[i]).unwrap_or(0);
+        let mut walked = vec![false; n];
+        while !walked[i] {
+            walked[i] = true;
+            i = parent[i].unwrap_or(i);
+        }
+        return Err(MeshError::Node {
+            node: i,
+            problem: NodeProblem::Cycle,
+        });
+    }
+    Ok(Forest { parent, order })
+}
+
+/// Checks every skin: at most [`MAX_SKIN_JOINTS`] joints, each once.
+fn check_skins(root: &gltf::json::Root) -> Result<(), MeshError> {
+    for (s, skin) in root.skins.iter().enumerate() {
+        let err = |problem| MeshError::Skin { skin: s, problem };
+        if skin.joints.len() > MAX_SKIN_JOINTS {
+            return Err(err(SkinProblem::TooManyJoints {
+                joints: skin.joints.len(),
+                max: MAX_SKIN_JOINTS,
+            }));
+        }
+        let mut seen = std::collections::HashSet::with_capacity(skin.joints.len());
+        if let Some(j) = skin.joints.iter().find(|j| !seen.insert(j.value())) {
+            return Err(err(SkinProblem::DuplicateJoint { node: j.value() }));
+        }
+    }
+    Ok(())
+}
+
+/// The buffers' bytes: distinct sources (the GLB `BIN` chunk is borrowed, a file read
+/// once however many buffers name it), and which one each buffer uses.
+#[derive(Default)]
+struct Buffers<'a> {
+    data: Vec<std::borrow::Cow<'a, [u8]>>,
+    source: Vec<usize>,
+    /// Bytes read from external files.
+    external_bytes: u64,
+}
+
+impl Buffers<'_> {
+    /// `len` bytes from byte `first` of a buffer, if its data holds them.
+    fn span(&self, buffer: usize, first: usize, len: usize) -> Option<&[u8]> {
+        let data = self.data.get(*self.source.get(buffer)?)?;
+        data.get(first..first.checked_add(len)?)
+    }
+}
+
+/// Whether a file of `actual` bytes can hold a buffer of `declared` bytes: that many, or
+/// up to 3 more (padding to four bytes, as a GLB chunk may have).
+fn file_length_fits(declared: u64, actual: u64) -> bool {
+    actual >= declared && actual - declared <= 3
+}
+
+/// Loads every buffer's data: the GLB `BIN` chunk for the first buffer without a URI,
+/// base64 `data:` URIs, and regular files named by relative paths under `base`.
+fn load_buffers<'a>(
+    root: &gltf::json::Root,
+    mut bin: Option<&'a [u8]>,
+    base: Option<&Path>,
+) -> Result<Buffers<'a>, MeshError> {
+    use std::borrow::Cow;
+    let mut out = Buffers::default();
+    let mut files: HashMap<std::path::PathBuf, usize> = HashMap::new();
+    for (b, buffer) in root.buffers.iter().enumerate() {
+        let err = |problem| MeshError::Buffer { buffer: b, problem };
+        let declared = buffer.byte_length.0;
+        let source = match buffer.uri.as_deref() {
+            None => {
+                let data = bin.take().ok_or(err(BufferProblem::NoData))?;
+                out.data.push(Cow::Borrowed(data));
+                out.data.len() - 1
+            }
+            Some(uri) if uri.starts_with("data:") => {
+                out.data
+                    .push(Cow::Owned(decode_data_uri(uri).map_err(err)?));
+                out.data.len() - 1
+            }
+            Some(uri) => {
+                let relative = relative_path(uri).map_err(err)?;
+                let base = base.ok_or_else(|| {
+                    err(BufferProblem::NoFolder {
+                        uri: shown_uri(uri),
+                    })
+                })?;
+                let path = base.join(relative);
+                let source = match files.get(&path) {
+                    Some(&s) => s,
+                    None => {
+                        let data = read_buffer_file(&path, declared).map_err(err)?;
+                        out.external_bytes = out.external_bytes.saturating_add(data.len() as u64);
+                        out.data.push(Cow::Owned(data));
+                        files.insert(path.clone(), out.data.len() - 1);
+                        out.data.len() - 1
+                    }
+                };
+                let actual = out.data[source].len() as u64;
+                if !file_length_fits(declared, actual) {
+                    return Err(err(BufferProblem::FileLength {
+                        path: path.display().to_string(),
+                        declared,
+                        actual,
+                    }));
+                }
+                source
+            }
         };
-        // Order parents first (by depth), keeping the skin's order among equals.
-        let depth = |k: usize| {
-            let mut d = 0;
-            let mut j = k;
-            while let Some(p) = joint_parent(j) {
-                d += 1;
-                j = p;
-                if d > joints.len() {
-                    break;
+        let actual = out.data[source].len() as u64;
+        if actual < declared {
+            return Err(err(BufferProblem::Short { declared, actual }));
+        }
+        out.source.push(source);
+    }
+    Ok(out)
+}
+
+/// A URI as errors show it: its first 64 characters.
+fn shown_uri(uri: &str) -> String {
+    match uri.char_indices().nth(64) {
+        Some((cut, _)) => format!("{}...", &uri[..cut]),
+        None => uri.to_string(),
+    }
+}
+
+/// The bytes of a `data:[<media type>];base64,<data>` URI.
+fn decode_data_uri(uri: &str) -> Result<Vec<u8>, BufferProblem> {
+    let Some(at) = uri.find(";base64,") else {
+        return Err(BufferProblem::Scheme {
+            uri: shown_uri(uri),
+        });
+    };
+    decode_base64(&uri.as_bytes()[at + 8..]).map_err(|offset| BufferProblem::Base64 { offset })
+}
+
+/// Standard base64 (`A-Z a-z 0-9 + /`, `=` padding optional); the error is the offset of
+/// the first character that is not base64, or of a lone last character.
+fn decode_base64(text: &[u8]) -> Result<Vec<u8>, usize> {
+    let end = text.len()
+        - text
+            .iter()
+            .rev()
+            .take(2)
+            .take_while(|&&c| c == b'=')
+            .count();
+    let text = &text[..end];
+    let mut out = Vec::with_capacity(text.len() / 4 * 3 + 2);
+    let (mut acc, mut bits) = (0u32, 0u32);
+    for (i, &c) in text.iter().enumerate() {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return Err(i),
+        };
+        acc = (acc << 6) | u32::from(v);
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+            acc &= (1 << bits) - 1;
+        }
+    }
+    if bits == 6 {
+        return Err(text.len() - 1);
+    }
+    Ok(out)
+}
+
+/// The relative path a URI without a scheme names, percent-decoded (to UTF-8, or an
+/// error); URIs with a scheme (`file:`, `http:`) and absolute paths are refused.
+fn relative_path(uri: &str) -> Result<std::path::PathBuf, BufferProblem> {
+    if uri.contains(':') {
+        return Err(BufferProblem::Scheme {
+            uri: shown_uri(uri),
+        });
+    }
+    let bad = || BufferProblem::PercentEncoding {
+        uri: shown_uri(uri),
+    };
+    let bytes = uri.as_bytes();
+    let mut decoded = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while let Some(&c) = bytes.get(i) {
+        if c == b'%' {
+            let hex = bytes.get(i + 1..i + 3).ok_or_else(bad)?;
+            let hex = std::str::from_utf8(hex).map_err(|_| bad())?;
+            decoded.push(u8::from_str_radix(hex, 16).map_err(|_| bad())?);
+            i += 3;
+        } else {
+            decoded.push(c);
+            i += 1;
+        }
+    }
+    let path = String::from_utf8(decoded).map_err(|_| bad())?;
+    if path.starts_with('/') || path.starts_with('\\') {
+        return Err(BufferProblem::Absolute {
+            uri: shown_uri(uri),
+        });
+    }
+    Ok(path.into())
+}
+
+/// A buffer's file: a regular file (not a device or a pipe, which could be endless) of
+/// `declared` bytes or up to 3 more, its length checked before reading.
+fn read_buffer_file(path: &Path, declared: u64) -> Result<Vec<u8>, BufferProblem> {
+    use std::io::Read;
+    let shown = || path.display().to_string();
+    let io = |source| BufferProblem::Io {
+        path: shown(),
+        source,
+    };
+    let check = |meta: &std::fs::Metadata| {
+        if !meta.is_file() {
+            return Err(BufferProblem::NotAFile { path: shown() });
+        }
+        if !file_length_fits(declared, meta.len()) {
+            return Err(BufferProblem::FileLength {
+                path: shown(),
+                declared,
+                actual: meta.len(),
+            });
+        }
+        Ok(meta.len())
+    };
+    // Before opening (opening a pipe would wait for a writer), and again on the handle.
+    check(&std::fs::metadata(path).map_err(io)?)?;
+    let file = std::fs::File::open(path).map_err(io)?;
+    let len = check(&file.metadata().map_err(io)?)?;
+    let mut data = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    file.take(len).read_to_end(&mut data).map_err(io)?;
+    if data.len() as u64 != len {
+        return Err(BufferProblem::FileLength {
+            path: shown(),
+            declared,
+            actual: data.len() as u64,
+        });
+    }
+    Ok(data)
+}
+
+/// The sizes of the output, once every triangle primitive is checked.
+struct Totals {
+    vertices: usize,
+    indices: usize,
+    /// The most indices of one primitive.
+    largest: usize,
+}
+
+/// Where a primitive's positions are: its POSITION accessor, a VEC3 of floats.
+fn position_accessor(
+    prim: &gltf::json::mesh::Primitive,
+    layouts: &[Layout],
+) -> Result<usize, PrimitiveProblem> {
+    use gltf::json::accessor::{ComponentType, Type};
+    use gltf::json::validation::Checked;
+    let a = prim
+        .attributes
+        .get(&Checked::Valid(gltf::json::mesh::Semantic::Positions))
+        .ok_or(PrimitiveProblem::NoPositions)?
+        .value();
+    let layout = layouts.get(a).ok_or(PrimitiveProblem::NoPositions)?;
+    if layout.kind != Type::Vec3 || layout.component != ComponentType::F32 {
+        return Err(PrimitiveProblem::PositionFormat {
+            accessor: a,
+            accessor_type: type_name(layout.kind),
+            component_type: layout.component.as_gl_enum(),
+        });
+    }
+    Ok(a)
+}
+
+/// The number of a primitive's indices, from an accessor of unsigned integers.
+fn index_count(a: usize, layouts: &[Layout]) -> Result<usize, PrimitiveProblem> {
+    use gltf::json::accessor::{ComponentType::*, Type};
+    let Some(layout) = layouts.get(a) else {
+        return Ok(0);
+    };
+    if layout.kind != Type::Scalar || !matches!(layout.component, U8 | U16 | U32) {
+        return Err(PrimitiveProblem::IndexFormat {
+            accessor: a,
+            accessor_type: type_name(layout.kind),
+            component_type: layout.component.as_gl_enum(),
+        });
+    }
+    Ok(layout.count)
+}
+
+/// Whether a primitive is read (a triangle list).
+fn is_triangles(prim: &gltf::json::mesh::Primitive) -> bool {
+    prim.mode == gltf::json::validation::Checked::Valid(gltf::json::mesh::Mode::Triangles)
+}
+
+/// Checks every triangle primitive of every mesh node (formats, counts) and the output's
+/// size against the budgets for `input_len` bytes of input.
+fn check_primitives(
+    root: &gltf::json::Root,
+    layouts: &[Layout],
+    input_len: u64,
+) -> Result<Totals, MeshError> {
+    let vertex_budget = (GLTF_VERTEX_ALLOWANCE + input_len / 4).min(u32::MAX.into());
+    let index_budget = GLTF_INDEX_ALLOWANCE.saturating_add(input_len);
+    let (mut vertices, mut indices, mut largest) = (0u64, 0u64, 0usize);
+    for node in &root.nodes {
+        let Some((m, mesh)) = node
+            .mesh
+            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
+        else {
+            continue;
+        };
+        for (p, prim) in mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_triangles(p))
+        {
+            let err = |problem| MeshError::Primitive {
+                at: PrimitiveAt {
+                    mesh: m,
+                    name: mesh.name.clone(),
+                    primitive: p,
+                },
+                problem,
+            };
+            let a = position_accessor(prim, layouts).map_err(err)?;
+            let count = layouts[a].count;
+            let (n, indexed) = match prim.indices {
+                Some(ix) => (index_count(ix.value(), layouts).map_err(err)?, true),
+                None => (count, false),
+            };
+            if n % 3 != 0 {
+                return Err(err(PrimitiveProblem::NotTriangles { count: n, indexed }));
+            }
+            vertices = vertices.saturating_add(count as u64);
+            indices = indices.saturating_add(n as u64);
+            if indexed {
+                largest = largest.max(n);
+            }
+            for (what, total, budget) in [
+                ("vertices", vertices, vertex_budget),
+                ("indices", indices, index_budget),
+            ] {
+                if total > budget {
+                    return Err(err(PrimitiveProblem::OverBudget {
+                        what,
+                        total,
+                        budget,
+                        input_len,
+                    }));
                 }
             }
-            d
-        };
-        let mut order: Vec<usize> = (0..joints.len()).collect();
-        order.sort_by_key(|&k| (depth(k), k));
-        let mut new_index = vec![0; joints.len()];
-        for (n, &k) in order.iter().enumerate() {
-            new_index[k] = n;
         }
-        for &k in &order {
-            out.skin_joints.push(SkinJoint {
-                name: joints[k]
-                    .name()
-                    .map(str::to_string)
-                    .unwrap_or_else(|| format!("joint{}", joints[k].index())),
-                parent: joint_parent(k).map(|p| new_index[p]),
-                world_from_joint: ibm[k].inverse(),
-            });
+    }
+    Ok(Totals {
+        vertices: vertices as usize,
+        indices: indices as usize,
+        largest,
+    })
+}
+
+/// Each node's world matrix (the crate's TRS arithmetic, under `catch_unwind`, then
+/// products down the forest).
+fn world_matrices(
+    root: &gltf::json::Root,
+    forest: &Forest,
+    file: &str,
+) -> Result<Vec<DMat4>, MeshError> {
+    use gltf::scene::Transform;
+    let mut world: Vec<DMat4> = guarded(file, "computing node transforms", || {
+        root.nodes
+            .iter()
+            .map(|n| {
+                let t = match n.matrix {
+                    Some(m) => Transform::Matrix {
+                        matrix: [
+                            [m[0], m[1], m[2], m[3]],
+                            [m[4], m[5], m[6], m[7]],
+                            [m[8], m[9], m[10], m[11]],
+                            [m[12], m[13], m[14], m[15]],
+                        ],
+                    },
+                    None => Transform::Decomposed {
+                        translation: n.translation.unwrap_or([0.0; 3]),
+                        rotation: n.rotation.unwrap_or_default().0,
+                        scale: n.scale.unwrap_or([1.0; 3]),
+                    },
+                };
+                DMat4::from_cols_array_2d(&t.matrix().map(|c| c.map(f64::from)))
+            })
+            .collect()
+    })?;
+    for &i in &forest.order {
+        if let Some(p) = forest.parent[i] {
+            world[i] = world[p] * world[i];
+        }
+    }
+    Ok(world)
+}
+
+/// Float `k` of little-endian bytes (zero past their end: an accessor without a view).
+fn le_f32(bytes: &[u8], k: usize) -> f32 {
+    let mut word = [0u8; 4];
+    if let Some(b) = bytes.get(4 * k..4 * k + 4) {
+        word.copy_from_slice(b);
+    }
+    f32::from_le_bytes(word)
+}
+
+/// An unsigned integer of `size` (1, 2 or 4) little-endian bytes (zero past their end).
+fn le_uint(bytes: &[u8], size: usize) -> u32 {
+    let mut word = [0u8; 4];
+    if let Some(b) = bytes.get(..size.min(4)) {
+        word[..b.len()].copy_from_slice(b);
+    }
+    u32::from_le_bytes(word)
+}
+
+/// Appends an accessor's elements, each decoded from its bytes (from none when the
+/// accessor has no view: zeros), then puts its sparse values in their places.
+fn read_accessor<T>(
+    layout: &Layout,
+    accessor: usize,
+    buffers: &Buffers,
+    decode: impl Fn(&[u8]) -> T,
+    out: &mut Vec<T>,
+) -> Result<(), MeshError> {
+    let err = |problem| MeshError::Accessor { accessor, problem };
+    let start = out.len();
+    match layout.dense {
+        Some((buffer, first, stride)) if layout.count > 0 => {
+            // Checked against the view when the layout was made.
+            let len = stride * (layout.count - 1) + layout.element;
+            let span = buffers
+                .span(buffer, first, len)
+                .ok_or(err(AccessorProblem::Unreadable))?;
+            out.extend(span.chunks(stride).map(&decode));
+        }
+        Some(_) => {}
+        None => out.extend((0..layout.count).map(|_| decode(&[]))),
+    }
+    if let Some(s) = &layout.sparse {
+        let unreadable = || err(AccessorProblem::Unreadable);
+        let indices = buffers
+            .span(s.indices.0, s.indices.1, s.count * s.index_size)
+            .ok_or_else(unreadable)?;
+        let values = buffers
+            .span(s.values.0, s.values.1, s.count * layout.element)
+            .ok_or_else(unreadable)?;
+        let pairs = indices
+            .chunks_exact(s.index_size)
+            .zip(values.chunks_exact(layout.element));
+        for (entry, (i, v)) in pairs.enumerate() {
+            let index = le_uint(i, s.index_size);
+            let slot = (index as usize)
+                .checked_add(start)
+                .filter(|_| (index as usize) < layout.count)
+                .and_then(|k| out.get_mut(k))
+                .ok_or(err(AccessorProblem::SparseIndex {
+                    entry,
+                    index,
+                    count: layout.count as u64,
+                }))?;
+            *slot = decode(v);
+        }
+    }
+    Ok(())
+}
+
+/// Every triangle primitive of every mesh node, positions placed by `world` (unskinned
+/// nodes), into vectors of their final sizes.
+fn read_meshes(
+    root: &gltf::json::Root,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    world: &[DMat4],
+    totals: &Totals,
+) -> Result<MeshData, MeshError> {
+    let mut out = MeshData {
+        positions: Vec::with_capacity(totals.vertices),
+        triangles: Vec::with_capacity(totals.indices / 3),
+        ..MeshData::default()
+    };
+    let mut indices: Vec<u32> = Vec::with_capacity(totals.largest);
+    for (n, node) in root.nodes.iter().enumerate() {
+        let Some((m, mesh)) = node
+            .mesh
+            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
+        else {
+            continue;
+        };
+        let xf = match node.skin {
+            Some(_) => DMat4::IDENTITY,
+            None => world.get(n).copied().unwrap_or(DMat4::IDENTITY),
+        };
+        for (p, prim) in mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_triangles(p))
+        {
+            let err = |problem| MeshError::Primitive {
+                at: PrimitiveAt {
+                    mesh: m,
+                    name: mesh.name.clone(),
+                    primitive: p,
+                },
+                problem,
+            };
+            let a = position_accessor(prim, layouts).map_err(err)?;
+            let base = out.positions.len() as u32;
+            let point = |b: &[u8]| {
+                let p = [le_f32(b, 0), le_f32(b, 1), le_f32(b, 2)];
+                xf.transform_point3(DVec3::from_array(p.map(f64::from)))
+            };
+            read_accessor(&layouts[a], a, buffers, point, &mut out.positions)?;
+            let count = out.positions.len() as u32 - base;
+            let Some(ix) = prim.indices.map(|i| i.value()) else {
+                let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
+                out.triangles.extend(tris);
+                continue;
+            };
+            let size = layouts[ix].component.size();
+            indices.clear();
+            read_accessor(
+                &layouts[ix],
+                ix,
+                buffers,
+                |b| le_uint(b, size),
+                &mut indices,
+            )?;
+            for t in indices.chunks_exact(3) {
+                if let Some(&index) = t.iter().find(|&&i| i >= count) {
+                    return Err(err(PrimitiveProblem::IndexOutOfRange {
+                        index,
+                        vertices: count,
+                    }));
+                }
+                out.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+            }
         }
     }
     Ok(out)
+}
+
+/// The joints of skin `s`, parents first (by depth among the joints, the skin's order
+/// among equals), each with the nearest ancestor that is a joint as its parent.
+fn read_skin(
+    root: &gltf::json::Root,
+    s: usize,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    forest: &Forest,
+) -> Result<Vec<SkinJoint>, MeshError> {
+    use gltf::json::accessor::{ComponentType, Type};
+    let Some(skin) = root.skins.get(s) else {
+        return Ok(Vec::new());
+    };
+    let err = |problem| MeshError::Skin { skin: s, problem };
+    let joints: Vec<usize> = skin.joints.iter().map(|j| j.value()).collect();
+    let ibm: Vec<DMat4> = match skin.inverse_bind_matrices.map(|a| a.value()) {
+        Some(a) => {
+            let layout = &layouts[a];
+            if layout.kind != Type::Mat4 || layout.component != ComponentType::F32 {
+                return Err(err(SkinProblem::MatrixFormat {
+                    accessor: a,
+                    accessor_type: type_name(layout.kind),
+                    component_type: layout.component.as_gl_enum(),
+                }));
+            }
+            if layout.count != joints.len() {
+                return Err(err(SkinProblem::MatrixCount {
+                    joints: joints.len(),
+                    matrices: layout.count,
+                }));
+            }
+            let matrix =
+                |b: &[u8]| DMat4::from_cols_array(&std::array::from_fn(|k| le_f32(b, k).into()));
+            let mut m = Vec::with_capacity(joints.len());
+            read_accessor(layout, a, buffers, matrix, &mut m)?;
+            m
+        }
+        None => vec![DMat4::IDENTITY; joints.len()],
+    };
+    // Down the forest once: each node's nearest ancestor that is a joint, and each
+    // joint's parent joint and depth among the joints.
+    let slot: HashMap<usize, usize> = joints.iter().enumerate().map(|(k, &n)| (n, k)).collect();
+    let mut nearest: Vec<Option<usize>> = vec![None; root.nodes.len()];
+    let mut joint_parent: Vec<Option<usize>> = vec![None; joints.len()];
+    let mut depth = vec![0usize; joints.len()];
+    for &i in &forest.order {
+        let up = forest.parent[i].and_then(|p| slot.get(&p).copied().or(nearest[p]));
+        nearest[i] = up;
+        if let Some(&k) = slot.get(&i) {
+            joint_parent[k] = up;
+            depth[k] = up.map_or(0, |p| depth[p] + 1);
+        }
+    }
+    let mut order: Vec<usize> = (0..joints.len()).collect();
+    order.sort_by_key(|&k| (depth[k], k));
+    let mut new_index = vec![0; joints.len()];
+    for (n, &k) in order.iter().enumerate() {
+        new_index[k] = n;
+    }
+    Ok(order
+        .iter()
+        .map(|&k| SkinJoint {
+            name: root.nodes[joints[k]]
+                .name
+                .clone()
+                .unwrap_or_else(|| format!("joint{}", joints[k])),
+            parent: joint_parent[k].map(|p| new_index[p]),
+            world_from_joint: ibm[k].inverse(),
+        })
+        .collect())
 }
 
 /// Welds positions closer than `tolerance`: returns, per input vertex, its welded index,
@@ -499,6 +1916,78 @@ f 9 10 11
         let (map, w) = weld(&p, 1e-6);
         assert_eq!(map, vec![0, 1, 0, 2, 1]);
         assert_eq!(w.len(), 3);
+    }
+
+    #[test]
+    fn a_panic_in_the_crate_becomes_an_error_naming_the_file() {
+        let e = guarded("hand.glb", "testing", || -> u32 { panic!("boom") }).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "hand.glb: the gltf crate panicked while testing: boom"
+        );
+        // The crate's validation itself, on the audit's document without our reference
+        // check first: its hook indexes `accessors[5]` unchecked and panics.
+        let doc = br#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":5}}]}]}"#;
+        let root = read_json(doc, "oob.gltf").unwrap();
+        match crate_validation(&root, "oob.gltf") {
+            Err(MeshError::Panicked { file, stage, .. }) => {
+                assert_eq!(
+                    (file.as_str(), stage),
+                    ("oob.gltf", "validating the document")
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            check_references(&root),
+            Err(MeshError::Reference { index: 5, .. })
+        ));
+    }
+
+    #[test]
+    fn base64_and_percent_decoding_refuse_what_they_cannot_decode() {
+        assert_eq!(decode_base64(b"aGFuZA=="), Ok(b"hand".to_vec()));
+        assert_eq!(decode_base64(b"aGFuZA"), Ok(b"hand".to_vec()));
+        assert_eq!(decode_base64(b"aGFuZGE="), Ok(b"handa".to_vec()));
+        assert_eq!(decode_base64(b""), Ok(Vec::new()));
+        assert_eq!(decode_base64(b"aG Fu"), Err(2));
+        assert_eq!(decode_base64(b"aGFuZ"), Err(4));
+        assert_eq!(
+            relative_path("a%20b/c.bin").unwrap(),
+            std::path::PathBuf::from("a b/c.bin")
+        );
+        for (uri, absolute) in [
+            ("%FF", false),
+            ("a%2", false),
+            ("%zz", false),
+            ("%2Fetc", true),
+        ] {
+            match relative_path(uri) {
+                Err(BufferProblem::Absolute { .. }) => assert!(absolute, "{uri}"),
+                Err(BufferProblem::PercentEncoding { .. }) => assert!(!absolute, "{uri}"),
+                other => panic!("{uri}: {other:?}"),
+            }
+        }
+        assert!(matches!(
+            relative_path("file:///dev/zero"),
+            Err(BufferProblem::Scheme { .. })
+        ));
+        assert_eq!(
+            shown_uri(&"é".repeat(100)),
+            format!("{}...", "é".repeat(64))
+        );
+    }
+
+    #[test]
+    fn element_sizes_pad_matrix_columns() {
+        use gltf::json::accessor::{ComponentType::*, Type::*};
+        assert_eq!(element_size(Vec3, F32), 12);
+        assert_eq!(element_size(Mat4, F32), 64);
+        assert_eq!(element_size(Mat2, U8), 8);
+        assert_eq!(element_size(Mat3, U8), 12);
+        assert_eq!(element_size(Mat3, I16), 24);
+        assert_eq!(element_size(Mat2, U16), 8);
+        assert_eq!(element_size(Scalar, U16), 2);
     }
 
     proptest! {
