@@ -461,3 +461,49 @@ fn a_character_lying_down_gets_a_sensible_default_cell_and_a_warning() {
     );
     println!("{n} control vertices: {choice:?}");
 }
+
+/// The cache key covers what a glTF's external buffer holds, not only the `.gltf` text:
+/// editing `mesh.bin` alone makes the cache stale (it used to be taken as current).
+#[test]
+fn editing_a_gltf_buffer_beside_it_changes_the_cache_key() {
+    let dir = tempfile::tempdir().unwrap();
+    // A tetrahedron: 4 float positions (48 bytes), then 12 u16 indices (24 bytes).
+    let write_bin = |apex_y: f32| {
+        let mut b = Vec::new();
+        for p in [
+            [0f32, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.3, apex_y, 0.3],
+        ] {
+            for c in p {
+                b.extend(c.to_le_bytes());
+            }
+        }
+        for i in [0u16, 2, 1, 0, 1, 3, 1, 2, 3, 0, 3, 2] {
+            b.extend(i.to_le_bytes());
+        }
+        std::fs::write(dir.path().join("mesh.bin"), b).unwrap();
+    };
+    let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"mesh.bin","byteLength":72}],
+"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":48},{"buffer":0,"byteOffset":48,"byteLength":24}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,1]},
+{"bufferView":1,"componentType":5123,"count":12,"type":"SCALAR"}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1}]}],
+"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#;
+    std::fs::write(dir.path().join("mesh.gltf"), gltf).unwrap();
+    let toml = "[mesh]\npath = \"mesh.gltf\"\n\n[[skeleton.joints]]\nname = \"a\"\nrest_m = [0.3, 0.1, 0.3]\n\n\
+                [[skeleton.joints]]\nname = \"b\"\nparent = \"a\"\nrest_m = [0.3, 0.4, 0.3]\n\n\
+                [[markers]]\nname = \"m\"\nbone = \"a\"\n";
+    let path = dir.path().join("tet.toml");
+    std::fs::write(&path, toml).unwrap();
+    write_bin(1.0);
+    let first = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    write_bin(1.2);
+    let second = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_ne!(
+        first.character.vertices[3], second.character.vertices[3],
+        "the edit reached the mesh"
+    );
+    assert_ne!(first.inputs_hash, second.inputs_hash);
+}

@@ -34,7 +34,7 @@
 
 use super::bind_params::BindParams;
 use super::cell_size::{default_cell_size, CellChoice};
-use super::mesh::{parse_obj, read_gltf, surface_issues, weld, MeshData, MeshError};
+use super::mesh::{parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError};
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
@@ -491,7 +491,7 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         .unwrap_or_default();
     let mesh = match ext.as_str() {
         "obj" => parse_obj(&mesh_bytes, &spec.mesh.groups),
-        "glb" | "gltf" => read_gltf(&mesh_path),
+        "glb" | "gltf" => parse_gltf_file(&mesh_bytes, &mesh_path),
         other => {
             return Err(CharacterError::Invalid {
                 path: shown,
@@ -511,6 +511,9 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "character".into())
     });
+    // What the mesh file and any buffers beside it hold (a glTF's external `.bin` is
+    // not in `mesh_bytes`): part of the cache key.
+    let mesh_key = mesh_fingerprint(&mesh);
     let (character, bind, warnings, cell_choice) =
         build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
             path: shown,
@@ -519,6 +522,7 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     let inputs_hash = fnv1a(&[
         text.as_bytes(),
         &mesh_bytes,
+        &mesh_key.to_le_bytes(),
         env!("CARGO_PKG_VERSION").as_bytes(),
     ]);
     Ok(LoadedCharacter {
@@ -529,6 +533,28 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         inputs_hash,
         mesh_path,
     })
+}
+
+/// A hash of a parsed mesh: its positions, triangles and skin joints.
+fn mesh_fingerprint(mesh: &MeshData) -> u64 {
+    let positions: Vec<u8> = mesh
+        .positions
+        .iter()
+        .flat_map(|p| p.to_array())
+        .flat_map(f64::to_le_bytes)
+        .collect();
+    let triangles: Vec<u8> = mesh
+        .triangles
+        .iter()
+        .flatten()
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    let joints: Vec<u8> = mesh
+        .skin_joints
+        .iter()
+        .flat_map(|j| format!("{j:?}").into_bytes())
+        .collect();
+    fnv1a(&[&positions, &triangles, &joints])
 }
 
 /// What [`build`] makes of a character file: the character, its binding settings, what

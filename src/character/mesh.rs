@@ -11,6 +11,7 @@
 //! anything is sized by it, the buffers are loaded and read here, and the calls left into
 //! the `gltf` crate run under `catch_unwind` ([`parse_gltf`] lists the checks and limits).
 
+use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use glam::{DMat4, DVec3};
 use std::collections::HashMap;
 use std::path::Path;
@@ -443,11 +444,17 @@ pub const GLTF_JSON_BYTES_PER_BYTE: u64 = 16;
 /// nodes are placed by their world transform, skinned ones stay in bind space (as the
 /// glTF specification says). Images are not decoded.
 pub fn read_gltf(path: &Path) -> Result<MeshData, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+    let bytes = read_bounded(path, MAX_DATA_BYTES).map_err(|source| MeshError::Io {
         path: path.display().to_string(),
         source,
     })?;
-    parse_glb_or_gltf(&bytes, path.parent(), &path.display().to_string())
+    parse_gltf_file(&bytes, path)
+}
+
+/// [`parse_gltf`] of the bytes already read from the file at `path` (relative buffers
+/// are found beside it; errors name it).
+pub fn parse_gltf_file(bytes: &[u8], path: &Path) -> Result<MeshData, MeshError> {
+    parse_glb_or_gltf(bytes, path.parent(), &path.display().to_string())
 }
 
 /// [`read_gltf`] on bytes; `base` is the folder external buffers are relative to (none:
