@@ -358,6 +358,21 @@ fn settings_and_meshes_that_would_hang_the_bind_are_refused() {
     );
     // Within the limit the user set, the marker binds to the nearest tet of its bone.
     assert_eq!(r, Ok(()));
+    // 1,100 more listed joints: refused at once (the checks on names and parents were
+    // quadratic in their number).
+    let e = broken(
+        |t| {
+            let mut t = t.to_string();
+            for k in 0..1100 {
+                t += &format!(
+                    "\n[[skeleton.joints]]\nname = \"x{k}\"\nrest_m = [0.0, {k}.0, 0.0]\n"
+                );
+            }
+            t
+        },
+        same,
+    );
+    assert!(e.contains("[[skeleton.joints]] (at most 1024)"), "{e}");
 }
 
 /// A closed box 1000 m by 1 cm by 1000 m used to get a default cell from its height (1 cm:

@@ -34,7 +34,9 @@
 
 use super::bind_params::BindParams;
 use super::cell_size::{default_cell_size, CellChoice};
-use super::mesh::{parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError};
+use super::mesh::{
+    parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError, MAX_SKIN_JOINTS,
+};
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
@@ -389,6 +391,9 @@ pub enum CharacterProblem {
     /// `bind.cell_size_m` below 1/400 of the character's size (longest extent, metres).
     #[error("bind.cell_size_m {cell_size_m:?} is below 1/400 of the character's size {size_m:.3} m (its longest extent): the control mesh would be enormous")]
     CellTooSmall { cell_size_m: f64, size_m: f64 },
+    /// More `[[skeleton.joints]]` than a skin may have.
+    #[error("{count} [[skeleton.joints]] (at most {MAX_SKIN_JOINTS})")]
+    TooManyJoints { count: usize },
     /// `bind.skeleton_step_m` below 1/100 of the cell size (metres).
     #[error("bind.skeleton_step_m {step_m:?} is below 1/100 of the cell size {cell_size_m:?} m: the skeleton would be sampled absurdly finely")]
     StepTooSmall { step_m: f64, cell_size_m: f64 },
@@ -904,6 +909,12 @@ fn listed_joints(
 ) -> (Vec<Joint>, Vec<Option<DVec3>>) {
     if !sk.parents.is_empty() {
         problems.push(CharacterProblem::ParentsWithoutSkin);
+    }
+    if sk.joints.len() > MAX_SKIN_JOINTS {
+        problems.push(CharacterProblem::TooManyJoints {
+            count: sk.joints.len(),
+        });
+        return (Vec::new(), Vec::new());
     }
     let mut joints = Vec::with_capacity(sk.joints.len());
     for (i, j) in sk.joints.iter().enumerate() {

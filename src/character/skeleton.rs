@@ -71,8 +71,9 @@ impl Skeleton {
         if joints.is_empty() {
             errors.push(SkeletonError::Empty);
         }
+        let mut names = std::collections::HashSet::with_capacity(joints.len());
         for (i, j) in joints.iter().enumerate() {
-            if joints[..i].iter().any(|o| o.name == j.name) {
+            if !names.insert(j.name.as_str()) {
                 errors.push(SkeletonError::DuplicateName(j.name.clone()));
             }
             if !j.rest.is_finite() {
