@@ -215,9 +215,12 @@ mod tests {
         // and every entry ran at exactly its due time.
         let clock = ManualClock::new(0.0);
         let log = Arc::new(Mutex::new(Vec::new()));
+        // Both places are taken before either thread runs: a thread alone on the clock
+        // would otherwise run its whole schedule before the other one joins.
+        clock.attach();
+        clock.attach();
         let spawn = |period: f64, name: &'static str| {
             let (clock, log) = (clock.clone(), Arc::clone(&log));
-            clock.attach();
             std::thread::spawn(move || {
                 for n in 1..=6 {
                     let due = n as f64 * period;
