@@ -369,3 +369,47 @@ fn makehuman_with_all_its_parts_bakes_and_tracks() {
     let t = track(&path, 1.0);
     assert_tracked(&t, 2.0 * 1.66 / 0.2);
 }
+
+/// A character file for a skinned glTF with one marker on every skin joint and no limits
+/// ([`flex_pose`] then swings every joint with children by up to ±0.3 rad of bend).
+fn marked_gltf(dir: &Path, glb: &Path) -> PathBuf {
+    let bytes = std::fs::read(glb).unwrap();
+    let mesh = rigless::character::mesh::parse_gltf(&bytes, glb.parent()).unwrap();
+    let mut t = format!("[mesh]\npath = {glb:?}\n");
+    for j in &mesh.skin_joints {
+        let _ = writeln!(
+            t,
+            "\n[[markers]]\nname = \"m_{}\"\nbone = {:?}",
+            j.name, j.name
+        );
+    }
+    let path = dir.join("character.toml");
+    std::fs::write(&path, t).unwrap();
+    path
+}
+
+/// The Khronos samples CesiumMan (19 joints, 3,273 vertices) and RiggedSimple (4 joints)
+/// bind with their defaults and track a motion of their skeletons with no inverted tet
+/// and no vertex left unmoved.
+#[test]
+fn khronos_samples_bake_and_track() {
+    for (rel, vertices) in [
+        ("meshes/gltf-samples/CesiumMan.glb", 3_273),
+        ("meshes/gltf-samples/RiggedSimple.glb", 960),
+    ] {
+        let Some(glb) = shared(rel) else {
+            return;
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = marked_gltf(dir.path(), &glb);
+        let loaded = load_character(&path).unwrap_or_else(|e| panic!("{rel}: {e}"));
+        assert_eq!(loaded.character.vertices.len(), vertices, "{rel}");
+        let t = track(&path, 1.0);
+        assert!(
+            t.inverted_tets == 0 && t.cold_inverted_tets == 0,
+            "{rel}: {t:?}"
+        );
+        assert_eq!(t.unmoved_vertices, 0, "{rel}: {t:?}");
+        assert!(t.bone_length_error_mean <= 0.005, "{rel}: {t:?}");
+    }
+}
