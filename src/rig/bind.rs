@@ -18,7 +18,7 @@ use super::lattice::{barycentric, sample_surface, solid_or, surface_cells, surfa
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
 use crate::character::file::fnv1a;
-use crate::character::mesh::weld;
+use crate::character::mesh::{surface_issues, weld};
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
@@ -297,7 +297,7 @@ fn label_cells(ch: &Character, segs: &[(usize, usize)], grid: &Grid) -> CellInst
         inst.add(grid.cell_index(grid.cell_of(v)), nearest_owner(sk, segs, v));
     }
     let surface = surface_cells(grid, &ch.vertices, &ch.triangles);
-    let keep = solid_or(grid, &surface, &winding_of(ch));
+    let keep = solid_or(grid, &surface, winding_of(ch).as_ref());
     for z in 0..grid.dims[2] {
         for y in 0..grid.dims[1] {
             for x in 0..grid.dims[0] {
@@ -372,8 +372,10 @@ fn anchors_of_free_parts(control: &TetMesh, rows: &LinearRows) -> (Vec<usize>, u
 
 /// The generalized winding number of the character's surface, its parts oriented
 /// outward first (seams and duplicated vertices welded at 1e-9 of its size, so that
-/// parts split by UV seams still orient as one).
-fn winding_of(ch: &Character) -> WindingNumber {
+/// parts split by UV seams still orient as one); `None` for a closed, manifold,
+/// consistently oriented surface, whose inside the flood fill alone finds exactly (and
+/// at no cost).
+fn winding_of(ch: &Character) -> Option<WindingNumber> {
     let (lo, hi) = bounds(&ch.vertices);
     let (ids, unique) = weld(&ch.vertices, 1e-9 * (hi - lo).length());
     let welded: Vec<[u32; 3]> = ch
@@ -381,8 +383,11 @@ fn winding_of(ch: &Character) -> WindingNumber {
         .iter()
         .map(|t| t.map(|i| ids[i as usize]))
         .collect();
+    if surface_issues(&welded).is_clean() {
+        return None;
+    }
     let (oriented, _) = orient_parts(&unique, &welded);
-    WindingNumber::new(&unique, &oriented)
+    Some(WindingNumber::new(&unique, &oriented))
 }
 
 /// Skeleton samples, each in a cell instance labelled by its segment's owner: their

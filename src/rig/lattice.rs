@@ -109,12 +109,15 @@ pub fn enclosed_or(grid: &Grid, surface: &[bool]) -> Vec<bool> {
 }
 
 /// `surface` plus every cell it encloses: those the outside flood fill cannot reach, and
-/// those whose centre has a generalized winding number `|w| ≥ 1/2` (see
-/// [`crate::geom::winding`]), so that a body whose surface is open (open eyes, a
-/// shirt over it, a missing triangle) still gets a solid interior. For a closed
-/// surface the two agree; the union only adds what the flood fill leaked out of.
-pub fn solid_or(grid: &Grid, surface: &[bool], winding: &WindingNumber) -> Vec<bool> {
+/// (given a `winding` number) those whose centre has a generalized winding number
+/// `|w| ≥ 1/2` (see [`crate::geom::winding`]), so that a body whose surface is open
+/// (open eyes, a shirt over it, a missing triangle) still gets a solid interior. For a
+/// closed surface the two agree; the union only adds what the flood fill leaked out of.
+pub fn solid_or(grid: &Grid, surface: &[bool], winding: Option<&WindingNumber>) -> Vec<bool> {
     let mut keep = enclosed_or(grid, surface);
+    let Some(winding) = winding else {
+        return keep;
+    };
     let [nx, ny, nz] = grid.dims;
     for z in 0..nz {
         for y in 0..ny {
