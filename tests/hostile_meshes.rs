@@ -1436,3 +1436,16 @@ fn real_assets_read_as_the_gltf_crate_reads_them() {
         }
     }
 }
+
+/// Joints without names, or with a name an earlier joint has, get stable names of their
+/// own from their node: the skeleton's names stay unique and the file binds.
+#[test]
+fn unnamed_and_repeated_joint_names_are_made_unique() {
+    let mut doc = skinned_doc(&[1, 2, 3], 3);
+    doc["nodes"][2]["name"] = json!("bone0");
+    doc["nodes"][3].as_object_mut().unwrap().remove("name");
+    let bytes = glb(&doc.to_string(), Some(&triangle_bytes()));
+    let m = parse_gltf(&bytes, None).unwrap();
+    let names: Vec<&str> = m.skin_joints.iter().map(|j| j.name.as_str()).collect();
+    assert_eq!(names, ["bone0", "bone0#2", "joint3"]);
+}

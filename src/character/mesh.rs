@@ -1741,15 +1741,25 @@ fn read_skin(
     for (n, &k) in order.iter().enumerate() {
         new_index[k] = n;
     }
+    // Names as the file gives them; a joint without a name, or whose name an earlier
+    // joint already has, is named after its node (`joint12`, `Hand#12`): stable for the
+    // file, and unique, as a skeleton's names must be.
+    let mut taken = std::collections::HashSet::with_capacity(order.len());
     Ok(order
         .iter()
-        .map(|&k| SkinJoint {
-            name: root.nodes[joints[k]]
-                .name
-                .clone()
-                .unwrap_or_else(|| format!("joint{}", joints[k])),
-            parent: joint_parent[k].map(|p| new_index[p]),
-            world_from_joint: ibm[k].inverse(),
+        .map(|&k| {
+            let node = joints[k];
+            let name = match &root.nodes[node].name {
+                Some(n) if taken.insert(n.clone()) => n.clone(),
+                Some(n) => format!("{n}#{node}"),
+                None => format!("joint{node}"),
+            };
+            taken.insert(name.clone());
+            SkinJoint {
+                name,
+                parent: joint_parent[k].map(|p| new_index[p]),
+                world_from_joint: ibm[k].inverse(),
+            }
         })
         .collect())
 }
