@@ -121,6 +121,16 @@ pub fn default_cell_size(
     } else {
         (wanted, why)
     };
+    // Never below what a character file may set (1/400 of the size), whatever the
+    // estimate says of a thin or degenerate mesh.
+    let (cell, reason) = if cell < size_m / 400.0 {
+        (
+            size_m / 400.0,
+            format!("{reason}; raised to 1/400 of the character's size"),
+        )
+    } else {
+        (cell, reason)
+    };
     CellChoice {
         cell_size_m: cell,
         estimated_control_vertices: estimate(cell),

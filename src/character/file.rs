@@ -142,7 +142,8 @@ pub struct MeshSpec {
     /// OBJ only: keep the faces of these `g`/`o` groups (all when empty).
     #[serde(default)]
     pub groups: Vec<String>,
-    /// Positions closer than this are welded for the checks and the lattice, metres
+    /// Positions closer than this are welded for the mesh checks (the lattice welds its
+    /// own copy at 1e-9 of the size, only to orient the parts), metres
     /// (default 1e-6 of the character's size, its longest extent).
     pub weld_tolerance_m: Option<f64>,
 }

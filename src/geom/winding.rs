@@ -177,8 +177,8 @@ fn build(tris: &mut [[DVec3; 3]], first: usize, count: usize, nodes: &mut Vec<No
 /// Triangles oriented consistently per connected part, for [`WindingNumber`]: `tris`
 /// index welded vertices (`positions`); across every edge two triangles share (a
 /// manifold edge) they are made to agree, part by part by a breadth-first walk from the
-/// part's first triangle, and a part whose signed volume `Σ a·(b×c)/6` is negative is
-/// turned over (outward normals). Edges of three or more triangles do not propagate.
+/// part's first triangle, and a closed part whose signed volume `Σ a·(b×c)/6` is
+/// negative is turned over (outward normals); an open part keeps the file's side. Edges of three or more triangles do not propagate.
 /// Returns the reoriented triangles and how many were flipped.
 pub fn orient_parts(positions: &[DVec3], tris: &[[u32; 3]]) -> (Vec<[u32; 3]>, usize) {
     use std::collections::HashMap;
@@ -231,6 +231,16 @@ pub fn orient_parts(positions: &[DVec3], tris: &[[u32; 3]]) -> (Vec<[u32; 3]>, u
                 queue.push_back(u);
             }
         }
+        // Only a closed part has an inside to face away from; an open one (a sheet, a
+        // double-sided card whose two sides do not share manifold edges) keeps the
+        // orientation the file gave it, whose sign does not depend on where the origin is.
+        let closed = part.iter().all(|&t| {
+            let tri = out[t as usize];
+            (0..3).all(|k| {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                edges[&(a.min(b), a.max(b))].len() == 2
+            })
+        });
         let volume: f64 = part
             .iter()
             .map(|&t| {
@@ -238,7 +248,7 @@ pub fn orient_parts(positions: &[DVec3], tris: &[[u32; 3]]) -> (Vec<[u32; 3]>, u
                 a.dot(b.cross(c))
             })
             .sum();
-        if volume < 0.0 {
+        if closed && volume < 0.0 {
             for &t in &part {
                 let n = out[t as usize];
                 out[t as usize] = [n[0], n[2], n[1]];
@@ -336,6 +346,33 @@ mod tests {
         let w = WindingNumber::new(&verts, &fixed);
         assert!((w.at(DVec3::ZERO) - 1.0).abs() < 1e-2);
         assert!((w.at(DVec3::new(3.0, 0.1, 0.0)) - 1.0).abs() < 1e-2);
+    }
+
+    #[test]
+    fn a_double_sided_sheet_still_cancels_wherever_the_origin_is() {
+        // A square card and its back (the same corners, reversed): open parts keep the
+        // file's sides, so the two cancel and no point near the card is inside.
+        for shift in [
+            DVec3::ZERO,
+            DVec3::new(5.0, -3.0, 2.0),
+            DVec3::new(-4.0, 1.0, -6.0),
+        ] {
+            let v: Vec<DVec3> = [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ]
+            .iter()
+            .map(|p| DVec3::from_array(*p) + shift)
+            .collect();
+            let t = vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]];
+            let (o, _) = orient_parts(&v, &t);
+            let w = WindingNumber::new(&v, &o);
+            for q in [DVec3::new(0.5, 0.5, 0.05), DVec3::new(0.3, 0.6, -0.05)] {
+                assert!(w.at(q + shift).abs() < 1e-9, "{shift}: {}", w.at(q + shift));
+            }
+        }
     }
 
     #[test]

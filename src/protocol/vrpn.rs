@@ -207,6 +207,9 @@ pub fn parse_description(payload: &[u8]) -> Result<String, VrpnError> {
     }
     let name = payload.get(4..4 + n).ok_or(VrpnError::Description)?;
     let name = name.strip_suffix(&[0]).unwrap_or(name);
+    if name.len() > MAX_NAME_LEN {
+        return Err(VrpnError::NameTooLong { len: name.len() });
+    }
     Ok(String::from_utf8_lossy(name).into_owned())
 }
 
@@ -321,7 +324,8 @@ pub struct Names {
 /// Cap on descriptions kept per direction (a hostile peer cannot grow the tables).
 pub const MAX_NAMES: usize = 4096;
 /// Longest sender or type name accepted, bytes without the NUL (VRPN's `cName` holds
-/// 99): the tables hold at most `2 × MAX_NAMES × MAX_NAME_LEN` bytes of names, 2 MiB.
+/// 99): the tables hold at most `2 × MAX_NAMES × 3 × MAX_NAME_LEN` bytes of names, 6 MiB
+/// (a byte that is not UTF-8 becomes a 3-byte replacement character).
 pub const MAX_NAME_LEN: usize = 255;
 
 impl Names {
@@ -411,6 +415,13 @@ mod tests {
         let (m, _) = decode_message(&out).unwrap().unwrap();
         assert_eq!(names.observe(&m), Ok(true));
         assert_eq!(names.sender(5), Some(longest.as_str()));
+        // One byte more and no NUL (the length field counts 256 bytes): refused too.
+        let mut payload = 256u32.to_be_bytes().to_vec();
+        payload.extend(std::iter::repeat_n(b'z', 256));
+        assert_eq!(
+            parse_description(&payload),
+            Err(VrpnError::NameTooLong { len: 256 })
+        );
     }
 
     #[test]

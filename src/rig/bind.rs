@@ -564,16 +564,14 @@ impl<'a> Locator<'a> {
                 return Some(r);
             }
         }
-        let r = search_cells as i64;
+        // The cells within `search_cells` of `c`, clamped to the grid per axis.
+        let r = search_cells;
+        let span = |a: usize| c[a].saturating_sub(r)..=(c[a] + r).min(grid.dims[a] - 1);
         let mut best: Option<Located> = None;
-        for dz in -r..=r {
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
-                    if (0..3).any(|a| q[a] < 0 || q[a] >= grid.dims[a] as i64) {
-                        continue;
-                    }
-                    let k = grid.cell_index(q.map(|v| v as usize));
+        for z in span(2) {
+            for y in span(1) {
+                for x in span(0) {
+                    let k = grid.cell_index([x, y, z]);
                     for &(l, ii) in self.by_cell.get(&k).map_or(&[][..], |v| &v[..]) {
                         if !compatible(self.sk, l, label) {
                             continue;

@@ -17,8 +17,8 @@ pub const MAX_DATA_BYTES: u64 = 4 << 30;
 /// case the file grows meanwhile. Errors are `std::io::Error`s of kind `InvalidInput`
 /// (not a regular file, too large) or the open's and read's own.
 pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
-    let file = std::fs::File::open(path)?;
-    let meta = file.metadata()?;
+    // Judged before opening: opening a FIFO for reading blocks until a writer comes.
+    let meta = std::fs::metadata(path)?;
     if !meta.is_file() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
@@ -32,6 +32,12 @@ pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
         )
     };
     if meta.len() > max_bytes {
+        return Err(too_large(meta.len()));
+    }
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() || meta.len() > max_bytes {
+        // Replaced between the two looks.
         return Err(too_large(meta.len()));
     }
     // The stated length bounds the buffer's first allocation; a file that grows while
@@ -70,6 +76,15 @@ mod tests {
             e.to_string(),
             "100 bytes, more than the 99 bytes read from such a file"
         );
+        // A FIFO with no writer: opening it would block forever.
+        let fifo = dir.path().join("fifo");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let e = read_bounded(&fifo, MAX_DATA_BYTES).unwrap_err();
+            assert!(e.to_string().contains("not a regular file"), "{e}");
+        } else {
+            eprintln!("skipped the FIFO case: no mkfifo here");
+        }
         std::fs::write(&p, [0xff, 0xfe]).unwrap();
         let e = read_text_bounded(&p, 100).unwrap_err();
         assert_eq!(e.kind(), std::io::ErrorKind::InvalidData);
