@@ -522,3 +522,41 @@ fn editing_a_gltf_buffer_beside_it_changes_the_cache_key() {
     );
     assert_ne!(first.inputs_hash, second.inputs_hash);
 }
+
+/// A character binds with no marker layout; markers added later reuse the cached Green
+/// coordinates (only the marker rows and the factorization are rebuilt), and a change
+/// that moves the control mesh does not.
+#[test]
+fn markers_can_come_after_the_bake() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let full = std::fs::read_to_string(&path).unwrap();
+    let first_marker = full.find("[[markers]]").unwrap();
+    let bind_at = full.find("[bind]").unwrap();
+    // The same file without its markers (the [bind] section kept).
+    let bare = if bind_at > first_marker {
+        format!("{}{}", &full[..first_marker], &full[bind_at..])
+    } else {
+        full[..first_marker].to_string()
+    };
+    std::fs::write(&path, &bare).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert!(loaded.character.markers.is_empty());
+    let (rig, source) = cache::load_or_bind(&path, &loaded, false, &mut |_, _| {}).unwrap();
+    assert!(matches!(source, cache::RigSource::Bound { .. }), "{source}");
+    assert_eq!(rig.n_markers, 0);
+    // The markers come: the stored coordinates are used.
+    std::fs::write(&path, &full).unwrap();
+    let loaded = load_character(&path).unwrap();
+    let (rig, source) = cache::load_or_bind(&path, &loaded, false, &mut |_, _| {}).unwrap();
+    assert!(matches!(source, cache::RigSource::Cache { .. }), "{source}");
+    assert_eq!(rig.n_markers, loaded.character.markers.len());
+    // A different cell: another control mesh, so the coordinates are computed again.
+    std::fs::write(&path, set_key(&full, "cell_size_m", "0.016")).unwrap();
+    let loaded = load_character(&path).unwrap();
+    let (_, source) = cache::load_or_bind(&path, &loaded, false, &mut |_, _| {}).unwrap();
+    assert!(
+        source.to_string().contains("another control mesh"),
+        "{source}"
+    );
+}

@@ -163,3 +163,24 @@ fn a_stage_solves_with_the_method_its_config_names() {
     println!("the methods' meshes are {:.2} mm apart on average", d * 1e3);
     assert!(d > 1e-3, "the methods' meshes are {d} m apart on average");
 }
+
+/// A character file with no markers bakes, but a stage refuses it at start, naming the
+/// file: nothing could drive it.
+#[test]
+fn a_stage_refuses_a_character_without_markers() {
+    use rigless::character::file::write_character_files;
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_character_files(&demo_hand(), None, dir.path()).unwrap();
+    let full = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, &full[..full.find("[[markers]]").unwrap()]).unwrap();
+    let text = format!(
+        "[character]\npath = {:?}\n\n[[inputs]]\ntype = \"replay\"\nsession = \"hand_finger_play\"\n",
+        path.display().to_string()
+    );
+    let cfg = parse_stage(&text, "test stage").unwrap();
+    let e = Stage::start(&cfg, dir.path(), Arc::new(ManualClock::new(0.0)))
+        .err()
+        .expect("no markers, no stage")
+        .to_string();
+    assert!(e.contains("hand.toml: the character has no markers"), "{e}");
+}

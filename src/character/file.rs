@@ -383,9 +383,6 @@ pub enum CharacterProblem {
     /// A marker's rest position is NaN or infinite.
     #[error("marker {marker:?}: position is not finite")]
     MarkerNotFinite { marker: String },
-    /// No `[[markers]]`.
-    #[error("the character has no markers ([[markers]])")]
-    NoMarkers,
     /// A binding setting (`bind.NAME`, given or defaulted) is not a positive number.
     #[error("{setting} must be a positive number, got {value}")]
     NotPositive { setting: &'static str, value: f64 },
@@ -436,8 +433,8 @@ pub struct LoadedCharacter {
     pub warnings: Vec<MeshWarning>,
     /// The default cell size and why, when the file does not set one.
     pub cell_choice: Option<CellChoice>,
-    /// Hash of the inputs (character file, mesh file, this crate's version): the cache
-    /// key of the bound rig.
+    /// Hash of the mesh (its file and what the parse found) and this crate's version: the
+    /// bake cache's key (its contents are used only for the same control mesh too).
     pub inputs_hash: u64,
     /// The mesh file that was read.
     pub mesh_path: PathBuf,
@@ -525,8 +522,12 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
             path: shown,
             problems,
         })?;
+    // The mesh (its file and what the parse found, external buffers included) and this
+    // build: what the stored Green coordinates need to stay current. The character file's
+    // own settings are not in it: the cache is used only when the control mesh rebuilt
+    // from them is the one the coordinates were made in (the rig's lattice key), so a
+    // marker layout added or edited later reuses them.
     let inputs_hash = fnv1a(&[
-        text.as_bytes(),
         &mesh_bytes,
         &mesh_key.to_le_bytes(),
         env!("CARGO_PKG_VERSION").as_bytes(),
@@ -1097,9 +1098,6 @@ fn place_markers(
             rest,
             joint,
         });
-    }
-    if markers.is_empty() {
-        problems.push(CharacterProblem::NoMarkers);
     }
     markers
 }

@@ -65,6 +65,8 @@ pub enum StageError {
     Procedural { name: String, source: BindError },
     #[error("the stage names no character")]
     NoCharacter,
+    #[error("{path}: the character has no markers ([[markers]]): nothing could drive it")]
+    NoMarkers { path: String },
     #[error(transparent)]
     Character(#[from] CharacterError),
     #[error(transparent)]
@@ -273,6 +275,11 @@ fn bind_character(
     }
     let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
     let loaded = load_character(&path)?;
+    if loaded.character.markers.is_empty() {
+        return Err(StageError::NoMarkers {
+            path: path.display().to_string(),
+        });
+    }
     for w in &loaded.warnings {
         tracing::warn!("{}: {w} (bound anyway)", path.display());
     }

@@ -10,7 +10,7 @@
 //! ```text
 //! 0   12  magic "RIGLESS-RIG\0"
 //! 12   4  u32 format version (FORMAT_VERSION)
-//! 16   8  u64 inputs hash (character file, mesh file, crate version)
+//! 16   8  u64 inputs hash (mesh file and its parse, crate version)
 //! 24   8  u64 payload length in bytes
 //! 32   8  u64 FNV-1a of the payload
 //! 40   …  payload: the Green coordinates with their lattice key (`StoredGreen`),
@@ -44,7 +44,7 @@ pub enum CacheMiss {
     BadMagic,
     #[error("cache format {found} (this build reads {FORMAT_VERSION})")]
     Version { found: u32 },
-    #[error("the character or its mesh changed since the bake")]
+    #[error("the mesh changed since the bake")]
     Stale,
     #[error("the cache file is truncated or corrupt")]
     Corrupt,
