@@ -40,6 +40,7 @@ use super::mesh::{
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
+use crate::geom::shapes::bounds;
 use crate::runtime::files::{read_bounded, read_text_bounded, MAX_DATA_BYTES, MAX_TEXT_BYTES};
 use glam::{DMat4, DVec3};
 use serde::Deserialize;
@@ -542,14 +543,18 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     })
 }
 
-/// A hash of a parsed mesh: its positions, triangles and skin joints.
-fn mesh_fingerprint(mesh: &MeshData) -> u64 {
-    let positions: Vec<u8> = mesh
-        .positions
+/// The little-endian bytes of points' coordinates, to hash them with [`fnv1a`].
+pub fn point_bytes(points: &[DVec3]) -> Vec<u8> {
+    points
         .iter()
         .flat_map(|p| p.to_array())
         .flat_map(f64::to_le_bytes)
-        .collect();
+        .collect()
+}
+
+/// A hash of a parsed mesh: its positions, triangles and skin joints.
+fn mesh_fingerprint(mesh: &MeshData) -> u64 {
+    let positions = point_bytes(&mesh.positions);
     let triangles: Vec<u8> = mesh
         .triangles
         .iter()
@@ -570,10 +575,7 @@ pub type Built = (Character, BindParams, Vec<MeshWarning>, Option<CellChoice>);
 
 /// The extent of the vertices' bounding box, metres.
 fn extent(vertices: &[DVec3]) -> DVec3 {
-    let (lo, hi) = vertices.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), &v| (lo.min(v), hi.max(v)),
-    );
+    let (lo, hi) = bounds(vertices);
     (hi - lo).max(DVec3::ZERO)
 }
 

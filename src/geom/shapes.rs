@@ -1,4 +1,5 @@
-//! Simple closed shapes with known answers, for tests and procedural characters.
+//! Simple shapes with known answers, for tests and procedural characters, and the
+//! bounding box of a point set.
 
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -29,4 +30,13 @@ pub fn uv_sphere(c: DVec3, r: f64, rings: u32, segs: u32) -> (Vec<DVec3>, Vec<[u
         }
     }
     (v, t)
+}
+
+/// Axis-aligned bounds `(min, max)` of a point set (infinite for an empty set).
+pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
+    points
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        })
 }

@@ -639,31 +639,30 @@ mod tests {
         assert_eq!(w.written, 4);
     }
 
+    /// Bytes before the first samples record: magic, version and the header record.
+    fn start_len() -> usize {
+        let mut v = Vec::new();
+        encode_start(&header(), &mut v);
+        v.len()
+    }
+
     #[test]
     fn a_file_cut_anywhere_keeps_its_whole_records() {
         let b = file(5);
-        let start_len = {
-            let mut v = Vec::new();
-            encode_start(&header(), &mut v);
-            v.len()
-        };
+        let start_len = start_len();
         let record_len = (b.len() - start_len) / 5;
         for cut in start_len..b.len() {
             let s = read_session(&b[..cut]).unwrap();
             let whole = (cut - start_len) / record_len;
             assert_eq!(s.samples.len(), 3 * whole, "cut at {cut}");
-            assert_eq!(s.warnings.is_empty(), (cut - start_len) % record_len == 0);
+            assert_eq!(s.warnings.is_empty(), (cut - start_len).is_multiple_of(record_len));
         }
     }
 
     #[test]
     fn a_damaged_record_costs_only_itself() {
         let b = file(5);
-        let start_len = {
-            let mut v = Vec::new();
-            encode_start(&header(), &mut v);
-            v.len()
-        };
+        let start_len = start_len();
         let record_len = (b.len() - start_len) / 5;
         let third = start_len + 2 * record_len;
         // A flipped byte in record 3's payload, then in its length field (which makes it

@@ -17,7 +17,7 @@ use super::ik_model::IkModel;
 use super::lattice::{barycentric, sample_surface, solid_or, surface_cells, surface_samples};
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
-use crate::character::file::fnv1a;
+use crate::character::file::{fnv1a, point_bytes};
 use crate::character::mesh::{surface_issues, weld};
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
@@ -947,12 +947,6 @@ pub enum StoredGreenMiss {
 /// A hash of what the Green coordinates depend on: the control mesh, the tet of each
 /// mesh vertex, and the mesh vertices.
 fn lattice_key(lattice: &LatticeBinding, vertices: &[DVec3]) -> u64 {
-    let bits = |v: &[DVec3]| -> Vec<u8> {
-        v.iter()
-            .flat_map(|p| p.to_array())
-            .flat_map(f64::to_le_bytes)
-            .collect()
-    };
     let tets: Vec<u8> = lattice
         .control
         .tets
@@ -966,10 +960,10 @@ fn lattice_key(lattice: &LatticeBinding, vertices: &[DVec3]) -> u64 {
         .flat_map(|&t| (t as u64).to_le_bytes())
         .collect();
     fnv1a(&[
-        &bits(&lattice.control.positions),
+        &point_bytes(&lattice.control.positions),
         &tets,
         &vertex_tets,
-        &bits(vertices),
+        &point_bytes(vertices),
     ])
 }
 

@@ -149,14 +149,7 @@ impl TetMesh {
     }
 }
 
-/// Axis-aligned bounds `(min, max)` of a point set (infinite for an empty set).
-pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
-    points
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(*p), hi.max(*p))
-        })
-}
+pub use crate::geom::shapes::bounds;
 
 /// The six edges of a tet as vertex-slot pairs.
 pub const EDGE_PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
