@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference client for the rigless vertex stream, version 1 (protocols/vertex-stream.md).
+"""Reference client for the rigless vertex stream, versions 1 and 2 (protocols/vertex-stream.md).
 
 Standard library only. Connects over TCP, reads the topology and then frames, and prints
 what it got: one JSON line per frame with --frames-json, and a JSON summary at the end.
@@ -15,7 +15,7 @@ import struct
 import sys
 
 MAGIC = b"RGLS"
-VERSION = 1
+VERSIONS = (1, 2)
 HEADER = struct.Struct("<4sHHI")
 MAX_PAYLOAD_LEN = 64 << 20
 KIND_TOPOLOGY, KIND_FRAME, KIND_GOODBYE = 1, 2, 3
@@ -59,7 +59,7 @@ class Reader:
             raise ProtocolError(f"{self.kind} payload has {len(self.data) - self.at} trailing bytes")
 
 
-def decode_topology(p):
+def decode_topology(p, version):
     r = Reader(p, "topology")
     t = {"character": r.string(), "rate_hz": r.unpack("f")[0], "length_unit": r.string(),
          "up_axis": r.string(), "handedness": r.string(), "vertex_count": r.unpack("I")[0]}
@@ -74,6 +74,15 @@ def decode_topology(p):
         joints.append((name, parent))
     t["joint_names"] = [j[0] for j in joints]
     t["joint_parents"] = [j[1] for j in joints]
+    t["parts"] = []
+    if version >= 2:
+        for _ in range(r.count(18)):
+            name = r.string()
+            first_v, nv, first_t, nt_p = r.unpack("4I")
+            if first_v + nv > t["vertex_count"] or first_t + nt_p > nt:
+                raise ProtocolError(f"part {name!r} has a range outside the mesh")
+            t["parts"].append({"name": name, "first_vertex": first_v, "vertex_count": nv,
+                               "first_triangle": first_t, "triangle_count": nt_p})
     r.end()
     return t
 
@@ -115,21 +124,21 @@ def read_exact(sock, n):
 
 
 def read_message(sock):
-    """Returns (kind, payload), or None when the server closed the connection."""
+    """Returns (version, kind, payload), or None when the server closed the connection."""
     h = read_exact(sock, HEADER.size)
     if h is None:
         return None
     magic, version, kind, length = HEADER.unpack(h)
     if magic != MAGIC:
         raise ProtocolError(f"bad magic {magic!r}")
-    if version != VERSION:
+    if version not in VERSIONS:
         raise ProtocolError(f"unsupported version {version}")
     if length > MAX_PAYLOAD_LEN:
         raise ProtocolError(f"payload of {length} bytes exceeds the limit")
     p = read_exact(sock, length)
     if p is None:
         raise ProtocolError("connection closed inside a message")
-    return kind, p
+    return version, kind, p
 
 
 def main():
@@ -151,11 +160,12 @@ def main():
         m = read_message(sock)
         if m is None:
             break
-        kind, p = m
+        version, kind, p = m
         if kind == KIND_TOPOLOGY:
-            t = decode_topology(p)
+            t = decode_topology(p, version)
             summary["topology"] = {k: (len(v) if isinstance(v, list) else v) for k, v in t.items()}
             summary["topology"]["marker_names"] = t["marker_names"]
+            summary["topology"]["part_names"] = [q["name"] for q in t["parts"]]
         elif kind == KIND_FRAME:
             if summary["topology"] is None:
                 raise ProtocolError("frame before topology")

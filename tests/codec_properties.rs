@@ -15,7 +15,9 @@ use rigless::character::mesh::parse_obj;
 use rigless::protocol::glove::{decode_line, encode_alpha, GloveFormat, GloveReading};
 use rigless::protocol::natnet::{self, LabeledMarker, MocapFrame, RigidBody, Version};
 use rigless::protocol::osc::{encode_native, OscMapping};
-use rigless::protocol::vertex_stream::{self, FrameStatus, FrameView, StopCode, Topology};
+use rigless::protocol::vertex_stream::{
+    self, FrameStatus, FrameView, StopCode, Topology, WirePart,
+};
 use rigless::protocol::vrpn::{
     cookie, decode_message, description_payload, encode_message, encode_pos_quat, PosQuat,
     SENDER_DESCRIPTION,
@@ -91,6 +93,22 @@ fn packets() -> Vec<(&'static str, Vec<u8>)> {
             marker_names: vec!["m0".into(), "m1".into()],
             joint_names: vec!["a".into(), "b".into()],
             joint_parents: vec![-1, 0],
+            parts: vec![
+                WirePart {
+                    name: "palm".into(),
+                    first_vertex: 0,
+                    vertex_count: 3,
+                    first_triangle: 0,
+                    triangle_count: 1,
+                },
+                WirePart {
+                    name: "nail".into(),
+                    first_vertex: 0,
+                    vertex_count: 4,
+                    first_triangle: 1,
+                    triangle_count: 1,
+                },
+            ],
         },
         &mut stream,
     );

@@ -29,6 +29,8 @@ fn python_client_reads_topology_frames_and_goodbye() {
     assert_eq!(topo["up_axis"], "+Y");
     assert_eq!(topo["marker_names"].as_array().unwrap().len(), 8);
     assert_eq!(topo["joint_names"], 21);
+    // The procedural hand is one part (version 2 topology).
+    assert_eq!(topo["part_names"], serde_json::json!(["hand"]));
     assert_eq!(s["goodbye"], "time limit reached");
     assert_eq!(s["frame_numbers_increasing"], true);
     assert_eq!(s["vertex_count_matches"], true);

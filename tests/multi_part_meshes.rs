@@ -7,6 +7,7 @@
 use glam::{DQuat, DVec3};
 use rigless::bench::characters::{demo_hand, hand_bind_params};
 use rigless::character::bind_params::BindParams;
+use rigless::character::mesh::MeshPart;
 use rigless::character::procedural::Character;
 use rigless::character::skeleton::{Joint, Skeleton};
 use rigless::character::MarkerDef;
@@ -32,6 +33,13 @@ fn tight() -> SolverParams {
 /// Appends a part (its own vertices) to a character's mesh.
 fn add_part(ch: &mut Character, (v, t): (Vec<DVec3>, Vec<[u32; 3]>)) {
     let off = ch.vertices.len() as u32;
+    ch.parts.push(MeshPart {
+        name: format!("part{}", ch.parts.len()),
+        first_triangle: ch.triangles.len() as u32,
+        triangle_count: t.len() as u32,
+        first_vertex: off,
+        vertex_count: v.len() as u32,
+    });
     ch.vertices.extend(v);
     ch.triangles
         .extend(t.iter().map(|tri| tri.map(|i| i + off)));
@@ -101,6 +109,7 @@ fn ball_in_a_shell() -> Character {
         markers,
         skin: None,
         correspondences: Vec::new(),
+        parts: Vec::new(),
     };
     add_part(&mut ch, uv_sphere(DVec3::ZERO, 0.1, 16, 32));
     add_part(

@@ -5,8 +5,11 @@
 //! inverted tets.
 
 use glam::DVec3;
+use rigless::bench::exercise::{exercise, ExerciseOptions};
 use rigless::character::file::load_character;
 use rigless::character::procedural::{flex_pose, skin_pose};
+use rigless::character::roles::{recognise, summary};
+use rigless::character::skeleton::Joint;
 use rigless::markers::MarkerFrame;
 use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
@@ -118,14 +121,16 @@ fn track(toml_path: &Path, seconds: f64) -> Tracked {
 /// The checks both real meshes must pass. Inverted tets: none. Per-vertex ARAP alone
 /// folds two tets of the WebXR hand at the index knuckle under flexion with sideways
 /// swing (down to −0.34 of their rest volume); the solver's untangling pushes every tet
-/// back to at least 2 % of its rest volume (`UNTANGLE_MIN_RATIO`; 1e-9 of round-off).
+/// back to at least 2 % of its rest volume (`UNTANGLE_MIN_RATIO`), less the
+/// second-order remainder of its linearised projection (1e-6; 3e-8 measured on the
+/// MakeHuman body flexed through its role limits).
 fn assert_tracked(t: &Tracked, residual_limit_mm: f64) {
     assert!(
         t.cold_inverted_tets == 0 && t.cold_min_volume_ratio > 0.0,
         "{t:?}"
     );
     assert!(
-        t.inverted_tets == 0 && t.min_volume_ratio > 0.02 - 1e-9,
+        t.inverted_tets == 0 && t.min_volume_ratio > 0.02 - 1e-6,
         "{t:?}"
     );
     assert!(t.joint_limit_violation_deg <= 0.5, "{t:?}");
@@ -134,12 +139,11 @@ fn assert_tracked(t: &Tracked, residual_limit_mm: f64) {
     assert_eq!(t.unmoved_vertices, 0, "{t:?}");
 }
 
-#[test]
-fn webxr_hand_bakes_and_tracks() {
-    let Some(glb) = shared("meshes/webxr-generic-hand/right.glb") else {
-        return;
-    };
-    let dir = tempfile::tempdir().unwrap();
+/// The WebXR right hand's character file, written in `dir`: the skin's joints chained
+/// per finger, a marker on each nail and three on the back of the hand, and (with
+/// `limits`) hand-written limits; `None` when the shared data is absent.
+fn webxr_file(dir: &Path, limits: bool) -> Option<PathBuf> {
+    let glb = shared("meshes/webxr-generic-hand/right.glb")?;
     let mut t = format!(
         "name = \"webxr_right_hand\"\n[mesh]\npath = {:?}\n\n[skeleton.parents]\n",
         glb
@@ -169,7 +173,7 @@ fn webxr_hand_bakes_and_tracks() {
             prev = format!("{f}-{s}");
         }
     }
-    for f in fingers {
+    for f in fingers.into_iter().filter(|_| limits) {
         let segs: &[&str] = if f == "thumb" {
             &["phalanx-proximal", "phalanx-distal"]
         } else {
@@ -188,6 +192,8 @@ fn webxr_hand_bakes_and_tracks() {
             t,
             "\n[skeleton.limits.{f}-metacarpal]\ntwist_deg = [-{m}, {m}]\nbend_deg = [-{m}, {m}]\nside_deg = [-{m}, {m}]"
         );
+    }
+    for f in fingers {
         let _ = writeln!(
             t,
             "\n[[markers]]\nname = \"{f}_nail\"\nbone = \"{f}-phalanx-distal\""
@@ -200,8 +206,17 @@ fn webxr_hand_bakes_and_tracks() {
     ] {
         let _ = writeln!(t, "\n[[markers]]\nname = \"back_{b}\"\nbone = {b:?}");
     }
-    let path = dir.path().join("hand.toml");
+    let path = dir.join("hand.toml");
     std::fs::write(&path, t).unwrap();
+    Some(path)
+}
+
+#[test]
+fn webxr_hand_bakes_and_tracks() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(path) = webxr_file(dir.path(), true) else {
+        return;
+    };
     let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
     // Sizes from ../shared/data/README.md: the file's own vertex count is kept.
     assert_eq!(loaded.character.vertices.len(), 1_360);
@@ -210,113 +225,138 @@ fn webxr_hand_bakes_and_tracks() {
     assert_tracked(&track(&path, 2.0), 2.0);
 }
 
-/// The MakeHuman character file (skeleton listed from its `default.mhskel`, markers on
-/// the limbs) for the mesh groups `groups` (TOML array; `[]`: every group), written in
-/// `dir`; `None` when the shared data is absent.
-fn makehuman_file(dir: &Path, groups: &str) -> Option<PathBuf> {
-    let (Some(obj), Some(skel)) = (
-        shared("meshes/makehuman/base.obj"),
-        shared("meshes/makehuman/default.mhskel"),
-    ) else {
-        return None;
+/// With no hand-written limit, the WebXR hand's joints get their roles from WebXR's
+/// names (the side unknown: the palm is found from the fingers' curl at rest) and the
+/// roles' default limits, and it tracks as well as with the hand-written ones.
+#[test]
+fn webxr_hand_binds_with_the_limits_of_its_roles() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(path) = webxr_file(dir.path(), false) else {
+        return;
+    };
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let r = &loaded.roles;
+    eprintln!("roles: {r}");
+    // The wrist, 5 metacarpals, 14 phalanges; the 5 tips need none.
+    assert_eq!(r.with_role, 20, "{r}");
+    assert!(r.without.is_empty(), "{r}");
+    assert_eq!(r.ends_without, 5, "{r}");
+    let sk = &loaded.character.skeleton;
+    let limited = sk.joints.iter().filter(|j| j.limits.is_some()).count();
+    assert_eq!(
+        limited, 20,
+        "every joint with a role and children is limited"
+    );
+    assert_tracked(&track(&path, 2.0), 2.0);
+}
+
+/// The roles of MakeHuman's own 163-bone skeleton (`default.mhskel`, by its bone names
+/// and parents): every limb and finger bone of both sides, and the face's, tongue's and
+/// helper bones left without one.
+#[test]
+fn makehuman_skeleton_roles() {
+    let Some(skel) = shared("meshes/makehuman/default.mhskel") else {
+        return;
     };
     let mh: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(skel).unwrap()).unwrap();
-    let verts = |key: &str| -> Vec<u64> {
-        mh["joints"][key]
-            .as_array()
-            .unwrap_or_else(|| panic!("mhskel has no joint {key}"))
-            .iter()
-            .map(|v| v.as_u64().unwrap())
-            .collect()
-    };
-    // (our joint, its parent, MakeHuman joint whose vertices give the position)
-    let mut joints: Vec<(String, Option<String>, String)> = vec![
-        ("root".into(), None, "root____head".into()),
-        (
-            "spine".into(),
-            Some("root".into()),
-            "spine03____head".into(),
-        ),
-        (
-            "chest".into(),
-            Some("spine".into()),
-            "spine01____head".into(),
-        ),
-        ("neck".into(), Some("chest".into()), "neck01____head".into()),
-        ("head".into(), Some("neck".into()), "head____head".into()),
-        (
-            "head_top".into(),
-            Some("head".into()),
-            "head____tail".into(),
-        ),
-    ];
-    for s in ["L", "R"] {
-        // (our joint, its parent, MakeHuman bone whose head is the joint); the trunk
-        // joints have no side.
-        let limbs = [
-            ("clavicle", "chest", "clavicle"),
-            ("upperarm", "clavicle", "upperarm01"),
-            ("forearm", "upperarm", "lowerarm01"),
-            ("hand", "forearm", "wrist"),
-            ("thigh", "root", "upperleg01"),
-            ("shin", "thigh", "lowerleg01"),
-            ("foot", "shin", "foot"),
-        ];
-        for (name, parent, mhb) in limbs {
-            let parent = match parent {
-                "chest" | "root" => parent.to_string(),
-                p => format!("{p}.{s}"),
-            };
-            joints.push((
-                format!("{name}.{s}"),
-                Some(parent),
-                format!("{mhb}.{s}____head"),
-            ));
-        }
-        for (end, of) in [("hand_end", "hand"), ("toe", "foot")] {
-            let bone = if of == "hand" { "wrist" } else { "foot" };
-            joints.push((
-                format!("{end}.{s}"),
-                Some(format!("{of}.{s}")),
-                format!("{bone}.{s}____tail"),
-            ));
+    let bones = mh["bones"].as_object().unwrap();
+    // Parents first: repeat passes over the bones until each is placed.
+    let mut order: Vec<String> = Vec::new();
+    while order.len() < bones.len() {
+        for (name, b) in bones {
+            let placed = |n: &str| order.iter().any(|o| o == n);
+            let parent_placed = b["parent"].as_str().is_none_or(placed);
+            if !placed(name) && parent_placed {
+                order.push(name.clone());
+            }
         }
     }
-    let mut t = format!(
-        "name = \"makehuman\"\n[mesh]\npath = {obj:?}\nunits = \"dm\"\ngroups = {groups}\n"
-    );
-    for (name, parent, key) in &joints {
-        let _ = writeln!(t, "\n[[skeleton.joints]]\nname = {name:?}");
-        if let Some(p) = parent {
-            let _ = writeln!(t, "parent = {p:?}");
+    let joints: Vec<Joint> = order
+        .iter()
+        .enumerate()
+        .map(|(i, name)| Joint {
+            name: name.clone(),
+            parent: bones[name]["parent"]
+                .as_str()
+                .map(|p| order.iter().position(|o| o == p).unwrap()),
+            rest: DVec3::new(0.0, i as f64, 0.0),
+            limits: None,
+            bend_axis: DVec3::X,
+        })
+        .collect();
+    assert_eq!(joints.len(), 163);
+    let roles = recognise(&joints, &[]);
+    let s = summary(&joints, &roles);
+    eprintln!("{s}");
+    let has = |role: &str| s.found.iter().any(|(n, _)| n == role);
+    for side in ["left", "right"] {
+        for part in [
+            "Shoulder",
+            "UpperArm",
+            "LowerArm",
+            "Hand",
+            "UpperLeg",
+            "LowerLeg",
+            "Foot",
+            "Toes",
+            "ThumbMetacarpal",
+            "ThumbProximal",
+            "ThumbDistal",
+        ] {
+            assert!(has(&format!("{side}{part}")), "{side}{part}: {s}");
         }
-        let _ = writeln!(t, "rest_vertices = {:?}", verts(key));
-    }
-    for s in ["L", "R"] {
-        let _ = writeln!(
-            t,
-            "\n[skeleton.limits.\"shin.{s}\"]\ntwist_deg = [-5, 5]\nbend_deg = [0, 120]\nside_deg = [-3, 3]\nbend_axis = [-1, 0, 0]"
-        );
-        let _ = writeln!(
-            t,
-            "\n[skeleton.limits.\"forearm.{s}\"]\ntwist_deg = [-60, 60]\nbend_deg = [0, 130]\nside_deg = [-3, 3]\nbend_axis = [0, 0, 1]"
-        );
-    }
-    for (name, _, _) in &joints {
-        if !name.ends_with("_top") && !name.starts_with("hand_end") && !name.starts_with("toe") {
-            let _ = writeln!(t, "\n[[markers]]\nname = \"m_{name}\"\nbone = {name:?}");
+        for digit in ["Index", "Middle", "Ring", "Little"] {
+            for seg in ["Metacarpal", "Proximal", "Intermediate", "Distal"] {
+                assert!(
+                    has(&format!("{side}{digit}{seg}")),
+                    "{side}{digit}{seg}: {s}"
+                );
+            }
         }
     }
-    let path = dir.join("makehuman.toml");
-    std::fs::write(&path, t).unwrap();
-    Some(path)
+    for role in ["hips", "spine", "neck", "head"] {
+        assert!(has(role), "{role}: {s}");
+    }
+    for free in ["jaw", "eye.L", "tongue01", "breast.R", "levator03.L"] {
+        let i = joints.iter().position(|j| j.name == free).unwrap();
+        assert_eq!(roles[i], None, "{free}");
+    }
+}
+
+/// Checks a character's parts against its mesh: their triangle ranges follow each other
+/// and cover every triangle once, and each part's triangles use only vertices of its
+/// vertex range. Returns the names.
+fn check_parts(ch: &rigless::character::Character) -> Vec<&str> {
+    let mut next = 0;
+    for p in &ch.parts {
+        assert_eq!(p.first_triangle, next, "{p:?}");
+        next += p.triangle_count;
+        let vertices = p.first_vertex..p.first_vertex + p.vertex_count;
+        let tris = &ch.triangles[p.first_triangle as usize..next as usize];
+        assert!(tris.iter().flatten().all(|v| vertices.contains(v)), "{p:?}");
+    }
+    assert_eq!(next as usize, ch.triangles.len());
+    ch.parts.iter().map(|p| p.name.as_str()).collect()
+}
+
+/// The MakeHuman character file for the mesh groups `groups` (empty: every group) in
+/// `dir` ([`rigless::bench::assets::makehuman_file`]); `None` (the reason printed) when
+/// the shared data is absent.
+fn makehuman_file(dir: &Path, groups: &[&str]) -> Option<PathBuf> {
+    shared("meshes/makehuman/default.mhskel")?;
+    let data = shared("")?;
+    Some(
+        rigless::bench::assets::makehuman_file(&data, groups, dir)
+            .unwrap_or_else(|e| panic!("{e}"))
+            .expect("MakeHuman files present"),
+    )
 }
 
 #[test]
 fn makehuman_body_bakes_and_tracks() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(path) = makehuman_file(dir.path(), "[\"body\"]") else {
+    let Some(path) = makehuman_file(dir.path(), &["body"]) else {
         return;
     };
     let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -352,7 +392,7 @@ fn makehuman_body_bakes_and_tracks() {
 #[test]
 fn makehuman_with_all_its_parts_bakes_and_tracks() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(path) = makehuman_file(dir.path(), "[]") else {
+    let Some(path) = makehuman_file(dir.path(), &[]) else {
         return;
     };
     let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -366,6 +406,16 @@ fn makehuman_with_all_its_parts_bakes_and_tracks() {
         said.iter().any(|w| w.starts_with("the mesh is open")),
         "{said:?}"
     );
+    let names: Vec<&str> = check_parts(&loaded.character);
+    eprintln!("parts: {names:?}");
+    for group in [
+        "body",
+        "helper-tights",
+        "helper-l-eye",
+        "helper-upper-teeth",
+    ] {
+        assert!(names.contains(&group), "{group}: {names:?}");
+    }
     let t = track(&path, 1.0);
     assert_tracked(&t, 2.0 * 1.66 / 0.2);
 }
@@ -404,6 +454,27 @@ fn khronos_samples_bake_and_track() {
         let path = marked_gltf(dir.path(), &glb);
         let loaded = load_character(&path).unwrap_or_else(|e| panic!("{rel}: {e}"));
         assert_eq!(loaded.character.vertices.len(), vertices, "{rel}");
+        eprintln!("{rel}: roles {}", loaded.roles);
+        let parts = check_parts(&loaded.character);
+        eprintln!("{rel}: parts {parts:?}");
+        assert_eq!(parts.len(), 1, "one skinned primitive: {parts:?}");
+        if rel.contains("CesiumMan") {
+            // Its limbs are named by a limb word and a number along the limb.
+            let r = &loaded.roles;
+            for role in [
+                "hips",
+                "leftUpperLeg",
+                "rightLowerLeg",
+                "leftFoot",
+                "rightToes",
+                "leftUpperArm",
+                "rightLowerArm",
+                "leftHand",
+            ] {
+                assert!(r.found.iter().any(|(n, _)| n == role), "{role}: {r}");
+            }
+            assert!(r.without.is_empty(), "{r}");
+        }
         let t = track(&path, 1.0);
         assert!(
             t.inverted_tets == 0 && t.cold_inverted_tets == 0,
@@ -411,5 +482,42 @@ fn khronos_samples_bake_and_track() {
         );
         assert_eq!(t.unmoved_vertices, 0, "{rel}: {t:?}");
         assert!(t.bone_length_error_mean <= 0.005, "{rel}: {t:?}");
+    }
+}
+
+/// `rigless bake --exercise` on the real assets: every joint to the limits of its role
+/// and back, then all together. No inverted tet, every vertex moved, the limits kept
+/// (0.5°, as in [`assert_tracked`]). Without the untangler's over-relaxation, the
+/// MakeHuman mesh kept 3 tets folded where a thigh is pressed into the belly.
+#[test]
+fn real_assets_survive_the_exercise() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files = Vec::new();
+    for rel in [
+        "meshes/gltf-samples/CesiumMan.glb",
+        "meshes/gltf-samples/RiggedSimple.glb",
+    ] {
+        let Some(glb) = shared(rel) else {
+            return;
+        };
+        files.push(rigless::bench::assets::gltf_file(&glb, dir.path()).unwrap());
+    }
+    let Some(mh) = makehuman_file(dir.path(), &[]) else {
+        return;
+    };
+    files.push(mh);
+    for path in files {
+        let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+        let r = exercise(
+            &loaded.character,
+            &loaded.bind,
+            ExerciseOptions::default(),
+            &mut |_| {},
+        )
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        eprintln!("{}: {r:?}", path.display());
+        assert_eq!(r.inverted_tets_max, 0, "{r:?}");
+        assert_eq!(r.unmoved_vertices, 0, "{r:?}");
+        assert!(r.joint_limit_violation_deg_max <= 0.5, "{r:?}");
     }
 }

@@ -2,6 +2,8 @@
 //! ticked by hand: every frame's bytes equal the in-process solver's output; a client
 //! that never reads and one that hangs up cost the others nothing.
 
+mod common;
+
 use crossbeam_channel::bounded;
 use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
 use rigless::character::session::{SyntheticParams, SyntheticSession};
@@ -163,22 +165,6 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
     assert_eq!(ws_reader.join().unwrap().as_deref(), Some("test over"));
 }
 
-/// A small topology (no rig needed) for the server tests below.
-fn small_topology() -> rigless::protocol::vertex_stream::Topology {
-    rigless::protocol::vertex_stream::Topology {
-        character: "tiny".into(),
-        rate_hz: 100.0,
-        length_unit: "m".into(),
-        up_axis: "+Y".into(),
-        handedness: "right".into(),
-        vertex_count: 3,
-        triangles: vec![[0, 1, 2]],
-        marker_names: vec!["A".into(), "B".into()],
-        joint_names: vec!["root".into()],
-        joint_parents: vec![-1],
-    }
-}
-
 /// A WebSocket client of `addr` (the blocking tungstenite client, reads bounded by
 /// `TIMEOUT`) and its next binary message, decoded.
 type Ws = tokio_tungstenite::tungstenite::WebSocket<TcpStream>;
@@ -215,7 +201,7 @@ fn clients_over_max_clients_are_told_the_server_is_full() {
             websocket: Some(loopback),
             max_clients: 4,
         },
-        &small_topology(),
+        &common::tiny_topology(),
         Arc::clone(&slot),
     )
     .unwrap();

@@ -13,7 +13,7 @@
 use rigless::output::config::StreamOutputConfig;
 use rigless::output::frame::DeformedFrame;
 use rigless::output::stream::StreamServer;
-use rigless::protocol::vertex_stream::{decode, decode_header, Message, Topology, HEADER_LEN};
+use rigless::protocol::vertex_stream::{decode, decode_header, Message, HEADER_LEN};
 use rigless::runtime::slot::LatestSlot;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -121,21 +121,6 @@ fn end_clients(mut child: Child) {
     child.wait().unwrap();
 }
 
-fn topology() -> Topology {
-    Topology {
-        character: "tiny".into(),
-        rate_hz: 100.0,
-        length_unit: "m".into(),
-        up_axis: "+Y".into(),
-        handedness: "right".into(),
-        vertex_count: 3,
-        triangles: vec![[0, 1, 2]],
-        marker_names: vec!["A".into(), "B".into()],
-        joint_names: vec!["root".into()],
-        joint_parents: vec![-1],
-    }
-}
-
 fn read_message(s: &mut TcpStream) -> Message {
     let mut h = [0u8; HEADER_LEN];
     s.read_exact(&mut h).expect("header");
@@ -186,7 +171,7 @@ fn start(max_clients: usize, slot: &Arc<LatestSlot<DeformedFrame>>) -> StreamSer
             websocket: Some(loopback),
             max_clients,
         },
-        &topology(),
+        &common::tiny_topology(),
         Arc::clone(slot),
     )
     .unwrap()

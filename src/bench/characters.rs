@@ -3,6 +3,8 @@
 //! the frame solver (warm-started, solved to convergence), compared against the known
 //! truth every frame.
 
+use super::assets::{gltf_file, load_subdivided, makehuman_file};
+use super::exercise::{exercise, ExerciseOptions, ExerciseReport};
 use super::Spread;
 use crate::character::bind_params::BindParams;
 pub use crate::character::demo::{
@@ -217,8 +219,112 @@ pub fn run_character(
     Ok(rec)
 }
 /// The suite: the hand's finger play, the body's walk and reach, and the body at 50,000
-/// triangles, 10 s at 120 Hz each, through both methods; one line per run.
-pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::BenchError> {
+/// triangles, 10 s at 120 Hz each, through both methods; one line per run; then the real
+/// assets of the data folder `data` through the range-of-motion exercise
+/// ([`asset_rows`]).
+pub fn suite(
+    data: &std::path::Path,
+    json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<(), super::BenchError> {
+    procedural_rows(json, out)?;
+    asset_rows(data, json, out)
+}
+
+/// One real asset's exercise, as a JSON line.
+#[derive(serde::Serialize)]
+struct AssetRecord<'a> {
+    suite: &'static str,
+    asset: &'a str,
+    /// Midpoint subdivisions applied to the file's mesh.
+    subdivisions: usize,
+    #[serde(flatten)]
+    exercise: &'a ExerciseReport,
+}
+
+/// The real assets of the data folder through [`exercise`]: CesiumMan as its file has
+/// it and subdivided three times (157,070 vertices: the size of the largest meshes of
+/// the published methods; targets: bind under 10 s, frame p99 under 6 ms), and the
+/// MakeHuman mesh with all its parts. Skipped, with the reason printed, when the data
+/// folder lacks them.
+fn asset_rows(
+    data: &std::path::Path,
+    json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<(), super::BenchError> {
+    let dir = std::env::temp_dir().join(format!("rigless-bench-assets-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let result = (|| {
+        let cesium = data.join("meshes/gltf-samples/CesiumMan.glb");
+        let mut cases: Vec<(&str, Option<std::path::PathBuf>, usize, &str)> = Vec::new();
+        let cesium_file = cesium
+            .is_file()
+            .then(|| gltf_file(&cesium, &dir))
+            .transpose()
+            .map_err(|e| super::BenchError::case("CesiumMan", e))?;
+        cases.push(("CesiumMan", cesium_file.clone(), 0, "-"));
+        cases.push(("CesiumMan", cesium_file, 3, "bind<10s p99≤6"));
+        let mh =
+            makehuman_file(data, &[], &dir).map_err(|e| super::BenchError::case("MakeHuman", e))?;
+        cases.push(("MakeHuman all parts", mh, 0, "-"));
+        if !json {
+            writeln!(
+                out,
+                "\n{:<22} {:>7} {:>5} {:>6} {:>7} {:>8} {:>6} {:>8} {:>8} {:>7} {:>4} {:>7} {:>7} {:>6} {:>14}",
+                "asset (exercise)", "verts", "n", "tets", "bind s", "green s", "frames", "p50 ms",
+                "p99 ms", "gc ms", "inv", "unmoved", "limit°", "vol %", "target"
+            )?;
+        }
+        for (name, file, levels, target) in cases {
+            let Some(file) = file else {
+                writeln!(out, "skipped: {name} is not in {}", data.display())?;
+                continue;
+            };
+            let loaded =
+                load_subdivided(&file, levels).map_err(|e| super::BenchError::case(name, e))?;
+            let r = exercise(
+                &loaded.character,
+                &loaded.bind,
+                ExerciseOptions::default(),
+                &mut |_| {},
+            )
+            .map_err(|e| super::BenchError::case(name, e))?;
+            if json {
+                super::json_line(
+                    out,
+                    &AssetRecord {
+                        suite: "characters",
+                        asset: name,
+                        subdivisions: levels,
+                        exercise: &r,
+                    },
+                )?;
+                continue;
+            }
+            let shown = if levels > 0 {
+                format!("{name} ×{levels} subdiv")
+            } else {
+                name.to_string()
+            };
+            writeln!(
+                out,
+                "{:<22} {:>7} {:>5} {:>6} {:>7.2} {:>8.2} {:>6} {:>8.3} {:>8.3} {:>7.3} {:>4} {:>7} {:>7.2} {:>6.2} {:>14}",
+                shown, r.mesh_vertices, r.control_vertices, r.control_tets, r.bind_s, r.green_s,
+                r.frames, r.frame_ms_p50, r.frame_ms_p99, r.green_ms_p50, r.inverted_tets_max,
+                r.unmoved_vertices, r.joint_limit_violation_deg_max, 100.0 * r.volume_error_max, target
+            )?;
+        }
+        Ok(())
+    })();
+    // The character files were only needed to load the assets.
+    if let Err(e) = std::fs::remove_dir_all(&dir) {
+        tracing::warn!(dir = %dir.display(), error = %e, "could not remove the bench's temporary folder");
+    }
+    result
+}
+
+/// The procedural characters through both methods.
+fn procedural_rows(json: bool, out: &mut dyn std::io::Write) -> Result<(), super::BenchError> {
     use crate::character::body::BodyMotion;
     let run = CharacterRun {
         seconds: 10.0,

@@ -3,9 +3,11 @@
 //! as soon as it is measured ([`run_suite`]). Timing uses the monotonic clock around the
 //! measured step only; setup is excluded and reported separately (`factor_s`).
 
+pub mod assets;
 pub mod capsules;
 pub mod characters;
 pub mod codecs;
+pub mod exercise;
 pub mod gapfill;
 pub mod live;
 pub mod replay;
@@ -78,7 +80,7 @@ impl BenchError {
 pub fn run_suite(suite: Suite, opts: &BenchOptions, out: &mut dyn Write) -> Result<(), BenchError> {
     match suite {
         Suite::Capsules => capsules::suite(&opts.data, opts.json, out),
-        Suite::Characters => characters::suite(opts.json, out),
+        Suite::Characters => characters::suite(&opts.data, opts.json, out),
         Suite::Gapfill => gapfill::suite(&opts.data, opts.json, out),
         Suite::Live => live::suite(opts.seconds, opts.json, out),
         Suite::Codecs => codecs::suite(opts.json, out),

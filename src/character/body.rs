@@ -8,6 +8,7 @@
 //! tetrahedra and simplified, as the hand is. Frame: metres, Y up, facing +Z, the
 //! character's left towards +X.
 
+use super::mesh::MeshPart;
 use super::procedural::{on_skin, skin_by_distance, surface_of, Capsule, Pose, Shape};
 use super::skeleton::{compose, Joint, JointLimits, Skeleton, SwingTwist};
 use super::{Character, MarkerDef};
@@ -59,6 +60,7 @@ pub fn body(mesh_cell_m: f64, target_triangles: usize) -> Character {
     let markers = body_markers(&skeleton, &sdf);
     Character {
         name: "body".into(),
+        parts: vec![MeshPart::whole("body", vertices.len(), triangles.len())],
         vertices,
         triangles,
         skeleton,

@@ -12,7 +12,11 @@
 //! [skeleton.parents]          # skin joints that are not nested in the file
 //! thumb-metacarpal = "wrist"
 //!
-//! [skeleton.limits.index-finger-phalanx-proximal]
+//! [skeleton.roles]             # humanoid roles are recognised from the joint names
+//! "hand_root" = "rightHand"     # (Mixamo, VRM, Unreal, MakeHuman, Rigify...); this
+//!                               # sets or corrects one ("none" removes it)
+//!
+//! [skeleton.limits.index-finger-phalanx-proximal]   # replaces the role's limits
 //! twist_deg = [-5, 5]
 //! bend_deg = [0, 100]
 //! side_deg = [-5, 5]
@@ -37,6 +41,7 @@ use super::cell_size::{default_cell_size, CellChoice};
 use super::mesh::{
     parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError, MAX_SKIN_JOINTS,
 };
+use super::roles::{default_limits, recognise, summary as roles_summary, Role, RoleSummary};
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
 use super::{Character, Correspondence, MarkerDef};
 use crate::geom::axes::y_up_from_z_up;
@@ -161,9 +166,16 @@ pub struct SkeletonSpec {
     /// Joints listed by hand, parents first (when there is no skin).
     #[serde(default)]
     pub joints: Vec<JointSpec>,
-    /// Limits per joint name (joints without an entry are free).
+    /// Limits per joint name; they replace the default limits of the joint's role.
     #[serde(default)]
     pub limits: BTreeMap<String, LimitSpec>,
+    /// Humanoid role per joint name, as VRM names it (`leftUpperLeg`, `hips`,
+    /// `rightIndexProximal`), or `"none"`; replaces the role recognised from the name.
+    #[serde(default)]
+    pub roles: BTreeMap<String, String>,
+    /// Give each joint with a humanoid role the default limits of its role (default
+    /// true; joints with neither a role nor `limits` are free).
+    pub role_limits: Option<bool>,
 }
 
 /// `[[skeleton.joints]]`.
@@ -353,6 +365,12 @@ pub enum CharacterProblem {
     /// `skeleton.limits` names a joint the skeleton does not have.
     #[error("skeleton.limits: no joint is named {joint:?}")]
     LimitsUnknownJoint { joint: String },
+    /// `skeleton.roles` names a joint the skeleton does not have.
+    #[error("skeleton.roles: no joint is named {joint:?}")]
+    RolesUnknownJoint { joint: String },
+    /// `skeleton.roles` gives a role that is not a VRM humanoid bone name.
+    #[error("skeleton.roles.{joint}: {role:?} is not a role (VRM humanoid names such as \"hips\", \"leftUpperLeg\", \"rightIndexProximal\", or \"none\")")]
+    UnknownRole { joint: String, role: String },
     /// A limit (`twist_deg`, `bend_deg` or `side_deg`) is not a finite `[min, max]`.
     #[error("skeleton.limits.{joint}.{which}: [{min}, {max}] is not a range (min ≤ max, finite)")]
     BadLimitRange {
@@ -434,6 +452,8 @@ pub struct LoadedCharacter {
     pub warnings: Vec<MeshWarning>,
     /// The default cell size and why, when the file does not set one.
     pub cell_choice: Option<CellChoice>,
+    /// The humanoid roles found in the skeleton.
+    pub roles: RoleSummary,
     /// Hash of the mesh (its file and what the parse found) and this crate's version: the
     /// bake cache's key (its contents are used only for the same control mesh too).
     pub inputs_hash: u64,
@@ -518,11 +538,10 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     // What the mesh file and any buffers beside it hold (a glTF's external `.bin` is
     // not in `mesh_bytes`): part of the cache key.
     let mesh_key = mesh_fingerprint(&mesh);
-    let (character, bind, warnings, cell_choice) =
-        build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
-            path: shown,
-            problems,
-        })?;
+    let built = build(&spec, name, mesh).map_err(|problems| CharacterError::Invalid {
+        path: shown,
+        problems,
+    })?;
     // The mesh (its file and what the parse found, external buffers included) and this
     // build: what the stored Green coordinates need to stay current. The character file's
     // own settings are not in it: the cache is used only when the control mesh rebuilt
@@ -534,10 +553,11 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         env!("CARGO_PKG_VERSION").as_bytes(),
     ]);
     Ok(LoadedCharacter {
-        character,
-        bind,
-        warnings,
-        cell_choice,
+        character: built.character,
+        bind: built.bind,
+        warnings: built.warnings,
+        cell_choice: built.cell_choice,
+        roles: built.roles,
         inputs_hash,
         mesh_path,
     })
@@ -569,9 +589,18 @@ fn mesh_fingerprint(mesh: &MeshData) -> u64 {
     fnv1a(&[&positions, &triangles, &joints])
 }
 
-/// What [`build`] makes of a character file: the character, its binding settings, what
-/// is unusual about its mesh, and how the default cell size was chosen (if it was).
-pub type Built = (Character, BindParams, Vec<MeshWarning>, Option<CellChoice>);
+/// What [`build`] makes of a character file.
+#[derive(Clone, Debug)]
+pub struct Built {
+    pub character: Character,
+    pub bind: BindParams,
+    /// What is unusual about the mesh but does not stop the bind.
+    pub warnings: Vec<MeshWarning>,
+    /// How the default cell size was chosen (when the file sets none).
+    pub cell_choice: Option<CellChoice>,
+    /// The humanoid roles of the skeleton's joints.
+    pub roles: RoleSummary,
+}
 
 /// The extent of the vertices' bounding box, metres.
 fn extent(vertices: &[DVec3]) -> DVec3 {
@@ -617,7 +646,19 @@ pub fn build(
         listed_joints(sk, &mesh, frame, &mut problems)
     };
     check_tree(&joints, &mut problems);
-    apply_limits(sk, &mut joints, &skin_x_axis, &mut problems);
+    let roles = joint_roles(sk, &joints, &mut problems);
+    let role_limits = default_limits(&joints, &roles);
+    if sk.role_limits.unwrap_or(true) {
+        for (j, l) in joints.iter_mut().zip(&role_limits) {
+            if let Some((limits, axis)) = *l {
+                j.limits = Some(limits);
+                j.bend_axis = axis;
+            }
+        }
+    }
+    let role_axis: Vec<Option<DVec3>> = role_limits.iter().map(|l| l.map(|l| l.1)).collect();
+    apply_limits(sk, &mut joints, &role_axis, &skin_x_axis, &mut problems);
+    let roles = roles_summary(&joints, &roles);
     let skeleton = finish_skeleton(joints, &mut problems);
     let markers = place_markers(&spec.markers, skeleton.as_ref(), &mut problems);
     let cell_choice = match (&skeleton, spec.bind.cell_size_m, problems.is_empty()) {
@@ -646,8 +687,8 @@ pub fn build(
         &mut problems,
     );
     match (problems.is_empty(), skeleton) {
-        (true, Some(skeleton)) => Ok((
-            Character {
+        (true, Some(skeleton)) => Ok(Built {
+            character: Character {
                 name,
                 vertices,
                 triangles: mesh.triangles,
@@ -655,11 +696,13 @@ pub fn build(
                 markers,
                 skin: None,
                 correspondences,
+                parts: mesh.parts,
             },
-            params,
+            bind: params,
             warnings,
             cell_choice,
-        )),
+            roles,
+        }),
         _ => Err(problems),
     }
 }
@@ -1002,11 +1045,42 @@ fn check_tree(joints: &[Joint], problems: &mut Vec<CharacterProblem>) {
     }
 }
 
+/// The humanoid role of each joint: recognised from the names and the tree, then
+/// `skeleton.roles` applied (an unknown joint or role name is a problem).
+fn joint_roles(
+    sk: &SkeletonSpec,
+    joints: &[Joint],
+    problems: &mut Vec<CharacterProblem>,
+) -> Vec<Option<Role>> {
+    let mut overrides = Vec::with_capacity(sk.roles.len());
+    for (name, role) in &sk.roles {
+        let Some(j) = joints.iter().position(|j| &j.name == name) else {
+            problems.push(CharacterProblem::RolesUnknownJoint {
+                joint: name.clone(),
+            });
+            continue;
+        };
+        if role.eq_ignore_ascii_case("none") {
+            overrides.push((j, None));
+        } else if let Ok(r) = role.parse::<Role>() {
+            overrides.push((j, Some(r)));
+        } else {
+            problems.push(CharacterProblem::UnknownRole {
+                joint: name.clone(),
+                role: role.clone(),
+            });
+        }
+    }
+    recognise(joints, &overrides)
+}
+
 /// Sets the limits of `skeleton.limits` on their joints, in radians, with their bend
-/// axes (given, or the skin joint's X axis).
+/// axes (given; or the role's, whose positive bend is flexion; or the skin joint's X
+/// axis).
 fn apply_limits(
     sk: &SkeletonSpec,
     joints: &mut [Joint],
+    role_axis: &[Option<DVec3>],
     skin_x_axis: &[Option<DVec3>],
     problems: &mut Vec<CharacterProblem>,
 ) {
@@ -1034,6 +1108,7 @@ fn apply_limits(
         let axis = l
             .bend_axis
             .map(DVec3::from_array)
+            .or(role_axis.get(j).copied().flatten())
             .or(skin_x_axis.get(j).copied().flatten());
         match axis {
             Some(a) if a.is_finite() && a.length() > 1e-9 => joints[j].bend_axis = a.normalize(),
@@ -1273,6 +1348,8 @@ pub fn write_character_files(
             b.cell_size_m, b.skeleton_step_m, b.w_shape, b.w_marker, b.w_skeleton, b.max_marker_distance_m
         );
     }
+    // Every limit is written: a joint free here stays free, whatever its role.
+    let _ = writeln!(toml, "[skeleton]\nrole_limits = false\n");
     let sk = &ch.skeleton;
     for j in &sk.joints {
         let _ = writeln!(toml, "[[skeleton.joints]]\nname = {:?}", j.name);

@@ -28,6 +28,41 @@ pub struct MeshData {
     pub source_positions: Vec<DVec3>,
     /// Joints of the first skin (glTF), parents before children.
     pub skin_joints: Vec<SkinJoint>,
+    /// The file's parts, in output order: every glTF triangle primitive, or every run of
+    /// an OBJ file's faces under one group.
+    pub parts: Vec<MeshPart>,
+}
+
+/// A part of a mesh as its file has it: a glTF triangle primitive, or a run of an OBJ
+/// file's kept faces under one `g` / `o` line.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MeshPart {
+    /// glTF: the node's name (else its mesh's, else `nodes[N]`), with `/K` for the
+    /// mesh's K-th primitive when it has several; OBJ: the group's names as the line
+    /// gives them (empty before any).
+    pub name: String,
+    /// Its triangles: `first_triangle .. first_triangle + triangle_count`.
+    pub first_triangle: u32,
+    pub triangle_count: u32,
+    /// Its vertices: `first_vertex .. first_vertex + vertex_count`. A glTF primitive's
+    /// own vertices, disjoint from the other parts'; an OBJ run's lowest to highest
+    /// vertex, which holds other groups' vertices too when groups share or interleave
+    /// their `v` lines.
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+}
+
+impl MeshPart {
+    /// One part holding a whole mesh of `vertices` vertices and `triangles` triangles.
+    pub fn whole(name: &str, vertices: usize, triangles: usize) -> Self {
+        Self {
+            name: name.to_string(),
+            first_triangle: 0,
+            triangle_count: triangles as u32,
+            first_vertex: 0,
+            vertex_count: vertices as u32,
+        }
+    }
 }
 
 /// A joint of a glTF skin at its bind pose.
@@ -318,6 +353,9 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
     let mut found: Vec<String> = Vec::new();
     let mut keep = groups.is_empty();
     let mut poly: Vec<u32> = Vec::new();
+    // Runs of kept faces under one group line: (names, first face).
+    let mut runs: Vec<(String, usize)> = Vec::new();
+    let mut group = String::new();
     for (ln, raw) in text.lines().enumerate() {
         let line = ln + 1;
         let err = |message: String| MeshError::Obj { line, message };
@@ -347,6 +385,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
                     }
                 }
                 keep = groups.is_empty() || names.iter().any(|n| groups.iter().any(|g| g == n));
+                group = names.join(" ");
             }
             Some("f") => {
                 poly.clear();
@@ -373,6 +412,9 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
                     return Err(err(format!("face has {} vertices, needs 3", poly.len())));
                 }
                 if keep {
+                    if runs.last().is_none_or(|(g, _)| *g != group) {
+                        runs.push((group.clone(), faces.len()));
+                    }
                     for k in 1..poly.len() - 1 {
                         faces.push([poly[0], poly[k], poly[k + 1]]);
                     }
@@ -409,11 +451,29 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
             out.push(*p);
         }
     }
+    let triangles: Vec<[u32; 3]> = faces.iter().map(|f| f.map(|i| remap[i as usize])).collect();
+    let parts = runs
+        .iter()
+        .enumerate()
+        .map(|(k, (name, first))| {
+            let end = runs.get(k + 1).map_or(triangles.len(), |r| r.1);
+            let used = triangles[*first..end].iter().flatten();
+            let (lo, hi) = used.fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+            MeshPart {
+                name: name.clone(),
+                first_triangle: *first as u32,
+                triangle_count: (end - first) as u32,
+                first_vertex: lo,
+                vertex_count: hi + 1 - lo,
+            }
+        })
+        .collect();
     Ok(MeshData {
         positions: out,
-        triangles: faces.iter().map(|f| f.map(|i| remap[i as usize])).collect(),
+        triangles,
         source_positions: positions,
         skin_joints: Vec::new(),
+        parts,
     })
 }
 
@@ -1648,15 +1708,29 @@ fn read_meshes(
             };
             let a = position_accessor(prim, layouts).map_err(err)?;
             let base = out.positions.len() as u32;
+            let first_triangle = out.triangles.len() as u32;
             let point = |b: &[u8]| {
                 let p = [le_f32(b, 0), le_f32(b, 1), le_f32(b, 2)];
                 xf.transform_point3(DVec3::from_array(p.map(f64::from)))
             };
             read_accessor(&layouts[a], a, buffers, point, &mut out.positions)?;
             let count = out.positions.len() as u32 - base;
+            let name = node.name.clone().or(mesh.name.clone());
+            let name = name.unwrap_or_else(|| format!("nodes[{n}]"));
+            let several = mesh.primitives.iter().filter(|p| is_triangles(p)).count() > 1;
+            out.parts.push(MeshPart {
+                name: if several { format!("{name}/{p}") } else { name },
+                first_triangle,
+                triangle_count: 0,
+                first_vertex: base,
+                vertex_count: count,
+            });
             let Some(ix) = prim.indices.map(|i| i.value()) else {
                 let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
                 out.triangles.extend(tris);
+                if let Some(part) = out.parts.last_mut() {
+                    part.triangle_count = out.triangles.len() as u32 - first_triangle;
+                }
                 continue;
             };
             let size = layouts[ix].component.size();
@@ -1676,6 +1750,9 @@ fn read_meshes(
                     }));
                 }
                 out.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+            }
+            if let Some(part) = out.parts.last_mut() {
+                part.triangle_count = out.triangles.len() as u32 - first_triangle;
             }
         }
     }
@@ -1903,6 +1980,63 @@ f 9 10 11
         assert_eq!((all.positions.len(), all.triangles.len()), (11, 13));
         let issues = surface_issues(&all.triangles);
         assert_eq!(issues.open_edges, 3, "the helper triangle is open");
+        let part = |name: &str, t: [u32; 2], v: [u32; 2]| MeshPart {
+            name: name.into(),
+            first_triangle: t[0],
+            triangle_count: t[1],
+            first_vertex: v[0],
+            vertex_count: v[1],
+        };
+        assert_eq!(m.parts, vec![part("cube", [0, 12], [0, 8])]);
+        assert_eq!(
+            all.parts,
+            vec![
+                part("cube", [0, 12], [0, 8]),
+                part("helper", [12, 1], [8, 3])
+            ]
+        );
+    }
+
+    /// Each triangle primitive of each mesh node is a part, named by its node (its mesh
+    /// when the node has no name), with `/K` when the mesh has several primitives.
+    #[test]
+    fn gltf_parts_are_the_primitives() {
+        let dir = tempfile::tempdir().unwrap();
+        let tri: Vec<u8> = [0f32, 0., 0., 1., 0., 0., 0., 1., 0.]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        std::fs::write(dir.path().join("b.bin"), tri.repeat(3)).unwrap();
+        let acc = |k: usize| {
+            format!(
+                r#"{{"bufferView":0,"byteOffset":{},"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}"#,
+                36 * k
+            )
+        };
+        let doc = format!(
+            r#"{{"asset":{{"version":"2.0"}},
+            "buffers":[{{"uri":"b.bin","byteLength":108}}],
+            "bufferViews":[{{"buffer":0,"byteLength":108}}],
+            "accessors":[{},{},{}],
+            "meshes":[{{"name":"bodymesh","primitives":[{{"attributes":{{"POSITION":0}}}},{{"attributes":{{"POSITION":1}}}}]}},
+                      {{"name":"eye","primitives":[{{"attributes":{{"POSITION":2}}}}]}}],
+            "nodes":[{{"name":"body","mesh":0}},{{"mesh":1}}]}}"#,
+            acc(0),
+            acc(1),
+            acc(2)
+        );
+        let m = parse_gltf(doc.as_bytes(), Some(dir.path())).unwrap();
+        let part = |name: &str, k: u32| MeshPart {
+            name: name.into(),
+            first_triangle: k,
+            triangle_count: 1,
+            first_vertex: 3 * k,
+            vertex_count: 3,
+        };
+        assert_eq!(
+            m.parts,
+            vec![part("body/0", 0), part("body/1", 1), part("eye", 2)]
+        );
     }
 
     #[test]

@@ -10,6 +10,7 @@ pub mod demo;
 pub mod file;
 pub mod mesh;
 pub mod procedural;
+pub mod roles;
 pub mod session;
 pub mod skeleton;
 
@@ -47,6 +48,9 @@ pub struct Character {
     /// Correspondences for the harmonic method given by the character file (empty: all
     /// automatic).
     pub correspondences: Vec<Correspondence>,
+    /// The mesh file's parts (glTF primitives, OBJ groups) with their vertex and triangle
+    /// ranges; a procedural character is one part.
+    pub parts: Vec<mesh::MeshPart>,
 }
 
 /// Triangles of the mesh that follow one joint's segment rigidly in the harmonic method

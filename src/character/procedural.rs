@@ -9,6 +9,7 @@
 //!
 //! Frame: metres, Y up; the hand points +Y, palm facing +Z, thumb towards −X.
 
+use super::mesh::MeshPart;
 use super::skeleton::{Joint, JointLimits, Skeleton};
 use crate::geom::lattice::{Grid, KUHN};
 use glam::{DQuat, DVec3};
@@ -154,6 +155,7 @@ pub fn hand(mesh_cell_m: f64, target_triangles: usize) -> Character {
     let markers = hand_markers(&skeleton, &sdf);
     Character {
         name: "hand".into(),
+        parts: vec![MeshPart::whole("hand", vertices.len(), triangles.len())],
         vertices,
         triangles,
         skeleton,

@@ -4,7 +4,7 @@
 //! per stage from the bound rig; the vertex stream sends it as its topology message and
 //! the Rerun sink logs it as static data.
 
-use crate::protocol::vertex_stream::Topology;
+use crate::protocol::vertex_stream::{Topology, WirePart};
 use crate::rig::bind::Rig;
 
 /// The parts of a character that do not change per frame.
@@ -30,6 +30,8 @@ pub struct Scene {
     pub control_edges: Vec<[u32; 2]>,
     /// The harmonic method's correspondences, `(vertex, joint)` (empty with ARAP).
     pub tied: Vec<(u32, u32)>,
+    /// The mesh file's parts and their vertex and triangle ranges.
+    pub parts: Vec<WirePart>,
 }
 
 impl Scene {
@@ -49,6 +51,17 @@ impl Scene {
             ),
             control_edges: tet_edges(&rig.control.tets),
             tied: Vec::new(),
+            parts: rig
+                .parts
+                .iter()
+                .map(|p| WirePart {
+                    name: p.name.clone(),
+                    first_vertex: p.first_vertex,
+                    vertex_count: p.vertex_count,
+                    first_triangle: p.first_triangle,
+                    triangle_count: p.triangle_count,
+                })
+                .collect(),
         }
     }
 
@@ -75,6 +88,7 @@ impl Scene {
                 .iter()
                 .map(|p| p.map_or(-1, |p| p as i32))
                 .collect(),
+            parts: self.parts.clone(),
         }
     }
 }

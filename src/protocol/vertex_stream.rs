@@ -11,8 +11,11 @@ use glam::Vec3;
 
 /// The four bytes every message starts with.
 pub const MAGIC: [u8; 4] = *b"RGLS";
-/// The format version this build writes and reads.
-pub const VERSION: u16 = 1;
+/// The format version this build writes; it reads this one and every earlier one
+/// ([`OLDEST_VERSION`]..=`VERSION`).
+pub const VERSION: u16 = 2;
+/// The oldest version this build reads (version 1: no parts in the topology).
+pub const OLDEST_VERSION: u16 = 1;
 /// Header length, bytes.
 pub const HEADER_LEN: usize = 12;
 /// Largest payload a reader accepts, bytes (about 5.5 million vertices per frame); a
@@ -51,6 +54,21 @@ pub struct Topology {
     pub joint_names: Vec<String>,
     /// Parent index of each joint, -1 for a root.
     pub joint_parents: Vec<i32>,
+    /// The mesh file's parts (glTF primitives, OBJ groups) with their vertex and triangle
+    /// ranges (version 2; empty from a version 1 server).
+    pub parts: Vec<WirePart>,
+}
+
+/// A part of the mesh in the topology: its name and its vertex and triangle ranges.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct WirePart {
+    pub name: String,
+    /// Vertices `first_vertex .. first_vertex + vertex_count` of every frame.
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+    /// Triangles `first_triangle .. first_triangle + triangle_count` of the topology.
+    pub first_triangle: u32,
+    pub triangle_count: u32,
 }
 
 /// Why a frame's iterations stopped (wire codes).
@@ -167,7 +185,7 @@ pub enum DecodeError {
     Incomplete { needed: usize, have: usize },
     #[error("bad magic {found:02x?} (expected \"RGLS\")")]
     BadMagic { found: [u8; 4] },
-    #[error("unsupported version {found} (this build reads {VERSION})")]
+    #[error("unsupported version {found} (this build reads {OLDEST_VERSION} to {VERSION})")]
     Version { found: u16 },
     #[error("unknown message kind {kind}")]
     UnknownKind { kind: u16 },
@@ -233,6 +251,18 @@ pub fn encode_topology(t: &Topology, out: &mut Vec<u8>) {
         put_str(out, n);
         out.extend_from_slice(&p.to_le_bytes());
     }
+    put_u32(out, t.parts.len() as u32);
+    for p in &t.parts {
+        put_str(out, &p.name);
+        for v in [
+            p.first_vertex,
+            p.vertex_count,
+            p.first_triangle,
+            p.triangle_count,
+        ] {
+            put_u32(out, v);
+        }
+    }
     finish(out, start);
 }
 
@@ -297,7 +327,7 @@ pub fn decode_header(b: &[u8]) -> Result<(u16, u32), DecodeError> {
         return Err(DecodeError::BadMagic { found });
     }
     let version = u16::from_le_bytes([b[4], b[5]]);
-    if version != VERSION {
+    if !(OLDEST_VERSION..=VERSION).contains(&version) {
         return Err(DecodeError::Version { found: version });
     }
     let kind = u16::from_le_bytes([b[6], b[7]]);
@@ -322,8 +352,9 @@ pub fn decode(b: &[u8]) -> Result<(Message, usize), DecodeError> {
         });
     }
     let payload = &b[HEADER_LEN..total];
+    let version = u16::from_le_bytes([b[4], b[5]]);
     let msg = match kind {
-        KIND_TOPOLOGY => Message::Topology(decode_topology(payload)?),
+        KIND_TOPOLOGY => Message::Topology(decode_topology(payload, version)?),
         KIND_FRAME => Message::Frame(decode_frame(payload)?),
         _ => {
             let mut r = Reader::new(payload, "goodbye");
@@ -424,7 +455,7 @@ impl<'a> Reader<'a> {
     }
 }
 
-fn decode_topology(b: &[u8]) -> Result<Topology, DecodeError> {
+fn decode_topology(b: &[u8], version: u16) -> Result<Topology, DecodeError> {
     let mut r = Reader::new(b, "topology");
     let character = r.string()?;
     let rate_hz = r.f32()?;
@@ -452,6 +483,11 @@ fn decode_topology(b: &[u8]) -> Result<Topology, DecodeError> {
         joint_names.push(r.string()?);
         joint_parents.push(r.u32()? as i32);
     }
+    let parts = if version >= 2 {
+        decode_parts(&mut r, vertex_count, triangles.len())?
+    } else {
+        Vec::new()
+    };
     r.end()?;
     Ok(Topology {
         character,
@@ -464,7 +500,39 @@ fn decode_topology(b: &[u8]) -> Result<Topology, DecodeError> {
         marker_names,
         joint_names,
         joint_parents,
+        parts,
     })
+}
+
+/// The topology's parts (version 2), each range inside the mesh.
+fn decode_parts(
+    r: &mut Reader<'_>,
+    vertex_count: u32,
+    triangle_count: usize,
+) -> Result<Vec<WirePart>, DecodeError> {
+    let n = r.count(18)?;
+    let mut parts = Vec::with_capacity(n);
+    for _ in 0..n {
+        let name = r.string()?;
+        let [first_vertex, vertex_count_p, first_triangle, triangle_count_p] =
+            [r.u32()?, r.u32()?, r.u32()?, r.u32()?];
+        let fits =
+            |first: u32, count: u32, total: u64| u64::from(first) + u64::from(count) <= total;
+        if !fits(first_vertex, vertex_count_p, vertex_count.into()) {
+            return Err(r.err("part's vertex range outside the mesh"));
+        }
+        if !fits(first_triangle, triangle_count_p, triangle_count as u64) {
+            return Err(r.err("part's triangle range outside the mesh"));
+        }
+        parts.push(WirePart {
+            name,
+            first_vertex,
+            vertex_count: vertex_count_p,
+            first_triangle,
+            triangle_count: triangle_count_p,
+        });
+    }
+    Ok(parts)
 }
 
 fn decode_frame(b: &[u8]) -> Result<WireFrame, DecodeError> {
@@ -528,6 +596,13 @@ mod tests {
             marker_names: vec!["tip".into()],
             joint_names: vec!["root".into()],
             joint_parents: vec![-1],
+            parts: vec![WirePart {
+                name: "skin".into(),
+                first_vertex: 0,
+                vertex_count: 3,
+                first_triangle: 0,
+                triangle_count: 1,
+            }],
         }
     }
 
@@ -568,7 +643,7 @@ mod tests {
     fn frame_bytes_match_the_documented_example() {
         // protocols/vertex-stream.md, "Worked example", byte for byte.
         const HEX: &str = "
-            52 47 4c 53 01 00 02 00 74 00 00 00 07 00 00 00
+            52 47 4c 53 02 00 02 00 74 00 00 00 07 00 00 00
             00 00 00 00 00 00 00 00 00 00 e0 3f 00 00 00 00
             65 cd cd 41 03 00 02 00 00 00 40 3f 00 00 00 00
             00 00 00 00 00 00 00 00 00 00 00 00 00 00 00 00
@@ -585,6 +660,47 @@ mod tests {
         assert_eq!(b, expected);
     }
 
+    /// A version 1 topology (no parts) still reads, with no parts; a version 2 part
+    /// outside the mesh is malformed.
+    #[test]
+    fn version_1_topologies_read_and_parts_are_checked() {
+        let mut t = example_topology();
+        t.parts.clear();
+        let mut b = Vec::new();
+        encode_topology(&t, &mut b);
+        // Version 2 with zero parts is version 1 and a trailing u32 count.
+        let mut v1 = b[..b.len() - 4].to_vec();
+        v1[4] = 1;
+        let len = (v1.len() - HEADER_LEN) as u32;
+        v1[8..12].copy_from_slice(&len.to_le_bytes());
+        assert_eq!(decode(&v1).unwrap().0, Message::Topology(t.clone()));
+        for (vertex_count, triangle_count) in [(4, 1), (3, 2), (u32::MAX, 1)] {
+            t.parts = vec![WirePart {
+                name: "x".into(),
+                first_vertex: 0,
+                vertex_count,
+                first_triangle: 0,
+                triangle_count,
+            }];
+            b.clear();
+            encode_topology(&t, &mut b);
+            assert!(
+                matches!(
+                    decode(&b),
+                    Err(DecodeError::Malformed {
+                        kind: "topology",
+                        ..
+                    })
+                ),
+                "{vertex_count} {triangle_count}"
+            );
+        }
+        b.clear();
+        encode_topology(&example_topology(), &mut b);
+        b[4] = 3;
+        assert_eq!(decode(&b), Err(DecodeError::Version { found: 3 }));
+    }
+
     #[test]
     fn truncation_is_incomplete_not_an_error() {
         let mut b = Vec::new();
@@ -599,7 +715,7 @@ mod tests {
 
     #[test]
     fn oversized_header_is_refused_before_reading() {
-        let mut b = b"RGLS\x01\x00\x02\x00".to_vec();
+        let mut b = b"RGLS\x02\x00\x02\x00".to_vec();
         b.extend_from_slice(&u32::MAX.to_le_bytes());
         assert_eq!(
             decode_header(&b),

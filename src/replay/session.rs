@@ -655,7 +655,10 @@ mod tests {
             let s = read_session(&b[..cut]).unwrap();
             let whole = (cut - start_len) / record_len;
             assert_eq!(s.samples.len(), 3 * whole, "cut at {cut}");
-            assert_eq!(s.warnings.is_empty(), (cut - start_len).is_multiple_of(record_len));
+            assert_eq!(
+                s.warnings.is_empty(),
+                (cut - start_len).is_multiple_of(record_len)
+            );
         }
     }
 

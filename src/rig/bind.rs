@@ -142,6 +142,8 @@ pub struct Rig {
     /// Full-resolution mesh at rest, in the file's vertex order.
     pub mesh_rest: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
+    /// The mesh file's parts, with their vertex and triangle ranges.
+    pub parts: Vec<crate::character::mesh::MeshPart>,
     pub control: TetMesh,
     pub system: ArapSystem,
     /// ARAP rows `0..n_markers` are the markers.
@@ -903,6 +905,7 @@ impl Rig {
             marker_rest: marker_rest.clone(),
             mesh_rest: ch.vertices.clone(),
             triangles: ch.triangles.clone(),
+            parts: ch.parts.clone(),
             control: lattice.control,
             system,
             n_markers: ch.markers.len(),

@@ -289,11 +289,12 @@ impl Reader<'_> {
 
 /// Pushes folded tets of a [`TetMesh`] back to a small positive volume: every tet whose
 /// signed volume is below `min_ratio` of its rest volume has its four vertices moved
-/// along the volume's gradient, by the least squared motion that brings it to that ratio
-/// (to first order: the volume constraint projection of position-based dynamics, Müller
-/// et al. 2007, Sec. 3.3, with unit masses). Moving shared vertices can tip a neighbour
-/// below the threshold, so after the first sweep over all tets the tets around every
-/// moved vertex are checked again, for at most `max_sweeps` sweeps.
+/// along the volume's gradient, by the least squared motion that brings it to twice that
+/// ratio (to first order: the volume constraint projection of position-based dynamics,
+/// Müller et al. 2007, Sec. 3.3, with unit masses, over-relaxed so that a neighbour's
+/// projection does not fold it straight back). Moving shared vertices can tip a
+/// neighbour below the threshold, so after the first sweep over all tets the tets
+/// around every moved vertex are checked again, for at most `max_sweeps` sweeps.
 ///
 /// Precomputed per mesh (rest volumes, the tets around each vertex) and allocation-free
 /// per call.
@@ -386,7 +387,10 @@ impl Untangler {
                 if norm2 <= f64::MIN_POSITIVE {
                     continue;
                 }
-                let lambda = (goal6 - v6) / norm2;
+                // Pushed past the threshold, to twice it: the slack keeps a neighbour's
+                // projection from folding it straight back (without it, tets squeezed
+                // between two limbs trade volume back and forth for hundreds of sweeps).
+                let lambda = (2.0 * goal6 - v6) / norm2;
                 positions[ia] += ga * lambda;
                 positions[ib] += gb * lambda;
                 positions[ic] += gc * lambda;

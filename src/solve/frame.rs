@@ -146,15 +146,17 @@ pub struct SolveReport {
 }
 
 /// A control tet is taken as folded below this share of its rest volume, and pushed back
-/// to it ([`crate::rig::tetmesh::Untangler`]).
+/// past it, to twice it ([`crate::rig::tetmesh::Untangler`]).
 pub const UNTANGLE_MIN_RATIO: f64 = 0.02;
 
 /// Bounds of a control vertex's volume scale.
 pub const VOLUME_SCALE_MIN: f64 = 0.8;
 pub const VOLUME_SCALE_MAX: f64 = 1.25;
 
-/// Sweeps of the untangling projection per frame at most.
-pub const UNTANGLE_MAX_SWEEPS: usize = 10;
+/// Sweeps of the untangling projection per frame at most (a sweep visits only the tets
+/// around vertices the previous one moved; a limb pressed into the trunk at the edge of
+/// its limits needs a few tens).
+pub const UNTANGLE_MAX_SWEEPS: usize = 100;
 
 /// How one frame's ARAP alternation ended.
 struct ArapRun {

@@ -138,3 +138,27 @@ impl std::io::Write for LogCapture {
         Ok(())
     }
 }
+
+/// A small topology (no rig needed) for the stream server tests: one triangle, two
+/// markers, one joint, one part.
+pub fn tiny_topology() -> rigless::protocol::vertex_stream::Topology {
+    rigless::protocol::vertex_stream::Topology {
+        character: "tiny".into(),
+        rate_hz: 100.0,
+        length_unit: "m".into(),
+        up_axis: "+Y".into(),
+        handedness: "right".into(),
+        vertex_count: 3,
+        triangles: vec![[0, 1, 2]],
+        marker_names: vec!["A".into(), "B".into()],
+        joint_names: vec!["root".into()],
+        joint_parents: vec![-1],
+        parts: vec![rigless::protocol::vertex_stream::WirePart {
+            name: "tiny".into(),
+            first_vertex: 0,
+            vertex_count: 3,
+            first_triangle: 0,
+            triangle_count: 1,
+        }],
+    }
+}

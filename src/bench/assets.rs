@@ -1,0 +1,175 @@
+//! Real assets of the shared data folder as character files, for the benchmarks and the
+//! golden tests: the MakeHuman base mesh with a skeleton taken from its own
+//! `default.mhskel`, and the skinned glTF samples; and a big mesh made from one of them
+//! by midpoint subdivision (Jacobson's and de Aguiar's largest test meshes are about
+//! 170,000 vertices; the data folder has none that big).
+
+use crate::character::file::{load_character, CharacterError, LoadedCharacter};
+use crate::character::mesh::MeshPart;
+use crate::geom::shapes::subdivide_midpoint;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Why an asset could not be prepared.
+#[derive(Debug, thiserror::Error)]
+pub enum AssetError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: {problem}")]
+    Skeleton { path: String, problem: String },
+    #[error(transparent)]
+    Character(#[from] CharacterError),
+}
+
+/// The MakeHuman character file for the mesh groups `groups` (empty: every group),
+/// written in `dir`: 28 joints placed as MakeHuman's own skeleton places them (means of
+/// listed vertices of `default.mhskel`), hinge limits on the knees and elbows, a marker
+/// on every bone but the hands', feet's and head's ends. `None` when the data folder has
+/// no MakeHuman mesh.
+pub fn makehuman_file(
+    data: &Path,
+    groups: &[&str],
+    dir: &Path,
+) -> Result<Option<PathBuf>, AssetError> {
+    let (obj, skel) = (
+        data.join("meshes/makehuman/base.obj"),
+        data.join("meshes/makehuman/default.mhskel"),
+    );
+    if !(obj.is_file() && skel.is_file()) {
+        return Ok(None);
+    }
+    let shown = skel.display().to_string();
+    let text = std::fs::read_to_string(&skel).map_err(|source| AssetError::Io {
+        path: shown.clone(),
+        source,
+    })?;
+    let mh: serde_json::Value = serde_json::from_str(&text).map_err(|e| AssetError::Skeleton {
+        path: shown.clone(),
+        problem: e.to_string(),
+    })?;
+    let verts = |key: &str| -> Result<Vec<u64>, AssetError> {
+        mh["joints"][key]
+            .as_array()
+            .and_then(|a| a.iter().map(serde_json::Value::as_u64).collect())
+            .ok_or_else(|| AssetError::Skeleton {
+                path: shown.clone(),
+                problem: format!("no joint {key:?} with vertex indices"),
+            })
+    };
+    // (our joint, its parent, MakeHuman joint whose vertices give the position)
+    let mut joints: Vec<(String, Option<String>, String)> = [
+        ("root", None, "root____head"),
+        ("spine", Some("root"), "spine03____head"),
+        ("chest", Some("spine"), "spine01____head"),
+        ("neck", Some("chest"), "neck01____head"),
+        ("head", Some("neck"), "head____head"),
+        ("head_top", Some("head"), "head____tail"),
+    ]
+    .into_iter()
+    .map(|(a, b, c)| (a.to_string(), b.map(str::to_string), c.to_string()))
+    .collect();
+    for s in ["L", "R"] {
+        // (our joint, its parent, MakeHuman bone whose head is the joint)
+        let limbs = [
+            ("clavicle", "chest", "clavicle"),
+            ("upperarm", "clavicle", "upperarm01"),
+            ("forearm", "upperarm", "lowerarm01"),
+            ("hand", "forearm", "wrist"),
+            ("thigh", "root", "upperleg01"),
+            ("shin", "thigh", "lowerleg01"),
+            ("foot", "shin", "foot"),
+        ];
+        for (name, parent, mhb) in limbs {
+            let parent = match parent {
+                "chest" | "root" => parent.to_string(),
+                p => format!("{p}.{s}"),
+            };
+            joints.push((
+                format!("{name}.{s}"),
+                Some(parent),
+                format!("{mhb}.{s}____head"),
+            ));
+        }
+        for (end, of, bone) in [("hand_end", "hand", "wrist"), ("toe", "foot", "foot")] {
+            joints.push((
+                format!("{end}.{s}"),
+                Some(format!("{of}.{s}")),
+                format!("{bone}.{s}____tail"),
+            ));
+        }
+    }
+    let groups: Vec<String> = groups.iter().map(|g| format!("{g:?}")).collect();
+    let mut t = format!(
+        "name = \"makehuman\"\n[mesh]\npath = {obj:?}\nunits = \"dm\"\ngroups = [{}]\n",
+        groups.join(", ")
+    );
+    for (name, parent, key) in &joints {
+        let _ = writeln!(t, "\n[[skeleton.joints]]\nname = {name:?}");
+        if let Some(p) = parent {
+            let _ = writeln!(t, "parent = {p:?}");
+        }
+        let _ = writeln!(t, "rest_vertices = {:?}", verts(key)?);
+    }
+    for s in ["L", "R"] {
+        let _ = writeln!(
+            t,
+            "\n[skeleton.limits.\"shin.{s}\"]\ntwist_deg = [-5, 5]\nbend_deg = [0, 120]\nside_deg = [-3, 3]\nbend_axis = [-1, 0, 0]"
+        );
+        let _ = writeln!(
+            t,
+            "\n[skeleton.limits.\"forearm.{s}\"]\ntwist_deg = [-60, 60]\nbend_deg = [0, 130]\nside_deg = [-3, 3]\nbend_axis = [0, 0, 1]"
+        );
+    }
+    for (name, _, _) in &joints {
+        if !name.ends_with("_top") && !name.starts_with("hand_end") && !name.starts_with("toe") {
+            let _ = writeln!(t, "\n[[markers]]\nname = \"m_{name}\"\nbone = {name:?}");
+        }
+    }
+    let path = dir.join("makehuman.toml");
+    std::fs::write(&path, t).map_err(|source| AssetError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    Ok(Some(path))
+}
+
+/// A character file with only the mesh (skeleton and roles from its skin), written in
+/// `dir` for the glTF file `glb`.
+pub fn gltf_file(glb: &Path, dir: &Path) -> Result<PathBuf, AssetError> {
+    let path = dir.join(format!(
+        "{}.toml",
+        glb.file_stem()
+            .map_or("asset".into(), |s| s.to_string_lossy())
+    ));
+    std::fs::write(&path, format!("[mesh]\npath = {glb:?}\n")).map_err(|source| {
+        AssetError::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    })?;
+    Ok(path)
+}
+
+/// Loads a character file and subdivides its mesh `levels` times (each triangle into
+/// four at its edges' midpoints, so the shape is unchanged); the skeleton, limits and
+/// markers are the file's.
+pub fn load_subdivided(path: &Path, levels: usize) -> Result<LoadedCharacter, AssetError> {
+    let mut loaded = load_character(path)?;
+    for _ in 0..levels {
+        let ch = &mut loaded.character;
+        (ch.vertices, ch.triangles) = subdivide_midpoint(&ch.vertices, &ch.triangles);
+        // Triangle indices of the harmonic method's correspondences, and the parts'
+        // ranges, no longer apply.
+        ch.correspondences.clear();
+        ch.parts = vec![MeshPart::whole(
+            &ch.name,
+            ch.vertices.len(),
+            ch.triangles.len(),
+        )];
+        ch.name = format!("{}-subdivided", ch.name.trim_end_matches("-subdivided"));
+    }
+    Ok(loaded)
+}
