@@ -25,7 +25,9 @@ use std::time::{Duration, Instant};
 /// How long the exercise plays.
 #[derive(Clone, Copy, Debug)]
 pub struct ExerciseOptions {
-    /// Seconds for each joint's own range of motion.
+    /// Seconds for each joint's own range of motion (default 3: a knee to 150° and back
+    /// peaks near 160°/s, an actor's calibration pace; at 2 s the sweeps' fastest frames,
+    /// not the mesh, set the frame time's tail).
     pub seconds_per_joint: f64,
     /// Seconds of every joint moving together, at the end.
     pub combined_seconds: f64,
@@ -36,7 +38,7 @@ pub struct ExerciseOptions {
 impl Default for ExerciseOptions {
     fn default() -> Self {
         Self {
-            seconds_per_joint: 2.0,
+            seconds_per_joint: 3.0,
             combined_seconds: 4.0,
             rate_hz: 120.0,
         }

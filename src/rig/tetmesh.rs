@@ -9,6 +9,7 @@
 use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use glam::DVec3;
 use std::path::Path;
+use std::time::Instant;
 
 /// A tetrahedral mesh in metres (or the file's units for benchmark meshes).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -287,6 +288,15 @@ impl Reader<'_> {
     }
 }
 
+/// How many sweeps [`Untangler::run`] makes: `min` at least, then until `deadline` (if
+/// any), `max` at most.
+#[derive(Clone, Copy, Debug)]
+pub struct Sweeps {
+    pub min: usize,
+    pub max: usize,
+    pub deadline: Option<Instant>,
+}
+
 /// Pushes folded tets of a [`TetMesh`] back to a small positive volume: every tet whose
 /// signed volume is below `min_ratio` of its rest volume has its four vertices moved
 /// along the volume's gradient, by the least squared motion that brings it to twice that
@@ -294,7 +304,8 @@ impl Reader<'_> {
 /// Müller et al. 2007, Sec. 3.3, with unit masses, over-relaxed so that a neighbour's
 /// projection does not fold it straight back). Moving shared vertices can tip a
 /// neighbour below the threshold, so after the first sweep over all tets the tets
-/// around every moved vertex are checked again, for at most `max_sweeps` sweeps.
+/// around every moved vertex are checked again: `sweeps.min` sweeps at least, then
+/// until the deadline, `sweeps.max` at most.
 ///
 /// Precomputed per mesh (rest volumes, the tets around each vertex) and allocation-free
 /// per call.
@@ -358,12 +369,16 @@ impl Untangler {
         mesh: &TetMesh,
         positions: &mut [DVec3],
         min_ratio: f64,
-        max_sweeps: usize,
+        sweeps: Sweeps,
     ) -> usize {
         let mut projections = 0;
         self.check.clear();
         self.check.extend(0..mesh.tets.len() as u32);
-        for sweep in 0..max_sweeps as u32 {
+        for sweep in 0..sweeps.max as u32 {
+            if sweep as usize >= sweeps.min && sweeps.deadline.is_some_and(|d| Instant::now() >= d)
+            {
+                break;
+            }
             self.next.clear();
             for &t in &self.check {
                 let t = t as usize;
@@ -444,6 +459,12 @@ mod tests {
         .unwrap()
     }
 
+    const TEN: Sweeps = Sweeps {
+        min: 10,
+        max: 10,
+        deadline: None,
+    };
+
     #[test]
     fn untangling_leaves_good_tets_alone_and_unfolds_a_folded_one() {
         let m = two_tets();
@@ -451,12 +472,12 @@ mod tests {
         let rest6 = u.rest6.clone();
         assert!(rest6.iter().all(|v| *v > 0.0));
         let mut p = m.positions.clone();
-        assert_eq!(u.run(&m, &mut p, 0.02, 10), 0);
+        assert_eq!(u.run(&m, &mut p, 0.02, TEN), 0);
         assert_eq!(p, m.positions);
         // Push apex 4 through the shared face: that tet folds to −30 % of its volume.
         p[4] = DVec3::new(0.2, 0.2, -0.3);
         assert_eq!(m.inverted_tets(&p), 1);
-        let n = u.run(&m, &mut p, 0.02, 10);
+        let n = u.run(&m, &mut p, 0.02, TEN);
         assert!(n >= 1);
         assert_eq!(m.inverted_tets(&p), 0);
         for (t, r6) in m.tets.iter().zip(&rest6) {

@@ -26,10 +26,10 @@ use crate::geom::polar::{extract_rotation, rotation_angle_between};
 use crate::markers::MarkerFrame;
 use crate::rig::bind::Rig;
 use crate::rig::green::GreenScratch;
-use crate::rig::tetmesh::Untangler;
+use crate::rig::tetmesh::{Sweeps, Untangler};
 use glam::{DMat3, DQuat, DVec3};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Which deformation follows the skeleton step (`solver.method` in a stage, `--method`
 /// on the command line).
@@ -153,10 +153,14 @@ pub const UNTANGLE_MIN_RATIO: f64 = 0.02;
 pub const VOLUME_SCALE_MIN: f64 = 0.8;
 pub const VOLUME_SCALE_MAX: f64 = 1.25;
 
-/// Sweeps of the untangling projection per frame at most (a sweep visits only the tets
-/// around vertices the previous one moved; a limb pressed into the trunk at the edge of
-/// its limits needs a few tens).
-pub const UNTANGLE_MAX_SWEEPS: usize = 100;
+/// Sweeps of the untangling projection per frame: at least the first (also on a frame
+/// whose iterations ran to the deadline: a folded tet must not reach the mesh), then
+/// until the deadline (less the full-mesh update's time), at most the second. A sweep
+/// visits only the tets around vertices the previous one moved, so a hundred sweeps
+/// around a few folded tets cost tens of microseconds; a limb pressed into the trunk at
+/// the edge of its limits needs a few hundred.
+pub const UNTANGLE_MIN_SWEEPS: usize = 100;
+pub const UNTANGLE_MAX_SWEEPS: usize = 1000;
 
 /// How one frame's ARAP alternation ended.
 struct ArapRun {
@@ -205,6 +209,9 @@ pub struct Solver {
     segment_pos: Vec<DVec3>,
     /// Pushes folded control tets back after the iterations.
     untangler: Untangler,
+    /// The last frame's full-mesh update, seconds: kept free before the deadline when
+    /// untangling.
+    last_gc_s: f64,
     /// Volume restoration: per control vertex, six times the rest volume of its tets,
     /// the same now (scratch), and its scale `s_i` (carried across frames).
     vertex_rest6: Vec<f64>,
@@ -274,6 +281,7 @@ impl Solver {
             harmonic: None,
             clusters,
             untangler,
+            last_gc_s: 0.0,
             vertex_rest6,
             vertex_now6: vec![0.0; n_control],
             volume_scale: vec![1.0; n_control],
@@ -385,12 +393,13 @@ impl Solver {
         // 3. ARAP alternation.
         let arap = self.arap_iterations(&rig, deadline);
         // 4. Untangling.
-        let untangled = self.untangle(&rig);
+        let untangled = self.untangle(&rig, deadline);
         let (sum2, max2) = self.marker_residuals(&rig);
         let jlv = self.joint_limit_violation();
         let t1 = Instant::now();
         self.write_mesh(vertices_out);
         let t2 = Instant::now();
+        self.last_gc_s = (t2 - t1).as_secs_f64();
         SolveReport {
             trace: arap.trace,
             trace_len: arap.trace_len,
@@ -405,7 +414,7 @@ impl Solver {
             marker_residual_rms_mm: (sum2 / nm.max(1) as f64).sqrt() * 1e3,
             marker_residual_max_mm: max2.sqrt() * 1e3,
             solve_ms: (t1 - t0).as_secs_f64() * 1e3,
-            gc_ms: (t2 - t1).as_secs_f64() * 1e3,
+            gc_ms: self.last_gc_s * 1e3,
             untangled,
         }
     }
@@ -597,14 +606,20 @@ impl Solver {
     }
 
     /// Step 4, untangling: pushes folded control tets back; returns the projections made.
-    fn untangle(&mut self, rig: &Rig) -> usize {
+    fn untangle(&mut self, rig: &Rig, deadline: Instant) -> usize {
         // Per-vertex ARAP can fold a few tets at strongly flexed creases (the minimum of
-        // its energy, not early stopping): push them back before the mesh is read.
+        // its energy, not early stopping): push them back before the mesh is read, with
+        // the time the full-mesh update needs kept free.
+        let gc = Duration::from_secs_f64(self.last_gc_s);
         self.untangler.run(
             &rig.control,
             &mut self.st.positions,
             UNTANGLE_MIN_RATIO,
-            UNTANGLE_MAX_SWEEPS,
+            Sweeps {
+                min: UNTANGLE_MIN_SWEEPS,
+                max: UNTANGLE_MAX_SWEEPS,
+                deadline: deadline.checked_sub(gc),
+            },
         )
     }
 
