@@ -8,7 +8,8 @@ use std::path::PathBuf;
 pub struct BenchArgs {
     /// Which suite: `capsules` (plain ARAP on the benchmark tet meshes of the shared data
     /// folder), `characters` (the procedural hand and body playing their motions, both
-    /// methods), `gapfill` (the marker buffer's fill error by gap length, on synthetic
+    /// methods; then the data folder's real assets, one subdivided to 157,070 vertices,
+    /// through `bake --exercise`'s range of motion), `gapfill` (the marker buffer's fill error by gap length, on synthetic
     /// sessions and the shared data folder's recordings), `live` (the whole pipeline in
     /// real time: latency from input to client, missed ticks, Rerun on and off, 50
     /// clients), `codecs` (decode cost per packet of each input format, 50 markers), or
@@ -18,7 +19,7 @@ pub struct BenchArgs {
     /// Print one JSON object per line instead of a table.
     #[arg(long)]
     json: bool,
-    /// The shared data folder (holds `tetmesh/`, `hand/`, `c3d/`).
+    /// The shared data folder (holds `tetmesh/`, `hand/`, `c3d/`, `meshes/`).
     #[arg(long, default_value = "../shared/data")]
     data: PathBuf,
     /// Seconds per case of the `live` and `replay` suites.
