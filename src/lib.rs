@@ -36,6 +36,8 @@
 //!   config, the replay sender, the bundled sessions.
 //! - [`protocol`]: pure codecs and endpoint URLs: bytes in and out, no sockets, no
 //!   solver or marker types.
+//! - [`calibrate`]: fitting a take's marker layout onto a character (the marker-set
+//!   tables that place each label on a humanoid part).
 //! - [`solve`]: per-frame math (ARAP, posture fit, harmonic method, metrics) and the
 //!   solver's config; no I/O.
 //! - [`rig`]: offline binding (lattice, weights, Green coordinates, the precomputed
@@ -48,6 +50,7 @@
 //!   the clock, latest-value slots, socket waits, statistics.
 
 pub mod bench;
+pub mod calibrate;
 pub mod character;
 pub mod config;
 pub mod daemon;

@@ -238,6 +238,10 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
             "source_clock_untrusted": s.source_clock_untrusted,
             "stopped": s.stopped.reason(),
             "inputs": s.inputs,
+            "labels_fed": s.labels_fed,
+            "labels_ignored": s.labels_ignored,
+            "marker_residual_mm_rms": s.status.marker_residual_mm_rms,
+            "marker_residual_mm_max": s.status.marker_residual_mm_max,
             "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
             "rerun": s.rerun,
         });
@@ -265,6 +269,13 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
         "markers: {:.1} % measured, {:.1} % predicted, {:.1} % rigid-filled, {:.1} % held; {} samples, {} occluded, {} outside the stage volume, {} gated ({} label swaps), {} re-acquired, {} fills outside the volume held",
         pct(0), pct(1), pct(2), pct(3), b.accepted + b.occluded, b.occluded, b.implausible, b.gate_rejected, b.label_swaps, b.reacquired, b.implausible_fills
     );
+    println!(
+        "marker residual over the run: RMS {:.2} mm, max {:.2} mm",
+        st.marker_residual_mm_rms, st.marker_residual_mm_max
+    );
+    if let (Some(fed), Some(ignored)) = (s.labels_fed, s.labels_ignored) {
+        println!("labels: {fed} fed a marker, {ignored} ignored (no such marker)");
+    }
     println!("stream: {}", serde_json::to_string(&s.stream)?);
     for line in &s.inputs {
         println!("input {line}");

@@ -56,6 +56,10 @@ pub struct LoopStatus {
     pub buffer: crate::markers::buffer::BufferCounters,
     /// Samples the session recorder had no room for, in all.
     pub record_dropped: u64,
+    /// Marker residual (distance from each marker to its bound point on the solved
+    /// mesh) over every frame so far: RMS and largest, mm.
+    pub marker_residual_mm_rms: f64,
+    pub marker_residual_mm_max: f64,
 }
 
 /// One frame's outcome.
@@ -89,6 +93,11 @@ pub struct Pipeline {
     window_solve_ms: Vec<f64>,
     window_at: usize,
     deadline_stops: u64,
+    /// Sum over frames of the squared marker residual RMS (mm²), the frames summed (those
+    /// with a finite residual), and the largest residual (mm).
+    residual_sq_sum: f64,
+    residual_frames: u64,
+    residual_max_mm: f64,
     interval_frames: u64,
     interval_iterations: u64,
     /// Joint angles from a glove source, the version last copied, and the copy.
@@ -126,6 +135,9 @@ impl Pipeline {
             window_solve_ms: Vec::with_capacity(WINDOW_LEN),
             window_at: 0,
             deadline_stops: 0,
+            residual_sq_sum: 0.0,
+            residual_frames: 0,
+            residual_max_mm: 0.0,
             interval_frames: 0,
             interval_iterations: 0,
             pin_slot: None,
@@ -276,6 +288,11 @@ impl Pipeline {
         }
         self.window_at = (self.window_at + 1) % WINDOW_LEN;
         self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
+        if solve.marker_residual_rms_mm.is_finite() {
+            self.residual_sq_sum += solve.marker_residual_rms_mm * solve.marker_residual_rms_mm;
+            self.residual_frames += 1;
+            self.residual_max_mm = self.residual_max_mm.max(solve.marker_residual_max_mm);
+        }
         self.interval_frames += 1;
         self.interval_iterations += solve.iterations as u64;
         let report = TickReport {
@@ -351,6 +368,9 @@ impl Pipeline {
             samples: self.samples,
             buffer: *self.buffer.counters(),
             record_dropped: self.record_dropped,
+            marker_residual_mm_rms: (self.residual_sq_sum / self.residual_frames.max(1) as f64)
+                .sqrt(),
+            marker_residual_mm_max: self.residual_max_mm,
         };
         self.interval_frames = 0;
         self.interval_iterations = 0;

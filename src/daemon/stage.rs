@@ -140,6 +140,8 @@ pub struct InputInfo {
     pub opened: String,
     pub warnings: Vec<String>,
     pub local_addr: Option<SocketAddr>,
+    /// A recording's labels that feed a marker, and those ignored (replay inputs).
+    pub label_counts: Option<(usize, usize)>,
 }
 
 /// Why a stage stopped.
@@ -180,6 +182,10 @@ pub struct Summary {
     pub source_clock_untrusted: Vec<u64>,
     /// Each input's closing line (what it received), or its error.
     pub inputs: Vec<String>,
+    /// The replayed recordings' labels that fed a marker, and those ignored (no such
+    /// marker); `None` without a replay input.
+    pub labels_fed: Option<usize>,
+    pub labels_ignored: Option<usize>,
     pub stream: StreamSummary,
     /// The session file and the samples written to it.
     pub recorded: Option<(PathBuf, u64)>,
@@ -601,7 +607,18 @@ impl Stage {
         let sum = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).sum();
         let each = |f: fn(&SourceCounters) -> u64| self.counters.iter().map(|c| f(c)).collect();
         let s = &self.stream_stats;
+        let labels: Vec<(usize, usize)> = self
+            .info
+            .inputs
+            .iter()
+            .filter_map(|i| i.label_counts)
+            .collect();
+        let label_sum = |f: fn(&(usize, usize)) -> usize| {
+            (!labels.is_empty()).then(|| labels.iter().map(f).sum())
+        };
         Ok(Summary {
+            labels_fed: label_sum(|l| l.0),
+            labels_ignored: label_sum(|l| l.1),
             status: status?,
             stopped,
             source_samples: sum(|c| c.samples.load(Ordering::Relaxed)),
@@ -630,6 +647,7 @@ impl InputInfo {
             opened: i.opened(),
             warnings: i.warnings(),
             local_addr: i.local_addr(),
+            label_counts: i.label_counts(),
         }
     }
 }

@@ -196,6 +196,15 @@ impl Input {
         }
     }
 
+    /// A recording's labels that feed a marker, and those ignored (`None` for inputs
+    /// whose names arrive with the packets).
+    pub fn label_counts(&self) -> Option<(usize, usize)> {
+        match &self.source {
+            Source::Replay(i) => Some(i.label_counts()),
+            _ => None,
+        }
+    }
+
     /// The local address of a socket input.
     pub fn local_addr(&self) -> Option<SocketAddr> {
         match &self.source {

@@ -90,6 +90,12 @@ impl ReplayInput {
         )
     }
 
+    /// The recording's labels that feed a marker, and those ignored (no such marker).
+    pub fn label_counts(&self) -> (usize, usize) {
+        let ignored = self.map.unmatched_labels.len();
+        (self.rec.labels.len() - ignored, ignored)
+    }
+
     /// What the reader tolerated, the labels ignored, and the markers left held.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = self.rec.warnings.clone();
