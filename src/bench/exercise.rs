@@ -102,7 +102,16 @@ fn moving_joints(sk: &Skeleton) -> Vec<usize> {
 pub fn exercise_pose(sk: &Skeleton, moving: &[usize], seconds_per_joint: f64, t_s: f64) -> Pose {
     let slot = (t_s / seconds_per_joint).floor();
     if slot >= moving.len() as f64 || slot < 0.0 {
-        return flex_pose(sk, t_s - moving.len() as f64 * seconds_per_joint);
+        // Every joint together, eased in from rest over the first second (flex_pose
+        // starts mid-swing).
+        let t = t_s - moving.len() as f64 * seconds_per_joint;
+        let mut pose = flex_pose(sk, t);
+        let w = t.clamp(0.0, 1.0);
+        for q in &mut pose.local {
+            *q = DQuat::IDENTITY.slerp(*q, w);
+        }
+        pose.root_offset *= w;
+        return pose;
     }
     let mut local = vec![DQuat::IDENTITY; sk.len()];
     let j = moving[slot as usize];
@@ -155,6 +164,12 @@ pub fn exercise(
     opts: ExerciseOptions,
     progress: &mut dyn FnMut(f64),
 ) -> Result<ExerciseReport, BindError> {
+    // A rate or a slot too small to play would divide by zero below.
+    let opts = ExerciseOptions {
+        seconds_per_joint: opts.seconds_per_joint.max(0.01),
+        combined_seconds: opts.combined_seconds.max(0.0),
+        rate_hz: opts.rate_hz.max(1.0),
+    };
     let made = ch.markers.is_empty();
     let with_markers;
     let ch = if made {
@@ -221,7 +236,11 @@ pub fn exercise(
         green_t.push(Duration::from_secs_f64(r.gc_ms / 1e3));
         let cp = solver.control_positions();
         rep.inverted_tets_max = rep.inverted_tets_max.max(rig.control.inverted_tets(cp));
-        let vol = (rig.control.volume(cp) - rest_volume).abs() / rest_volume;
+        let vol = if rest_volume > 0.0 {
+            (rig.control.volume(cp) - rest_volume).abs() / rest_volume
+        } else {
+            0.0
+        };
         rep.volume_error_max = rep.volume_error_max.max(vol);
         rep.joint_limit_violation_deg_max = rep
             .joint_limit_violation_deg_max

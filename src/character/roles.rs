@@ -251,11 +251,21 @@ fn digit_word(x: &str) -> Option<Digit> {
 fn read_words(w: &[String], zero_based_fingers: bool) -> Said {
     let has = |x: &str| w.iter().any(|y| y == x);
     let any = |xs: &[&str]| xs.iter().any(|x| has(x));
-    if any(&["twist", "roll", "helper", "ik", "pole", "target", "ctrl"]) {
+    if any(&[
+        "twist", "roll", "helper", "ik", "pole", "target", "ctrl", "eye", "eyeball", "skirt",
+        "hair", "bust", "breast", "sec", "cloth", "tail", "jaw", "tongue",
+    ]) {
         return Said::Nothing;
     }
     if any(&["end", "tip", "nub", "top", "headtop", "null"]) {
         return Said::End;
+    }
+    // Feet first: DAZ's `lSmallToe1` and `left_foot_index` are not fingers.
+    if any(&["toe", "toes", "toebase"]) {
+        return Said::Part(Part::Toes, 2);
+    }
+    if any(&["foot", "ankle"]) && !any(&["finger"]) {
+        return Said::Part(Part::Foot, 3);
     }
     // A finger: a digit word, or `finger` followed by its number (MakeHuman `finger2-1`
     // from 1 = thumb; Biped `Finger0` from 0 = thumb; the number's first figure).
@@ -399,6 +409,7 @@ pub fn recognise(joints: &[Joint], overrides: &[(usize, Option<Role>)]) -> Vec<O
     }
     chain_roles(joints, &said, &side, &children, &mut roles);
     keep_surest(&depth, &mut roles);
+    shoulder_as_upper_arm(&children, &mut roles);
     if !roles.iter().flatten().any(|(r, _)| r.part == Part::Hips) {
         if let Some(root) = (0..n).find(|&i| joints[i].parent.is_none()) {
             let weak = roles[root].is_none_or(|(r, _)| r.part == Part::Spine);
@@ -516,6 +527,42 @@ fn chain_roles(
                     side: side[k],
                 },
                 if chain.len() == 1 { 2 } else { 1 },
+            ));
+        }
+    }
+}
+
+/// Where a side has no upper arm, a shoulder whose child is that side's lower arm is the
+/// upper arm (SMPL's `L_Collar → L_Shoulder → L_Elbow`, Kinect's `ShoulderLeft →
+/// ElbowLeft`: there "shoulder" names the shoulder joint, not the clavicle).
+fn shoulder_as_upper_arm(children: &[Vec<usize>], roles: &mut [Option<(Role, u8)>]) {
+    for side in [Some(Side::Left), Some(Side::Right), None] {
+        let has = |roles: &[Option<(Role, u8)>], part| {
+            roles
+                .iter()
+                .flatten()
+                .any(|(r, _)| r.part == part && r.side == side)
+        };
+        if has(roles, Part::UpperArm) {
+            continue;
+        }
+        let lower = Role {
+            part: Part::LowerArm,
+            side,
+        };
+        let shoulder = (0..roles.len()).find(|&i| {
+            roles[i].is_some_and(|(r, _)| r.part == Part::Shoulder && r.side == side)
+                && children[i]
+                    .iter()
+                    .any(|&c| roles[c].is_some_and(|(r, _)| r == lower))
+        });
+        if let Some(i) = shoulder {
+            roles[i] = Some((
+                Role {
+                    part: Part::UpperArm,
+                    side,
+                },
+                2,
             ));
         }
     }
@@ -1246,6 +1293,36 @@ mod tests {
                 ("Skeleton_arm_joint_R__3_", "rightHand"),
             ],
         );
+    }
+
+    /// SMPL's shoulder is the shoulder joint; toes and eyes are not fingers or toes.
+    #[test]
+    fn schemes_where_words_mean_other_things() {
+        let joints = names_tree(&[
+            ("Pelvis", None),
+            ("Spine3", Some("Pelvis")),
+            ("L_Collar", Some("Spine3")),
+            ("L_Shoulder", Some("L_Collar")),
+            ("L_Elbow", Some("L_Shoulder")),
+            ("L_Wrist", Some("L_Elbow")),
+            ("lSmallToe1", Some("Pelvis")),
+            ("left_foot_index", Some("Pelvis")),
+            ("EyeBall_L", Some("Spine3")),
+            ("J_Sec_L_SkirtBack0_01", Some("Pelvis")),
+        ]);
+        let roles = recognise(&joints, &[]);
+        for (name, want) in [
+            ("L_Collar", "leftShoulder"),
+            ("L_Shoulder", "leftUpperArm"),
+            ("L_Elbow", "leftLowerArm"),
+            ("L_Wrist", "leftHand"),
+            ("lSmallToe1", "leftToes"),
+            ("left_foot_index", "leftFoot"),
+            ("EyeBall_L", "-"),
+            ("J_Sec_L_SkirtBack0_01", "-"),
+        ] {
+            assert_eq!(role_of(&joints, &roles, name), want, "{name}");
+        }
     }
 
     #[test]

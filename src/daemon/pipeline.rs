@@ -7,7 +7,7 @@
 //! allocate once warm: published frames come back to a pool when every sink has let go.
 
 use crate::markers::buffer::MarkerBuffer;
-use crate::markers::{MarkerFrame, MarkerSample};
+use crate::markers::{FillState, MarkerFrame, MarkerSample};
 use crate::output::frame::DeformedFrame;
 use crate::protocol::vertex_stream::StopCode;
 use crate::rig::bind::Rig;
@@ -288,7 +288,10 @@ impl Pipeline {
         }
         self.window_at = (self.window_at + 1) % WINDOW_LEN;
         self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
-        if solve.marker_residual_rms_mm.is_finite() {
+        // Ticks with no marker in view (before a replay starts, after it ends) say nothing
+        // of the fit.
+        let in_view = self.markers.states.iter().any(|s| *s != FillState::Held);
+        if in_view && solve.marker_residual_rms_mm.is_finite() {
             self.residual_sq_sum += solve.marker_residual_rms_mm * solve.marker_residual_rms_mm;
             self.residual_frames += 1;
             self.residual_max_mm = self.residual_max_mm.max(solve.marker_residual_max_mm);

@@ -22,6 +22,11 @@ pub const HEADER_LEN: usize = 12;
 /// header announcing more is an error before anything is allocated.
 pub const MAX_PAYLOAD_LEN: u32 = 64 << 20;
 
+/// Most items a decoder reserves room for up front: a count read from the bytes is
+/// checked against the payload's length, but an item in memory (a `String`, 24 bytes
+/// and more) may be larger than its encoding (2 bytes), so larger lists grow as read.
+const INITIAL_CAPACITY: usize = 4096;
+
 /// Message kinds.
 pub const KIND_TOPOLOGY: u16 = 1;
 pub const KIND_FRAME: u16 = 2;
@@ -464,7 +469,7 @@ fn decode_topology(b: &[u8], version: u16) -> Result<Topology, DecodeError> {
     let handedness = r.string()?;
     let vertex_count = r.u32()?;
     let nt = r.count(12)?;
-    let mut triangles = Vec::with_capacity(nt);
+    let mut triangles = Vec::with_capacity(nt.min(INITIAL_CAPACITY));
     for _ in 0..nt {
         let tri = [r.u32()?, r.u32()?, r.u32()?];
         if tri.iter().any(|&i| i >= vertex_count) {
@@ -473,12 +478,15 @@ fn decode_topology(b: &[u8], version: u16) -> Result<Topology, DecodeError> {
         triangles.push(tri);
     }
     let nm = r.count(2)?;
-    let mut marker_names = Vec::with_capacity(nm);
+    let mut marker_names = Vec::with_capacity(nm.min(INITIAL_CAPACITY));
     for _ in 0..nm {
         marker_names.push(r.string()?);
     }
     let nj = r.count(6)?;
-    let (mut joint_names, mut joint_parents) = (Vec::with_capacity(nj), Vec::with_capacity(nj));
+    let (mut joint_names, mut joint_parents) = (
+        Vec::with_capacity(nj.min(INITIAL_CAPACITY)),
+        Vec::with_capacity(nj.min(INITIAL_CAPACITY)),
+    );
     for _ in 0..nj {
         joint_names.push(r.string()?);
         joint_parents.push(r.u32()? as i32);
@@ -511,7 +519,7 @@ fn decode_parts(
     triangle_count: usize,
 ) -> Result<Vec<WirePart>, DecodeError> {
     let n = r.count(18)?;
-    let mut parts = Vec::with_capacity(n);
+    let mut parts = Vec::with_capacity(n.min(INITIAL_CAPACITY));
     for _ in 0..n {
         let name = r.string()?;
         let [first_vertex, vertex_count_p, first_triangle, triangle_count_p] =

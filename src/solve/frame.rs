@@ -391,7 +391,11 @@ impl Solver {
         self.warm_start(&rig);
         self.hold_markers(&rig);
         // 3. ARAP alternation.
-        let arap = self.arap_iterations(&rig, deadline);
+        // The full-mesh update must fit before the deadline too.
+        let arap_deadline = deadline
+            .checked_sub(Duration::from_secs_f64(self.last_gc_s))
+            .unwrap_or(deadline);
+        let arap = self.arap_iterations(&rig, arap_deadline);
         // 4. Untangling.
         let untangled = self.untangle(&rig, deadline);
         let (sum2, max2) = self.marker_residuals(&rig);
@@ -618,7 +622,7 @@ impl Solver {
             Sweeps {
                 min: UNTANGLE_MIN_SWEEPS,
                 max: UNTANGLE_MAX_SWEEPS,
-                deadline: deadline.checked_sub(gc),
+                deadline: Some(deadline.checked_sub(gc).unwrap_or(deadline)),
             },
         )
     }
