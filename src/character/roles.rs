@@ -57,6 +57,9 @@ pub enum Part {
     Foot,
     Toes,
     Finger(Digit, Segment),
+    /// The second joint of a limb bone split in two (MakeHuman's `upperleg02.L`, Rigify's
+    /// `DEF-thigh.L.001`): it twists, it does not bend.
+    LimbSegment,
 }
 
 /// A joint's humanoid role: a part, and its side when the part has one and it is known.
@@ -79,7 +82,7 @@ const SEGMENTS: [Segment; 4] = [
     Segment::Intermediate,
     Segment::Distal,
 ];
-const BODY_PARTS: [Part; 12] = [
+const BODY_PARTS: [Part; 13] = [
     Part::Hips,
     Part::Spine,
     Part::Neck,
@@ -92,6 +95,7 @@ const BODY_PARTS: [Part; 12] = [
     Part::LowerLeg,
     Part::Foot,
     Part::Toes,
+    Part::LimbSegment,
 ];
 
 impl Part {
@@ -110,6 +114,7 @@ impl Part {
             Part::LowerLeg => "lowerLeg",
             Part::Foot => "foot",
             Part::Toes => "toes",
+            Part::LimbSegment => "limbSegment",
             Part::Finger(d, s) => {
                 let d = match d {
                     Digit::Thumb => "thumb",
@@ -379,7 +384,8 @@ fn read_words(w: &[String], zero_based_fingers: bool) -> Said {
 /// their order along the limb (legs: upper leg, lower leg, foot, toes; arms of three:
 /// upper arm, lower arm, hand, of four: the shoulder first; a lone `Leg` is a lower leg
 /// and a lone `Arm` an upper arm, as in Mixamo), a part claimed twice on one side keeps
-/// the surer claim and then the joint nearer the root, and with no joint named the hips
+/// the surer claim and then the joint nearer the root (a limb's second claim that is the
+/// first's child is its split segment), and with no joint named the hips
 /// a root with two children or more is the hips.
 pub fn recognise(joints: &[Joint], overrides: &[(usize, Option<Role>)]) -> Vec<Option<Role>> {
     let n = joints.len();
@@ -408,7 +414,7 @@ pub fn recognise(joints: &[Joint], overrides: &[(usize, Option<Role>)]) -> Vec<O
         }
     }
     chain_roles(joints, &said, &side, &children, &mut roles);
-    keep_surest(&depth, &mut roles);
+    keep_surest(joints, &depth, &mut roles);
     shoulder_as_upper_arm(&children, &mut roles);
     if !roles.iter().flatten().any(|(r, _)| r.part == Part::Hips) {
         if let Some(root) = (0..n).find(|&i| joints[i].parent.is_none()) {
@@ -569,8 +575,9 @@ fn shoulder_as_upper_arm(children: &[Vec<usize>], roles: &mut [Option<(Role, u8)
 }
 
 /// Parts a side has once (the spine, neck, shoulder and toes may have several joints):
-/// the surest claim keeps it, then the joint nearest the root.
-fn keep_surest(depth: &[usize], roles: &mut [Option<(Role, u8)>]) {
+/// the surest claim keeps it, then the joint nearest the root. A limb bone's second claim
+/// that is the first's child is its split segment ([`Part::LimbSegment`]).
+fn keep_surest(joints: &[Joint], depth: &[usize], roles: &mut [Option<(Role, u8)>]) {
     let once = |p: Part| {
         !matches!(
             p,
@@ -589,7 +596,21 @@ fn keep_surest(depth: &[usize], roles: &mut [Option<(Role, u8)>]) {
                 })
         });
         if better {
-            roles[i] = None;
+            let limb = matches!(
+                r.part,
+                Part::UpperArm | Part::LowerArm | Part::UpperLeg | Part::LowerLeg
+            );
+            let split = joints[i]
+                .parent
+                .filter(|&p| p < i)
+                .is_some_and(|p| roles[p].is_some_and(|(rp, _)| rp == r));
+            roles[i] = (limb && split).then_some((
+                Role {
+                    part: Part::LimbSegment,
+                    side: r.side,
+                },
+                sure,
+            ));
         }
     }
 }
@@ -630,6 +651,7 @@ fn table(part: Part) -> Option<RoleLimits> {
         Part::LowerLeg => ([-10.0, 10.0], [-5.0, 150.0], [-5.0, 5.0], Backward),
         Part::Foot => ([-20.0, 20.0], [-45.0, 45.0], [-30.0, 30.0], Lateral),
         Part::Toes => ([-5.0, 5.0], [-40.0, 40.0], [-10.0, 10.0], Lateral),
+        Part::LimbSegment => ([-45.0, 45.0], [-3.0, 3.0], [-3.0, 3.0], Lateral),
         Part::Finger(Digit::Thumb, Segment::Metacarpal) => {
             ([-25.0, 25.0], [-40.0, 40.0], [-40.0, 40.0], Palm)
         }
@@ -1208,7 +1230,7 @@ mod tests {
                 ("root", "hips"),
                 ("pelvis.L", "-"),
                 ("upperleg01.L", "leftUpperLeg"),
-                ("upperleg02.L", "-"),
+                ("upperleg02.L", "leftLimbSegment"),
                 ("lowerleg01.L", "leftLowerLeg"),
                 ("spine05", "spine"),
                 ("clavicle.R", "rightShoulder"),
@@ -1241,7 +1263,7 @@ mod tests {
             ],
             &[
                 ("DEF-thigh.L", "leftUpperLeg"),
-                ("DEF-thigh.L.001", "-"),
+                ("DEF-thigh.L.001", "leftLimbSegment"),
                 ("DEF-shin.L", "leftLowerLeg"),
                 ("DEF-upper_arm.R", "rightUpperArm"),
                 ("DEF-palm.01.R", "rightIndexMetacarpal"),
