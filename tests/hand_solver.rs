@@ -1,6 +1,8 @@
 //! The frame solver on the procedural hand: invariants that hold exactly (rest pose,
 //! rigid motion, warm start), independent of tuning.
 
+mod common;
+
 use glam::DVec3;
 use rigless::bench::characters::{demo_hand, hand_bind_params};
 use rigless::markers::MarkerFrame;
@@ -8,18 +10,6 @@ use rigless::rig::bind::Rig;
 use rigless::solve::frame::{Solver, SolverParams};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-/// Tolerances at round-off, for the invariants that must hold exactly.
-fn tight() -> SolverParams {
-    let mut p = SolverParams {
-        max_iterations: 200,
-        tolerance: 1e-12,
-        ..SolverParams::default()
-    };
-    p.ik.step_tolerance_rad = 1e-13;
-    p.ik.cost_tolerance = 0.0;
-    p
-}
 
 fn far_deadline() -> Instant {
     Instant::now() + Duration::from_secs(60)
@@ -90,7 +80,7 @@ fn rest_markers_give_the_rest_mesh() {
 #[test]
 fn translating_all_markers_translates_the_mesh_exactly() {
     let (ch, rig) = setup();
-    let mut solver = Solver::new(Arc::clone(&rig), tight());
+    let mut solver = Solver::new(Arc::clone(&rig), common::tight_solver_params());
     let t = DVec3::new(0.1, -0.05, 0.2);
     let frame = MarkerFrame::all_present(0.0, ch.markers.iter().map(|m| m.rest + t).collect());
     let mut out = vec![DVec3::ZERO; ch.vertices.len()];
@@ -214,7 +204,7 @@ fn volume_restoration_gives_flexed_flesh_its_volume_back() {
 fn a_rigid_rotation_of_all_markers_rotates_the_mesh_exactly_from_a_cold_start() {
     use glam::DQuat;
     let (ch, rig) = setup();
-    let mut solver = Solver::new(Arc::clone(&rig), tight());
+    let mut solver = Solver::new(Arc::clone(&rig), common::tight_solver_params());
     // 34° about a tilted axis through a point off the hand, plus a translation.
     let q = DQuat::from_axis_angle(DVec3::new(0.3, 1.0, -0.4).normalize(), 34f64.to_radians());
     let (c, t) = (DVec3::new(0.02, 0.1, -0.03), DVec3::new(0.05, 0.0, 0.1));
@@ -252,7 +242,7 @@ fn harmonic_segments_with_a_marker_cluster_turn_with_their_markers() {
         Arc::clone(&rig),
         SolverParams {
             method: Method::Harmonic,
-            ..tight()
+            ..common::tight_solver_params()
         },
     )
     .unwrap();

@@ -4,6 +4,8 @@
 //! motion of all markers moves every vertex rigidly (to 1e-9 of the height, the
 //! round-off bound of the hand's own rigid-motion test).
 
+mod common;
+
 use glam::{DQuat, DVec3};
 use rigless::bench::characters::{demo_hand, hand_bind_params};
 use rigless::character::bind_params::BindParams;
@@ -14,21 +16,9 @@ use rigless::character::MarkerDef;
 use rigless::geom::shapes::uv_sphere;
 use rigless::markers::MarkerFrame;
 use rigless::rig::bind::Rig;
-use rigless::solve::frame::{Solver, SolverParams};
+use rigless::solve::frame::Solver;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-/// Tolerances at round-off (as the hand's rigid-motion test).
-fn tight() -> SolverParams {
-    let mut p = SolverParams {
-        max_iterations: 200,
-        tolerance: 1e-12,
-        ..SolverParams::default()
-    };
-    p.ik.step_tolerance_rad = 1e-13;
-    p.ik.cost_tolerance = 0.0;
-    p
-}
 
 /// Appends a part (its own vertices) to a character's mesh.
 fn add_part(ch: &mut Character, (v, t): (Vec<DVec3>, Vec<[u32; 3]>)) {
@@ -142,7 +132,7 @@ fn rigid_motion_error(ch: &Character, params: &BindParams) -> (Arc<Rig>, f64) {
     let frame = MarkerFrame::all_present(0.0, ch.markers.iter().map(|m| moved(m.rest)).collect());
     let mut out = vec![DVec3::ZERO; ch.vertices.len()];
     let far = Instant::now() + Duration::from_secs(60);
-    Solver::new(Arc::clone(&rig), tight()).solve(&frame, far, &mut out);
+    Solver::new(Arc::clone(&rig), common::tight_solver_params()).solve(&frame, far, &mut out);
     let worst = out
         .iter()
         .zip(&ch.vertices)

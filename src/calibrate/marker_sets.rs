@@ -29,8 +29,9 @@ pub struct MarkerSet {
     pub name: &'static str,
     /// What it is.
     pub about: &'static str,
-    /// Normalised label patterns (`{S}` for the side letter) and their carriers.
-    entries: &'static [(&'static str, Carrier)],
+    /// Normalised label patterns (`{S}` for the side letter) and their carriers, in
+    /// groups (sets that share markers share a group).
+    entries: &'static [&'static [(&'static str, Carrier)]],
 }
 
 use Carrier::{Body, Prop};
@@ -40,34 +41,41 @@ const fn finger(d: Digit, s: Segment) -> Carrier {
     Body(Finger(d, s))
 }
 
+/// The head, torso and limb markers Plug-in Gait and its CMU variant share.
+const PLUG_IN_GAIT_COMMON: &[(&str, Carrier)] = &[
+    ("{S}FHD", Body(Head)),
+    ("{S}BHD", Body(Head)),
+    ("C7", Body(Spine)),
+    ("T10", Body(Spine)),
+    ("CLAV", Body(Spine)),
+    ("STRN", Body(Spine)),
+    ("{S}SHO", Body(Shoulder)),
+    ("{S}UPA", Body(UpperArm)),
+    ("{S}ELB", Body(UpperArm)),
+    ("{S}FRM", Body(LowerArm)),
+    ("{S}WRA", Body(LowerArm)),
+    ("{S}WRB", Body(LowerArm)),
+    ("{S}FIN", Body(Hand)),
+    ("{S}THI", Body(UpperLeg)),
+    ("{S}KNE", Body(UpperLeg)),
+    ("{S}ANK", Body(LowerLeg)),
+    ("{S}HEE", Body(Foot)),
+    ("{S}TOE", Body(Foot)),
+];
+
 /// Vicon Plug-in Gait, full body (39 markers).
 pub const PLUG_IN_GAIT: MarkerSet = MarkerSet {
     name: "plug-in-gait",
     about: "Vicon Plug-in Gait full body",
     entries: &[
-        ("{S}FHD", Body(Head)),
-        ("{S}BHD", Body(Head)),
-        ("C7", Body(Spine)),
-        ("T10", Body(Spine)),
-        ("CLAV", Body(Spine)),
-        ("STRN", Body(Spine)),
-        ("RBAK", Body(Spine)),
-        ("{S}ASI", Body(Hips)),
-        ("{S}PSI", Body(Hips)),
-        ("SACR", Body(Hips)),
-        ("{S}SHO", Body(Shoulder)),
-        ("{S}UPA", Body(UpperArm)),
-        ("{S}ELB", Body(UpperArm)),
-        ("{S}FRM", Body(LowerArm)),
-        ("{S}WRA", Body(LowerArm)),
-        ("{S}WRB", Body(LowerArm)),
-        ("{S}FIN", Body(Hand)),
-        ("{S}THI", Body(UpperLeg)),
-        ("{S}KNE", Body(UpperLeg)),
-        ("{S}TIB", Body(LowerLeg)),
-        ("{S}ANK", Body(LowerLeg)),
-        ("{S}HEE", Body(Foot)),
-        ("{S}TOE", Body(Foot)),
+        PLUG_IN_GAIT_COMMON,
+        &[
+            ("RBAK", Body(Spine)),
+            ("{S}ASI", Body(Hips)),
+            ("{S}PSI", Body(Hips)),
+            ("SACR", Body(Hips)),
+            ("{S}TIB", Body(LowerLeg)),
+        ],
     ],
 };
 
@@ -77,30 +85,15 @@ pub const CMU_41: MarkerSet = MarkerSet {
     name: "cmu-41",
     about: "CMU 41-marker full body (LFWT/LBWT waist, RBAC)",
     entries: &[
-        ("{S}FHD", Body(Head)),
-        ("{S}BHD", Body(Head)),
-        ("ARIEL", Body(Head)),
-        ("C7", Body(Spine)),
-        ("T10", Body(Spine)),
-        ("CLAV", Body(Spine)),
-        ("STRN", Body(Spine)),
-        ("RBAC", Body(Spine)),
-        ("{S}FWT", Body(Hips)),
-        ("{S}BWT", Body(Hips)),
-        ("{S}SHO", Body(Shoulder)),
-        ("{S}UPA", Body(UpperArm)),
-        ("{S}ELB", Body(UpperArm)),
-        ("{S}FRM", Body(LowerArm)),
-        ("{S}WRA", Body(LowerArm)),
-        ("{S}WRB", Body(LowerArm)),
-        ("{S}FIN", Body(Hand)),
-        ("{S}THI", Body(UpperLeg)),
-        ("{S}KNE", Body(UpperLeg)),
-        ("{S}SHN", Body(LowerLeg)),
-        ("{S}ANK", Body(LowerLeg)),
-        ("{S}HEE", Body(Foot)),
-        ("{S}TOE", Body(Foot)),
-        ("{S}MT5", Body(Foot)),
+        PLUG_IN_GAIT_COMMON,
+        &[
+            ("ARIEL", Body(Head)),
+            ("RBAC", Body(Spine)),
+            ("{S}FWT", Body(Hips)),
+            ("{S}BWT", Body(Hips)),
+            ("{S}SHN", Body(LowerLeg)),
+            ("{S}MT5", Body(Foot)),
+        ],
     ],
 };
 
@@ -109,7 +102,7 @@ pub const CMU_41: MarkerSet = MarkerSet {
 pub const ISB: MarkerSet = MarkerSet {
     name: "isb",
     about: "ISB / Van Sint Jan anatomical landmarks (Qualisys, OptiTrack Biomech 57)",
-    entries: &[
+    entries: &[&[
         ("{S}HDF", Body(Head)),
         ("{S}HDB", Body(Head)),
         ("{S}AH", Body(Head)),
@@ -148,14 +141,14 @@ pub const ISB: MarkerSet = MarkerSet {
         ("{S}FM1", Body(Foot)),
         ("{S}FM2", Body(Foot)),
         ("{S}FM5", Body(Foot)),
-    ],
+    ]],
 };
 
 /// The Davis (Helen Hayes) gait protocol as BTS names it (`r asis`, `r bar 1`, ...).
 pub const DAVIS: MarkerSet = MarkerSet {
     name: "davis",
     about: "Davis / Helen Hayes gait protocol, BTS labels",
-    entries: &[
+    entries: &[&[
         ("C7", Body(Spine)),
         ("{S}SHOULD", Body(Shoulder)),
         ("SACRUM", Body(Hips)),
@@ -168,14 +161,14 @@ pub const DAVIS: MarkerSet = MarkerSet {
         ("{S}MALL", Body(LowerLeg)),
         ("{S}HEEL", Body(Foot)),
         ("{S}MET", Body(Foot)),
-    ],
+    ]],
 };
 
 /// OptiTrack Motive's Baseline full-body set (37 markers).
 pub const MOTIVE_BASELINE: MarkerSet = MarkerSet {
     name: "motive-baseline",
     about: "OptiTrack Motive Baseline full body (37 markers)",
-    entries: &[
+    entries: &[&[
         ("HEADTOP", Body(Head)),
         ("HEADFRONT", Body(Head)),
         ("HEADSIDE", Body(Head)),
@@ -198,7 +191,7 @@ pub const MOTIVE_BASELINE: MarkerSet = MarkerSet {
         ("{S}ANKLEOUT", Body(LowerLeg)),
         ("{S}TOEOUT", Body(Foot)),
         ("{S}TOEIN", Body(Foot)),
-    ],
+    ]],
 };
 
 /// The hand layout of the DFKI Qualisys recording in the shared data (`hand_top`,
@@ -207,7 +200,7 @@ pub const MOTIVE_BASELINE: MarkerSet = MarkerSet {
 pub const DFKI_HAND: MarkerSet = MarkerSet {
     name: "dfki-hand",
     about: "DFKI hand recording: back of the hand, tip and middle of each finger",
-    entries: &[
+    entries: &[&[
         ("HANDTOP", Body(Hand)),
         ("HANDLEFT", Body(Hand)),
         ("HANDRIGHT", Body(Hand)),
@@ -229,7 +222,7 @@ pub const DFKI_HAND: MarkerSet = MarkerSet {
         ("PILLOWTOP", Prop),
         ("PILLOWLEFT", Prop),
         ("PILLOWRIGHT", Prop),
-    ],
+    ]],
 };
 
 /// Every built-in table, in the order `--marker-set auto` prefers on a tie.
@@ -282,13 +275,17 @@ impl MarkerSet {
     /// What the table says of `label` (any spelling), or `None` when it does not know it.
     pub fn place(&self, label: &str) -> Option<Placed> {
         let label = normalise(label);
-        self.entries.iter().find_map(|&(pattern, carrier)| {
-            let side = matches(pattern, &label)?;
-            Some(match carrier {
-                Body(part) => Placed::Body(Role { part, side }),
-                Prop => Placed::Prop,
+        self.entries
+            .iter()
+            .copied()
+            .flatten()
+            .find_map(|&(pattern, carrier)| {
+                let side = matches(pattern, &label)?;
+                Some(match carrier {
+                    Body(part) => Placed::Body(Role { part, side }),
+                    Prop => Placed::Prop,
+                })
             })
-        })
     }
 
     /// How many of `labels` the table knows.
@@ -390,7 +387,7 @@ mod tests {
     fn every_table_name_is_found_and_patterns_are_well_formed() {
         for set in MARKER_SETS {
             assert_eq!(by_name(set.name).map(|s| s.name), Some(set.name));
-            for (pattern, _) in set.entries {
+            for (pattern, _) in set.entries.iter().copied().flatten() {
                 assert_eq!(
                     &normalise(pattern.replace("{S}", "").as_str()),
                     &pattern.replace("{S}", "")

@@ -332,10 +332,7 @@ fn read_words(w: &[String], zero_based_fingers: bool) -> Said {
     if any(&["shin", "calf", "knee", "lowerleg", "tibia", "crus"]) || (lower && has("leg")) {
         return part(Part::LowerLeg, 3);
     }
-    if any(&["foot", "ankle"]) {
-        return part(Part::Foot, 3);
-    }
-    if any(&["toe", "toes", "toebase", "ball"]) {
+    if has("ball") {
         return part(Part::Toes, 2);
     }
     if has("leg") || has("arm") {
@@ -921,6 +918,19 @@ mod tests {
         tree(&with_pos)
     }
 
+    /// How far the unit direction of joint `i`'s segment (towards its first child) moves
+    /// when the joint bends by `bend_rad` about `axis`.
+    fn bent(joints: &[Joint], i: usize, axis: DVec3, bend_rad: f64) -> DVec3 {
+        let c = joints.iter().position(|j| j.parent == Some(i)).unwrap();
+        let t = (joints[c].rest - joints[i].rest).normalize();
+        let st = SwingTwist {
+            twist: 0.0,
+            bend: bend_rad,
+            side: 0.0,
+        };
+        compose(st, t, axis) * t - t
+    }
+
     fn role_of(joints: &[Joint], roles: &[Option<Role>], name: &str) -> String {
         let i = joints.iter().position(|j| j.name == name).unwrap();
         roles[i].map_or("-".to_string(), |r| r.to_string())
@@ -1068,18 +1078,7 @@ mod tests {
                 .unwrap();
             let (l, axis) = limits[i].unwrap_or_else(|| panic!("{n}: no limits"));
             assert!(l.bend.1 >= 30f64.to_radians(), "{n}: {l:?}");
-            let c = joints.iter().position(|j| j.parent == Some(i)).unwrap();
-            let t = (joints[c].rest - joints[i].rest).normalize();
-            let q = compose(
-                SwingTwist {
-                    twist: 0.0,
-                    bend: 30f64.to_radians(),
-                    side: 0.0,
-                },
-                t,
-                axis,
-            );
-            q * t - t
+            bent(&joints, i, axis, 30f64.to_radians())
         };
         // Forward is +Z, up +Y. Each movement is mostly along the expected direction (a
         // 30° turn moves a unit segment by 0.52, of which 0.5 across the segment).
@@ -1119,17 +1118,8 @@ mod tests {
             .position(|j| j.name == "mixamorig:LeftLeg")
             .unwrap();
         let (_, axis) = limits[knee].unwrap();
-        let t = (joints[knee + 1].rest - joints[knee].rest).normalize();
-        let q = compose(
-            SwingTwist {
-                twist: 0.0,
-                bend: 1.0,
-                side: 0.0,
-            },
-            t,
-            axis,
-        );
-        assert!((q * t).z > 0.5, "backward is now +Z: {}", q * t);
+        let d = bent(&joints, knee, axis, 1.0);
+        assert!(d.z > 0.5, "backward is now +Z: {d}");
     }
 
     #[test]
@@ -1404,17 +1394,8 @@ mod tests {
                 .unwrap();
             let (l, axis) = limits[i].unwrap();
             assert!(l.bend.0 < 0.0 && l.bend.1 > 1.5, "{l:?}");
-            let t = (joints[i + 1].rest - joints[i].rest).normalize();
-            let q = compose(
-                SwingTwist {
-                    twist: 0.0,
-                    bend: 1.0,
-                    side: 0.0,
-                },
-                t,
-                axis,
-            );
-            assert!((q * t - t).y * curl_y > 0.5, "curl {curl_y}: {}", q * t);
+            let d = bent(&joints, i, axis, 1.0);
+            assert!(d.y * curl_y > 0.5, "curl {curl_y}: {d}");
         }
     }
 }

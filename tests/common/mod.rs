@@ -162,3 +162,16 @@ pub fn tiny_topology() -> rigless::protocol::vertex_stream::Topology {
         }],
     }
 }
+
+/// Solver tolerances at round-off, for the invariants that must hold exactly (a rigid
+/// motion moves every vertex rigidly).
+pub fn tight_solver_params() -> rigless::solve::frame::SolverParams {
+    let mut p = rigless::solve::frame::SolverParams {
+        max_iterations: 200,
+        tolerance: 1e-12,
+        ..rigless::solve::frame::SolverParams::default()
+    };
+    p.ik.step_tolerance_rad = 1e-13;
+    p.ik.cost_tolerance = 0.0;
+    p
+}
