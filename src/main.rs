@@ -77,6 +77,19 @@ enum Command {
     /// matched to the character's by label, the solver runs at 120 Hz, the vertex stream
     /// is served (--stream) and --rerun records or shows it.
     Replay(cli::replay::ReplayArgs),
+    /// Place a take's markers on a character: bones, offsets and the actor's scale.
+    ///
+    /// Place a take's markers on a character: for every label of the take (C3D, TSV,
+    /// BVH or session), the bone that carries it and its offset there, and the scale
+    /// between actor and character, fitted over frames spread across the take (MoSh's
+    /// first stage on the character's own skeleton). Labels find their bones through
+    /// the character file's [[markers]], its [calibration.bones] globs, a built-in
+    /// marker-set table (Plug-in Gait, CMU 41, ISB, Davis, Motive Baseline, the DFKI
+    /// hand, the procedural characters'), or the motion itself. A take that starts in
+    /// the character's rest pose (a range of motion) calibrates best. Prints a table with
+    /// each label's misfit and a flag where it fits badly; --write stores the layout and
+    /// the scale in the character file.
+    Calibrate(cli::calibrate::CalibrateArgs),
     /// Show what a recording holds.
     ///
     /// Show what a recording holds (C3D, Qualisys TSV, BVH or a session file): markers,
@@ -85,8 +98,8 @@ enum Command {
     Info(cli::info::InfoArgs),
     /// Write the bundled sessions (C3D).
     ///
-    /// Write the bundled sessions (the procedural hand's finger play, the body's walk and
-    /// reach, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
+    /// Write the bundled sessions (the procedural hand's finger play, the body's walk,
+    /// reach and range of motion, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
     /// tree holds exactly what this writes.
     MakeSessions(cli::make_sessions::MakeSessionsArgs),
     /// Write the procedural hand as an example character.
@@ -114,6 +127,7 @@ fn main() -> std::process::ExitCode {
         Command::Listen(a) => cli::listen::run(a),
         Command::Replay(a) => cli::replay::run(a),
         Command::Info(a) => cli::info::run(a),
+        Command::Calibrate(a) => cli::calibrate::run(a),
         Command::MakeSessions(a) => cli::make_sessions::run(a),
         Command::ExportHand(a) => cli::export_hand::run(a),
         Command::Bench(a) => cli::bench::run(a),

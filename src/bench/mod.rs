@@ -4,6 +4,7 @@
 //! measured step only; setup is excluded and reported separately (`factor_s`).
 
 pub mod assets;
+pub mod calibration;
 pub mod capsules;
 pub mod characters;
 pub mod codecs;
@@ -32,6 +33,8 @@ pub enum Suite {
     Codecs,
     /// Send-time jitter of `rigless replay` against the file's clock.
     Replay,
+    /// `rigless calibrate`'s time and accuracy, on known truth and real takes.
+    Calibration,
 }
 
 /// How the suites run.
@@ -85,6 +88,7 @@ pub fn run_suite(suite: Suite, opts: &BenchOptions, out: &mut dyn Write) -> Resu
         Suite::Live => live::suite(opts.seconds, opts.json, out),
         Suite::Codecs => codecs::suite(opts.json, out),
         Suite::Replay => replay::suite(opts.seconds, opts.json, out),
+        Suite::Calibration => calibration::suite(&opts.data, opts.json, out),
     }
 }
 

@@ -225,14 +225,64 @@ pub const DFKI_HAND: MarkerSet = MarkerSet {
     ]],
 };
 
-/// Every built-in table, in the order `--marker-set auto` prefers on a tie.
-pub const MARKER_SETS: [&MarkerSet; 6] = [
+/// The procedural body's 36 markers (`rigless demo`, the bundled body takes): Plug-in
+/// Gait's head and trunk, heels and toes, and eight around each hand (`LHND1`...).
+pub const RIGLESS_BODY: MarkerSet = MarkerSet {
+    name: "rigless-body",
+    about: "rigless procedural body: Plug-in Gait head and trunk, 8 per hand, heel and toe",
+    entries: &[&[
+        ("{S}FHD", Body(Head)),
+        ("{S}BHD", Body(Head)),
+        ("C7", Body(Spine)),
+        ("T10", Body(Spine)),
+        ("CLAV", Body(Spine)),
+        ("STRN", Body(Spine)),
+        ("RBAK", Body(Spine)),
+        ("{S}SHO", Body(Shoulder)),
+        ("{S}ASI", Body(Hips)),
+        ("{S}PSI", Body(Hips)),
+        ("SACR", Body(Hips)),
+        ("{S}HND1", Body(Hand)),
+        ("{S}HND2", Body(Hand)),
+        ("{S}HND3", Body(Hand)),
+        ("{S}HND4", Body(Hand)),
+        ("{S}HND5", Body(Hand)),
+        ("{S}HND6", Body(Hand)),
+        ("{S}HND7", Body(Hand)),
+        ("{S}HND8", Body(Hand)),
+        ("{S}HEE", Body(Foot)),
+        ("{S}TOE", Body(Foot)),
+    ]],
+};
+
+/// The procedural hand's 8 markers (`rigless demo`, the bundled hand take): a nail per
+/// finger, three on the back of the hand.
+pub const RIGLESS_HAND: MarkerSet = MarkerSet {
+    name: "rigless-hand",
+    about: "rigless procedural hand: a nail per finger, 3 on the back of the hand",
+    entries: &[&[
+        ("THUMBNAIL", finger(Digit::Thumb, Segment::Distal)),
+        ("INDEXNAIL", finger(Digit::Index, Segment::Distal)),
+        ("MIDDLENAIL", finger(Digit::Middle, Segment::Distal)),
+        ("RINGNAIL", finger(Digit::Ring, Segment::Distal)),
+        ("PINKYNAIL", finger(Digit::Little, Segment::Distal)),
+        ("HANDINDEX", Body(Hand)),
+        ("HANDPINKY", Body(Hand)),
+        ("HANDWRIST", Body(Hand)),
+    ]],
+};
+
+/// Every built-in table, in the order `--marker-set auto` prefers on a tie (the
+/// procedural characters' own last).
+pub const MARKER_SETS: [&MarkerSet; 8] = [
     &PLUG_IN_GAIT,
     &CMU_41,
     &ISB,
     &DAVIS,
     &MOTIVE_BASELINE,
     &DFKI_HAND,
+    &RIGLESS_BODY,
+    &RIGLESS_HAND,
 ];
 
 /// A label as the tables compare it: the part after the last `:` (a `Subject:` prefix),
@@ -308,7 +358,7 @@ pub fn best_set(labels: &[String]) -> Option<(&'static MarkerSet, usize)> {
 }
 
 /// The table named `name` (`plug-in-gait`, `cmu-41`, `isb`, `davis`,
-/// `motive-baseline`, `dfki-hand`).
+/// `motive-baseline`, `dfki-hand`, `rigless-body`, `rigless-hand`).
 pub fn by_name(name: &str) -> Option<&'static MarkerSet> {
     MARKER_SETS.into_iter().find(|s| s.name == name)
 }

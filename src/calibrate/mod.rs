@@ -1,5 +1,787 @@
-//! Fitting a take's marker layout onto a character. So far: which humanoid part carries
-//! each label of the common optical marker sets ([`marker_sets`]), and so which of the
-//! character's joints (by their roles) may carry it.
+//! Fitting a take's marker layout onto a character: for every label, the joint whose
+//! segments carry it and its offset there, and the scale between actor and character.
+//!
+//! - [`marker_sets`]: built-in tables (the humanoid part each label of the common optical
+//!   sets rides);
+//! - [`labels`]: each label's candidate joints and on whose word (layout, user map, table,
+//!   or the motion itself);
+//! - [`frames`]: the frames used and the first guess of scale and headings;
+//! - [`solve`]: the offsets and scale over those frames (MoSh's first stage on this
+//!   skeleton);
+//! - [`layout`]: the result written into a character file.
+//!
+//! [`calibrate`] runs them in order: plan, choose frames, align, fit the labels whose
+//! bone is known (several candidates: the one the marker moves most rigidly with), place
+//! the others on the joint they move rigidly with, fit everything, and report each
+//! label's misfit with a flag where it fits badly.
 
+pub mod frames;
+pub mod labels;
+pub mod layout;
 pub mod marker_sets;
+pub mod solve;
+
+use crate::character::mesh::welded_outward;
+use crate::character::roles::Role;
+use crate::character::Character;
+use crate::geom::winding::WindingNumber;
+use crate::rig::ik_model::IkModel;
+use frames::{choose_frames, fit_heading, Heading};
+use glam::{DQuat, DVec3};
+use labels::{plan, LabelPlan, LeftOut, MapEntry, MapError, Source};
+use marker_sets::MarkerSet;
+use solve::{OffsetSolve, SolveParams, SolveReport};
+
+/// Frames a calibration uses unless told otherwise (MoSh uses 12; more cover more of
+/// the range of motion at a linear cost).
+pub const DEFAULT_FRAMES: usize = 20;
+/// Fewest labels with a known bone (layout, map or table) that align take and character.
+pub const MIN_KNOWN_LABELS: usize = 4;
+
+/// What a calibration is asked.
+#[derive(Clone, Debug)]
+pub struct CalibrationOptions {
+    /// Frames to use.
+    pub frames: usize,
+    /// Only frames in this span of the take, seconds from its start.
+    pub span_s: Option<(f64, f64)>,
+    /// The marker-set table; `None`: the one that knows most labels.
+    pub marker_set: Option<&'static MarkerSet>,
+    /// The user's label map, tried before the tables.
+    pub map: Vec<MapEntry>,
+    pub solve: SolveParams,
+}
+
+impl Default for CalibrationOptions {
+    fn default() -> Self {
+        Self {
+            frames: DEFAULT_FRAMES,
+            span_s: None,
+            marker_set: None,
+            map: Vec::new(),
+            solve: SolveParams::default(),
+        }
+    }
+}
+
+/// What is odd about a placed label.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Flag {
+    /// Its misfit is well above the others': a mislabel, a marker on another part than
+    /// its table says, or a bone the character lacks.
+    FitsBadly { times_median: f64 },
+    /// It fits in most frames and jumps in some: a swap or a mislabel partway through.
+    Jumps { frames_off: usize },
+    /// It sits farther from the skin than a marker can.
+    OffSkin { distance_mm: f64 },
+}
+
+impl std::fmt::Display for Flag {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Flag::FitsBadly { times_median } => write!(
+                f,
+                "fits badly ({times_median:.1}× the median misfit): mislabelled, or on another part?"
+            ),
+            Flag::Jumps { frames_off } => write!(
+                f,
+                "off by far in {frames_off} frames: swapped or mislabelled partway?"
+            ),
+            Flag::OffSkin { distance_mm } => {
+                write!(f, "{distance_mm:.0} mm from the skin: on another part?")
+            }
+        }
+    }
+}
+
+/// One label placed on the character.
+#[derive(Clone, Debug)]
+pub struct PlacedLabel {
+    pub label: String,
+    /// The joint whose segments carry it.
+    pub joint: usize,
+    pub joint_name: String,
+    /// Its offset from the joint at rest, metres, world axes.
+    pub offset_m: DVec3,
+    /// Signed distance of its rest position from the skin, metres (positive outside).
+    pub skin_m: f64,
+    pub source: Source,
+    /// Misfit over the frames used that have it, take millimetres.
+    pub residual_mm_rms: f64,
+    pub residual_mm_max: f64,
+    /// Frames used that have it.
+    pub frames: usize,
+    pub flag: Option<Flag>,
+}
+
+/// A calibration's result.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// Character metres per take metre (the actor is `1 / scale` times the character).
+    pub scale: f64,
+    pub placed: Vec<PlacedLabel>,
+    pub left_out: Vec<(String, LeftOut)>,
+    /// The table used, and how many of the take's labels it knows.
+    pub marker_set: Option<(&'static str, usize)>,
+    /// The take's frames used.
+    pub frames: Vec<usize>,
+    /// Misfit over every placed label and frame used, take millimetres.
+    pub residual_mm_rms: f64,
+    pub residual_mm_max: f64,
+    pub report: SolveReport,
+}
+
+/// Why a take cannot be calibrated onto a character.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Map(Vec<MapError>),
+    #[error(
+        "{take}: only {known} of its {labels} labels have a bone on this character ({MIN_KNOWN_LABELS} \
+         are needed to align take and character); {}. Name their bones in the character \
+         file's [calibration.bones] (globs to joints or roles) or choose a table with \
+         --marker-set",
+        match best { Some((set, n)) => format!("the table that knows most of them, {set}, knows {n}"), None => "no built-in table knows any".into() }
+    )]
+    TooFewKnown {
+        take: String,
+        known: usize,
+        labels: usize,
+        best: Option<(&'static str, usize)>,
+    },
+    #[error("{take}: no frame in the span asked for has {MIN_KNOWN_LABELS} known labels in view")]
+    NoFrames { take: String },
+    #[error("the character has no skeleton joint with children")]
+    NoJoints,
+}
+
+/// A take as the calibration reads it: labelled marker trajectories, `frames[f][k]` in
+/// metres, world frame (Y up), NaN where missing (what `replay::recording::Recording`
+/// holds; [`crate::replay::recording::Recording::as_take`] lends one).
+#[derive(Clone, Copy, Debug)]
+pub struct Take<'a> {
+    /// Shown in errors (the file's name).
+    pub name: &'a str,
+    pub rate_hz: f64,
+    pub labels: &'a [String],
+    pub frames: &'a [Vec<DVec3>],
+}
+
+/// Calibrates take `rec` onto character `ch` (whose joints have `roles`).
+pub fn calibrate(
+    ch: &Character,
+    roles: &[Option<Role>],
+    rec: Take,
+    opts: &CalibrationOptions,
+) -> Result<Calibration, CalibrationError> {
+    let present: Vec<usize> = (0..rec.labels.len())
+        .map(|k| rec.frames.iter().filter(|f| f[k].is_finite()).count())
+        .collect();
+    let plan = plan(ch, roles, rec.labels, &present, &opts.map, opts.marker_set)
+        .map_err(CalibrationError::Map)?;
+    let known: Vec<&LabelPlan> = plan
+        .labels
+        .iter()
+        .filter(|l| l.source != Source::Motion)
+        .collect();
+    if known.len() < MIN_KNOWN_LABELS {
+        return Err(CalibrationError::TooFewKnown {
+            take: rec.name.to_owned(),
+            known: known.len(),
+            labels: rec.labels.len(),
+            best: marker_sets::best_set(rec.labels).map(|(s, n)| (s.name, n)),
+        });
+    }
+    if ch.skeleton.is_empty() {
+        return Err(CalibrationError::NoJoints);
+    }
+    let span = frame_span(rec, opts.span_s);
+    let height = height_of(ch);
+    let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
+    let surface = WindingNumber::new(&unique, &oriented);
+    let guess =
+        first_guess(ch, &known, rec.frames, span.clone(), height, &surface).ok_or_else(|| {
+            CalibrationError::NoFrames {
+                take: rec.name.to_owned(),
+            }
+        })?;
+    let used: Vec<usize> = plan.labels.iter().map(|l| l.take_index).collect();
+    let chosen = choose_frames(
+        rec.frames,
+        &used,
+        span,
+        opts.frames.max(1),
+        Some(guess.frame),
+    );
+    let frames: Vec<Vec<DVec3>> = chosen.iter().map(|&f| rec.frames[f].clone()).collect();
+    let first = FirstGuess {
+        frame: chosen.iter().position(|&f| f == guess.frame).unwrap_or(0),
+        ..guess
+    };
+    let hold = (first.frame, held_joints(ch, &plan.labels, &first.on_skin));
+    let fit = Fit {
+        ch,
+        height,
+        frames: &frames,
+        surface: &surface,
+        params: opts.solve,
+        hold,
+    };
+    // Every label where the rest-like frame puts it, on the nearest candidate bone.
+    let (mut placed, mut moving): (Vec<Placing>, Vec<Placing>) = plan
+        .labels
+        .iter()
+        .map(|l| fit.initial_placing(l, &first))
+        .partition(|p| p.plan.source != Source::Motion);
+    let start = headings(ch, &placed, &frames, first.scale, height);
+    let mut solve = fit.problem(&placed, &start, first.scale, None);
+    for _ in 0..3 {
+        solve.alternate();
+    }
+    fit.choose_candidates(&solve, &mut placed);
+    // Then the labels no one places, on the joint they move with; markers that keep
+    // their distances ride one segment, so each such group goes where most of it went.
+    if !moving.is_empty() {
+        fit.choose_candidates(&solve, &mut moving);
+        fit.agree_within_rigid_groups(&solve, &mut moving);
+        placed.extend(moving);
+    }
+    placed.sort_by_key(|p| p.plan.take_index);
+    let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
+    for _ in 0..2 {
+        solve.alternate();
+    }
+    fit.choose_candidates(&solve, &mut placed);
+    let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
+    let report = solve.run();
+    Ok(finish(ch, &solve, &placed, plan, chosen, report))
+}
+
+/// The frame indices of `span_s` (seconds from the take's start), or all.
+fn frame_span(rec: Take, span_s: Option<(f64, f64)>) -> std::ops::Range<usize> {
+    match span_s {
+        Some((a, b)) => {
+            let f = |s: f64| ((s * rec.rate_hz).round().max(0.0) as usize).min(rec.frames.len());
+            f(a)..f(b).max(f(a))
+        }
+        None => 0..rec.frames.len(),
+    }
+}
+
+/// The character's height: its rest mesh's vertical extent, metres.
+fn height_of(ch: &Character) -> f64 {
+    let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
+    (hi.y - lo.y).max(1e-3)
+}
+
+/// A point on joint `j`'s segments standing for a marker it carries before the fit: the
+/// middle of its bone when it has one child, else the joint.
+fn anchor(ch: &Character, j: usize) -> DVec3 {
+    let sk = &ch.skeleton;
+    let kids: Vec<usize> = sk.children(j).collect();
+    match kids.as_slice() {
+        [c] => 0.5 * (sk.joints[j].rest + sk.joints[*c].rest),
+        _ => sk.joints[j].rest,
+    }
+}
+
+/// The first guess: the frame whose similarity fit to the known labels' anchors is best
+/// (the actor nearest the character's rest pose), its heading and scale.
+struct FirstGuess {
+    /// Index into the frames used.
+    frame: usize,
+    heading: Heading,
+    scale: f64,
+    /// The take's labels that lie on their bone's skin there.
+    on_skin: Vec<usize>,
+}
+
+/// The joints a rest-like frame holds near rest: those that carry a label lying on its
+/// skin there (any of its candidates), and their ancestors.
+fn held_joints(ch: &Character, labels: &[LabelPlan], on_skin: &[usize]) -> Vec<bool> {
+    let sk = &ch.skeleton;
+    let mut held = vec![false; sk.len()];
+    for l in labels.iter().filter(|l| on_skin.contains(&l.take_index)) {
+        for &c in &l.candidates {
+            let mut j = Some(c);
+            while let Some(jj) = j {
+                held[jj] = true;
+                j = sk.joints[jj].parent;
+            }
+        }
+    }
+    held
+}
+
+/// Known labels' anchors and measured positions in `frame`.
+fn anchor_pairs(ch: &Character, known: &[&LabelPlan], frame: &[DVec3]) -> Vec<(DVec3, DVec3)> {
+    known
+        .iter()
+        .filter(|l| frame[l.take_index].is_finite())
+        .map(|l| {
+            let a = l.rest.unwrap_or_else(|| anchor(ch, l.candidates[0]));
+            (a, frame[l.take_index])
+        })
+        .collect()
+}
+
+/// Frames of the span the first guess compares (evenly spaced).
+const GUESS_CANDIDATES: usize = 60;
+/// Of those, how many (the best after a few rounds) are refined to the end.
+const GUESS_REFINED: usize = 3;
+
+/// See [`FirstGuess`] (`frame` is a take frame index here); `None` when no frame of
+/// `span` has [`MIN_KNOWN_LABELS`] known labels. Each candidate frame is fitted to the
+/// anchors, then to the skin (an iterative closest point with each label kept near its
+/// bone, which removes the anchors' bias: they lie inside the body, the markers outside,
+/// and the scale would come out small); the best few are refined further and the best of
+/// those wins.
+fn first_guess(
+    ch: &Character,
+    known: &[&LabelPlan],
+    frames: &[Vec<DVec3>],
+    span: std::ops::Range<usize>,
+    height: f64,
+    surface: &WindingNumber,
+) -> Option<FirstGuess> {
+    let step = span.len().div_ceil(GUESS_CANDIDATES).max(1);
+    let mut ranked: Vec<(usize, Heading, f64, f64)> = Vec::new();
+    for f in span.step_by(step) {
+        let p = anchor_pairs(ch, known, &frames[f]);
+        if p.len() < MIN_KNOWN_LABELS {
+            continue;
+        }
+        let Some((heading, scale, _)) = fit_heading(&p, None, 0.1 * height) else {
+            continue;
+        };
+        if let Some((h, s, r, _)) =
+            refine_on_skin(ch, known, &frames[f], (heading, scale), 30, height, surface)
+        {
+            ranked.push((f, h, s, r));
+        }
+    }
+    ranked.sort_by(|a, b| a.3.total_cmp(&b.3));
+    ranked
+        .into_iter()
+        .take(GUESS_REFINED)
+        .filter_map(|(f, heading, scale, _)| {
+            refine_on_skin(ch, known, &frames[f], (heading, scale), 60, height, surface)
+                .map(|(h, s, r, on)| (f, h, s, r, on))
+        })
+        .min_by(|a, b| a.3.total_cmp(&b.3))
+        .map(|(frame, heading, scale, _, on_skin)| FirstGuess {
+            frame,
+            heading,
+            scale,
+            on_skin,
+        })
+}
+
+/// Iterative closest point of one frame's known labels onto the skin, from a heading and
+/// scale: each marker, taken into the character's rest frame, is paired with the point
+/// 8 mm outside the skin nearest to it when that skin is its bone's, and the similarity
+/// is fitted again (on those pairs alone once they are half the labels). Returns the
+/// heading, scale and
+/// relative RMS misfit (per metre of height, plus 1 % for all labels off their skin or
+/// out of view, in proportion) after `rounds` rounds at most (fewer when the scale
+/// settles).
+fn refine_on_skin(
+    ch: &Character,
+    known: &[&LabelPlan],
+    frame: &[DVec3],
+    (mut heading, mut scale): (Heading, f64),
+    rounds: usize,
+    height: f64,
+    surface: &WindingNumber,
+) -> Option<(Heading, f64, f64, Vec<usize>)> {
+    let sk = &ch.skeleton;
+    let mut rms = f64::INFINITY;
+    let mut on_skin = Vec::new();
+    // How far from the skin a marker may lie and still pair with it: loose while the
+    // guess is rough, then what a marker on the skin can be (its centre within 3 cm).
+    let mut reach = 0.1 * height;
+    for _ in 0..rounds {
+        let (mut good, mut rough) = (Vec::new(), Vec::new());
+        on_skin.clear();
+        for l in known.iter().filter(|l| frame[l.take_index].is_finite()) {
+            let m = frame[l.take_index];
+            let x = heading.q.inverse() * (m * scale - heading.t);
+            match (l.rest, surface.closest(x)) {
+                (Some(r), _) => {
+                    good.push((r, m));
+                    on_skin.push(l.take_index);
+                }
+                (None, Some((c, d)))
+                    if d < reach && on_candidate(sk, c, &l.candidates).is_some() =>
+                {
+                    let out = if surface.at(x) > 0.5 { c - x } else { x - c };
+                    good.push((c + out.normalize_or_zero() * 0.008, m));
+                    on_skin.push(l.take_index);
+                }
+                // Nearest the skin of another bone: that part of the actor is posed
+                // otherwise, or the guess is still rough; its bone's anchor stands in
+                // until half the labels find their skin.
+                _ => rough.push((anchor(ch, l.candidates[0]), m)),
+            }
+        }
+        let n = good.len() + rough.len();
+        let pairs = if good.len() >= MIN_KNOWN_LABELS && 2 * good.len() >= n {
+            good.clone()
+        } else {
+            good.iter().chain(&rough).copied().collect()
+        };
+        let (h, s, r) = fit_heading(&pairs, None, 0.05 * height)?;
+        let settled = (s - scale).abs() < 1e-5 * scale && reach <= 0.03;
+        reach = (reach * 0.85).max(0.03);
+        // Labels off their skin or out of view count against the frame: all of them as
+        // much as a misfit of 1 % of the height.
+        let off = 1.0 - good.len() as f64 / known.len().max(1) as f64;
+        (heading, scale, rms) = (h, s, r * s / height + 0.01 * off);
+        if settled {
+            break;
+        }
+    }
+    Some((heading, scale, rms, on_skin))
+}
+
+/// Each frame's heading at scale `scale`, from the placed labels' rest positions.
+fn headings(
+    ch: &Character,
+    placed: &[Placing],
+    frames: &[Vec<DVec3>],
+    scale: f64,
+    height: f64,
+) -> Vec<(DQuat, DVec3)> {
+    frames
+        .iter()
+        .map(|frame| {
+            let pairs: Vec<(DVec3, DVec3)> = placed
+                .iter()
+                .filter(|p| frame[p.plan.take_index].is_finite())
+                .map(|p| {
+                    (
+                        ch.skeleton.joints[p.joint].rest + p.offset,
+                        frame[p.plan.take_index],
+                    )
+                })
+                .collect();
+            fit_heading(&pairs, Some(scale), 0.1 * height)
+                .map_or((DQuat::IDENTITY, DVec3::ZERO), |(h, _, _)| (h.q, h.t))
+        })
+        .collect()
+}
+
+/// A label on its current joint with its current offset.
+#[derive(Clone, Debug)]
+struct Placing {
+    plan: LabelPlan,
+    joint: usize,
+    offset: DVec3,
+    /// Its rest position by the rest-like frame (or the layout), when it was seen there
+    /// near a candidate bone.
+    guess: Option<DVec3>,
+}
+
+/// What every stage of the fit shares.
+struct Fit<'a> {
+    ch: &'a Character,
+    height: f64,
+    frames: &'a [Vec<DVec3>],
+    surface: &'a WindingNumber,
+    params: SolveParams,
+    /// The rest-like frame (index into `frames`) and the joints it holds near rest.
+    hold: (usize, Vec<bool>),
+}
+
+impl<'a> Fit<'a> {
+    /// A label's first placing: its rest position by the layout, or by the rest-like
+    /// frame when it lies on the skin of a candidate's bone, else the first candidate's
+    /// anchor.
+    fn initial_placing(&self, l: &LabelPlan, first: &FirstGuess) -> Placing {
+        let sk = &self.ch.skeleton;
+        let m = self.frames[first.frame][l.take_index];
+        let seen = m
+            .is_finite()
+            .then(|| first.heading.q.inverse() * (m * first.scale - first.heading.t));
+        let near = match (l.rest, seen) {
+            // The layout's word: on the nearest candidate.
+            (Some(x), _) => l
+                .candidates
+                .iter()
+                .map(|&j| (j, bone_distance(sk, j, x)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| (j, x)),
+            // Seen on the skin of a candidate (a marker's centre lies a few millimetres
+            // to two centimetres out): that candidate.
+            (None, Some(x)) => self.surface.closest(x).and_then(|(c, d)| {
+                let d = if self.surface.at(x) > 0.5 { -d } else { d };
+                let on_skin = (-0.005..0.03).contains(&d);
+                on_skin
+                    .then(|| on_candidate(sk, c, &l.candidates))
+                    .flatten()
+                    .map(|j| (j, x))
+            }),
+            (None, None) => None,
+        };
+        match near {
+            Some((j, x)) => Placing {
+                plan: l.clone(),
+                joint: j,
+                offset: x - sk.joints[j].rest,
+                guess: Some(x),
+            },
+            None => {
+                let j = l.candidates[0];
+                Placing {
+                    plan: l.clone(),
+                    joint: j,
+                    offset: anchor(self.ch, j) - sk.joints[j].rest,
+                    guess: None,
+                }
+            }
+        }
+    }
+
+    /// The offset problem of `placed` over the frames, started from `start` headings or
+    /// from the postures of `from`, with its postures fitted.
+    fn problem(
+        &self,
+        placed: &[Placing],
+        start: &[(DQuat, DVec3)],
+        scale: f64,
+        from: Option<&OffsetSolve>,
+    ) -> OffsetSolve<'a> {
+        let sk = &self.ch.skeleton;
+        let twist: Vec<DVec3> = (0..sk.len()).map(|j| sk.twist_axis(j)).collect();
+        let joints: Vec<usize> = placed.iter().map(|p| p.joint).collect();
+        let rest: Vec<DVec3> = placed
+            .iter()
+            .map(|p| sk.joints[p.joint].rest + p.offset)
+            .collect();
+        let model = IkModel::new(sk, &twist, &joints, &rest, self.height);
+        let frames: Vec<Vec<DVec3>> = self
+            .frames
+            .iter()
+            .map(|f| placed.iter().map(|p| f[p.plan.take_index]).collect())
+            .collect();
+        let mut solve = OffsetSolve::new(model, frames, start, scale, self.surface, self.params);
+        if let Some(from) = from {
+            for (to, st) in solve.states.iter_mut().zip(&from.states) {
+                solve.model.copy_posture(to, st);
+            }
+        }
+        solve.hold_rest(self.hold.0, &self.hold.1);
+        solve.fit_postures();
+        solve
+    }
+
+    /// Moves each label of `placed` with several candidates to the one whose segments
+    /// it moves with most rigidly over `solve`'s fitted frames, with its mean position
+    /// there as its offset.
+    fn choose_candidates(&self, solve: &OffsetSolve, placed: &mut [Placing]) {
+        let sk = &self.ch.skeleton;
+        for p in placed.iter_mut() {
+            if p.plan.candidates.len() < 2 {
+                continue;
+            }
+            let samples: Vec<DVec3> = self.frames.iter().map(|f| f[p.plan.take_index]).collect();
+            let guess = p.guess;
+            let score = |j: usize| -> Option<(f64, DVec3)> {
+                let (mean, spread) = solve.mean_in_joint_frame(&samples, j)?;
+                // Far from the bone is unlikely: a marker sits on the skin over it; and
+                // so is far from where the rest-like frame saw it.
+                let bone = bone_distance(sk, j, sk.joints[j].rest + mean);
+                let seen = guess.map_or(0.0, |x| bone_distance(sk, j, x));
+                Some((spread + 0.25 * bone + 0.5 * seen, mean))
+            };
+            let best = p
+                .plan
+                .candidates
+                .iter()
+                .filter_map(|&j| score(j).map(|(s, m)| (j, s, m)))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((j, _, mean)) = best {
+                p.joint = j;
+                p.offset = mean;
+            }
+        }
+    }
+}
+
+/// Groups of labels that keep their mutual distances over `frames` (within
+/// [`RIGID_SPREAD_M`] RMS): each label's group number (labels never seen together are
+/// apart).
+fn rigid_groups(frames: &[Vec<DVec3>], labels: &[usize]) -> Vec<usize> {
+    let n = labels.len();
+    let mut group: Vec<usize> = (0..n).collect();
+    fn root(g: &mut [usize], mut i: usize) -> usize {
+        while g[i] != i {
+            g[i] = g[g[i]];
+            i = g[i];
+        }
+        i
+    }
+    for a in 0..n {
+        for b in a + 1..n {
+            let d: Vec<f64> = frames
+                .iter()
+                .filter_map(|f| {
+                    let (p, q) = (f[labels[a]], f[labels[b]]);
+                    (p.is_finite() && q.is_finite()).then(|| (p - q).length())
+                })
+                .collect();
+            if d.len() < 3 {
+                continue;
+            }
+            let mean = d.iter().sum::<f64>() / d.len() as f64;
+            let spread =
+                (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
+            if spread < RIGID_SPREAD_M {
+                let (ra, rb) = (root(&mut group, a), root(&mut group, b));
+                group[ra] = rb;
+            }
+        }
+    }
+    (0..n).map(|i| root(&mut group, i)).collect()
+}
+
+/// How much two markers on one segment may change their distance (RMS over the frames
+/// used), metres: noise and skin sliding; two segments' markers change theirs by
+/// centimetres as soon as the joint between them moves.
+const RIGID_SPREAD_M: f64 = 0.003;
+
+/// The candidate of `candidates` whose skin point `c` is: the joint whose bones pass
+/// nearest to it, or the candidate next to it in the tree (a point at a joint's crease
+/// may lie nearer the bone on the other side).
+fn on_candidate(
+    sk: &crate::character::skeleton::Skeleton,
+    c: DVec3,
+    candidates: &[usize],
+) -> Option<usize> {
+    let owner = (0..sk.len())
+        .filter(|&j| sk.children(j).next().is_some())
+        .min_by(|&a, &b| bone_distance(sk, a, c).total_cmp(&bone_distance(sk, b, c)))?;
+    candidates
+        .iter()
+        .copied()
+        .find(|&j| j == owner)
+        .or_else(|| {
+            candidates
+                .iter()
+                .copied()
+                .find(|&j| sk.joints[j].parent == Some(owner) || sk.joints[owner].parent == Some(j))
+        })
+}
+
+impl Fit<'_> {
+    /// Moves every label of a rigid group ([`rigid_groups`]) to the joint most of the
+    /// group chose (on a tie, the one voted for last), with its mean position there as
+    /// offset.
+    fn agree_within_rigid_groups(&self, solve: &OffsetSolve, placed: &mut [Placing]) {
+        let labels: Vec<usize> = placed.iter().map(|p| p.plan.take_index).collect();
+        let groups = rigid_groups(self.frames, &labels);
+        for g in 0..placed.len() {
+            let members: Vec<usize> = (0..placed.len()).filter(|&i| groups[i] == g).collect();
+            if members.len() < 2 {
+                continue;
+            }
+            let mut votes: Vec<(usize, usize)> = Vec::new();
+            for &i in &members {
+                match votes.iter_mut().find(|v| v.0 == placed[i].joint) {
+                    Some(v) => v.1 += 1,
+                    None => votes.push((placed[i].joint, 1)),
+                }
+            }
+            let Some(&(joint, _)) = votes.iter().max_by_key(|v| v.1) else {
+                continue;
+            };
+            for &i in &members {
+                let samples: Vec<DVec3> = self
+                    .frames
+                    .iter()
+                    .map(|f| f[placed[i].plan.take_index])
+                    .collect();
+                if let Some((mean, _)) = solve.mean_in_joint_frame(&samples, joint) {
+                    placed[i].joint = joint;
+                    placed[i].offset = mean;
+                }
+            }
+        }
+    }
+}
+
+/// Distance from `x` to joint `j`'s bones (the segments to its children; the joint
+/// itself for a leaf), at rest.
+fn bone_distance(sk: &crate::character::skeleton::Skeleton, j: usize, x: DVec3) -> f64 {
+    let a = sk.joints[j].rest;
+    sk.children(j)
+        .map(|c| {
+            let b = sk.joints[c].rest;
+            let ab = b - a;
+            let t = ((x - a).dot(ab) / ab.length_squared().max(1e-18)).clamp(0.0, 1.0);
+            (x - (a + ab * t)).length()
+        })
+        .fold((x - a).length(), f64::min)
+}
+
+/// The result of a finished solve, with each label's misfit and flags.
+fn finish(
+    ch: &Character,
+    solve: &OffsetSolve,
+    placed: &[Placing],
+    plan: labels::Plan,
+    frames: Vec<usize>,
+    report: SolveReport,
+) -> Calibration {
+    let residuals = solve.residuals();
+    let mut rms: Vec<f64> = residuals.iter().map(|r| r.0).collect();
+    rms.sort_by(f64::total_cmp);
+    let median = rms.get(rms.len() / 2).copied().unwrap_or(0.0).max(1e-4);
+    let (mut sum, mut n, mut max) = (0.0, 0usize, 0.0f64);
+    let mut out = Vec::with_capacity(placed.len());
+    for (k, p) in placed.iter().enumerate() {
+        let (r_rms, r_max, count) = residuals[k];
+        sum += r_rms * r_rms * count as f64;
+        n += count;
+        max = max.max(r_max);
+        let offset = solve.model.marker_offset[k];
+        let x = ch.skeleton.joints[p.joint].rest + offset;
+        let skin = solve.surface_distance(x).unwrap_or(f64::NAN);
+        let frames_off = solve.frames_off(k, (4.0 * median).max(0.03));
+        let flag = if r_rms > 3.0 * median && r_rms > 0.01 {
+            Some(Flag::FitsBadly {
+                times_median: r_rms / median,
+            })
+        } else if frames_off >= (count / 10).max(2) && frames_off * 2 < count {
+            Some(Flag::Jumps { frames_off })
+        } else if skin.abs() > 2.0 * solve.params().skin_max_m {
+            Some(Flag::OffSkin {
+                distance_mm: skin * 1e3,
+            })
+        } else {
+            None
+        };
+        out.push(PlacedLabel {
+            label: p.plan.label.clone(),
+            joint: p.joint,
+            joint_name: ch.skeleton.joints[p.joint].name.clone(),
+            offset_m: offset,
+            skin_m: skin,
+            source: p.plan.source.clone(),
+            residual_mm_rms: r_rms * 1e3,
+            residual_mm_max: r_max * 1e3,
+            frames: count,
+            flag,
+        });
+    }
+    Calibration {
+        scale: solve.scale,
+        placed: out,
+        left_out: plan.left_out,
+        marker_set: plan.set.map(|(s, n)| (s.name, n)),
+        frames,
+        residual_mm_rms: (sum / n.max(1) as f64).sqrt() * 1e3,
+        residual_mm_max: max * 1e3,
+        report,
+    }
+}

@@ -23,6 +23,10 @@ pub enum BodyMotion {
     Walk,
     /// Standing, reaching forward and up with the right arm while leaning in, and back.
     Reach,
+    /// A calibration's range of motion: 1.5 s standing in the rest pose, then each group
+    /// of joints bent and back in turn (arms, wrists and forearms, trunk, neck, each leg,
+    /// a squat), 1.5 s each.
+    RangeOfMotion,
 }
 
 impl BodyMotion {
@@ -30,6 +34,7 @@ impl BodyMotion {
         match self {
             BodyMotion::Walk => "walk",
             BodyMotion::Reach => "reach",
+            BodyMotion::RangeOfMotion => "rom",
         }
     }
 }
@@ -613,8 +618,65 @@ pub fn body_pose(sk: &Skeleton, motion: BodyMotion, t_s: f64) -> Pose {
             }
             DVec3::new(0.0, -0.03 * u, 0.02 * u)
         }
+        BodyMotion::RangeOfMotion => range_of_motion(&mut local, &set, t_s),
     };
     Pose { local, root_offset }
+}
+
+/// Sets one joint's local rotation from swing-twist angles: `(local, joint, twist°,
+/// bend°, side°)`.
+type SetJoint<'a> = &'a dyn Fn(&mut Vec<DQuat>, &str, f64, f64, f64);
+
+/// The range-of-motion take's pose at `t_s` (see [`BodyMotion::RangeOfMotion`]):
+/// fills `local` through `set`, returns the root's offset.
+fn range_of_motion(local: &mut Vec<DQuat>, set: SetJoint, t_s: f64) -> DVec3 {
+    const REST_S: f64 = 1.5;
+    const PHASE_S: f64 = 1.5;
+    if t_s < REST_S {
+        return DVec3::ZERO;
+    }
+    let phase = ((t_s - REST_S) / PHASE_S).floor();
+    // 0 → 1 → 0 within the phase, eased.
+    let u = 0.5 - 0.5 * (std::f64::consts::TAU * ((t_s - REST_S) / PHASE_S).fract()).cos();
+    let both = |local: &mut Vec<DQuat>, name: &str, twist: f64, bend: f64, side: f64| {
+        for l in ["l", "r"] {
+            set(local, &format!("{name}_{l}"), twist, bend, side);
+        }
+    };
+    match phase as i64 {
+        0 => {
+            both(local, "shoulder", 20.0 * u, 80.0 * u, 30.0 * u);
+            both(local, "elbow", 0.0, 100.0 * u, 0.0);
+        }
+        1 => {
+            both(local, "elbow", 60.0 * u, 45.0 * u, 0.0);
+            both(local, "wrist", 10.0 * u, 50.0 * u, 20.0 * u);
+            both(local, "clavicle", 0.0, 8.0 * u, 10.0 * u);
+        }
+        2 => {
+            set(local, "spine", 20.0 * u, 30.0 * u, 15.0 * u);
+            set(local, "chest", -15.0 * u, 20.0 * u, -10.0 * u);
+        }
+        3 => {
+            set(local, "neck", 40.0 * u, 30.0 * u, 20.0 * u);
+            set(local, "head", -20.0 * u, -20.0 * u, 10.0 * u);
+        }
+        4 | 5 => {
+            let l = if phase as i64 == 4 { "l" } else { "r" };
+            set(local, &format!("hip_{l}"), 20.0 * u, 70.0 * u, 20.0 * u);
+            set(local, &format!("knee_{l}"), 0.0, 90.0 * u, 0.0);
+            set(local, &format!("ankle_{l}"), 10.0 * u, 25.0 * u, 10.0 * u);
+        }
+        6 => {
+            both(local, "hip", 0.0, 45.0 * u, 0.0);
+            both(local, "knee", 0.0, 70.0 * u, 0.0);
+            both(local, "ankle", 0.0, 25.0 * u, 0.0);
+            set(local, "spine", 0.0, -20.0 * u, 0.0);
+            return DVec3::new(0.0, -0.12 * u, 0.0);
+        }
+        _ => {}
+    }
+    DVec3::ZERO
 }
 
 #[cfg(test)]
@@ -671,8 +733,12 @@ mod tests {
     #[test]
     fn motions_stay_within_limits() {
         let b = body(0.02, 8_000);
-        for motion in [BodyMotion::Walk, BodyMotion::Reach] {
-            for k in 0..160 {
+        for motion in [
+            BodyMotion::Walk,
+            BodyMotion::Reach,
+            BodyMotion::RangeOfMotion,
+        ] {
+            for k in 0..480 {
                 let pose = body_pose(&b.skeleton, motion, k as f64 * 0.025);
                 if let Some((j, excess)) = b.skeleton.worst_limit_excess(&pose.local) {
                     assert!(

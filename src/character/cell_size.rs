@@ -5,10 +5,9 @@
 //! vertices nor a scanned body gets a lattice of tens of thousands of vertices, and a
 //! hand's fingers are not one cell thick. The reason is said in `rigless bake`'s summary.
 
-use super::mesh::weld;
+use super::mesh::welded_outward;
 use super::skeleton::Skeleton;
 use super::MarkerDef;
-use crate::geom::winding::orient_parts;
 use glam::DVec3;
 
 /// Fewest and most control vertices a default cell size aims for (the targets: about
@@ -34,13 +33,8 @@ pub struct CellChoice {
 }
 
 /// The mesh's enclosed volume (its parts oriented outward, m³) and its area (m²).
-fn volume_and_area(vertices: &[DVec3], triangles: &[[u32; 3]], size_m: f64) -> (f64, f64) {
-    let (ids, unique) = weld(vertices, 1e-9 * size_m);
-    let welded: Vec<[u32; 3]> = triangles
-        .iter()
-        .map(|t| t.map(|i| ids[i as usize]))
-        .collect();
-    let (oriented, _) = orient_parts(&unique, &welded);
+fn volume_and_area(vertices: &[DVec3], triangles: &[[u32; 3]]) -> (f64, f64) {
+    let (unique, oriented, _) = welded_outward(vertices, triangles);
     let (mut volume, mut area) = (0.0, 0.0);
     for t in &oriented {
         let [a, b, c] = t.map(|i| unique[i as usize]);
@@ -75,7 +69,7 @@ pub fn default_cell_size(
     markers: &[MarkerDef],
     size_m: f64,
 ) -> CellChoice {
-    let (volume, area) = volume_and_area(vertices, triangles, size_m);
+    let (volume, area) = volume_and_area(vertices, triangles);
     let estimate = |c: f64| NODES_PER_CELL * (volume / c.powi(3) + area / c.powi(2));
     let finest = cell_for(MAX_CONTROL_VERTICES, volume, area, size_m);
     let coarsest = cell_for(MIN_CONTROL_VERTICES, volume, area, size_m);

@@ -12,13 +12,17 @@ pub struct CharacterConfig {
     /// A character file (TOML, see README), relative to the stage config's folder. It is
     /// baked on first use and its bake cache reused afterwards.
     pub path: Option<PathBuf>,
+    /// Character metres per capture metre, applied to every incoming marker (a small
+    /// actor driving a tall character); default: the character file's
+    /// `calibration.marker_scale` (what `rigless calibrate --write` found), else 1.
+    pub marker_scale: Option<f64>,
 }
 
 /// The motions each procedural character plays (empty: no such character).
 pub fn motions_of(procedural: &str) -> &'static [&'static str] {
     match procedural {
         "hand" => &["finger_play"],
-        "body" => &["walk", "reach"],
+        "body" => &["walk", "reach", "rom"],
         _ => &[],
     }
 }
@@ -26,6 +30,21 @@ pub fn motions_of(procedural: &str) -> &'static [&'static str] {
 impl CharacterConfig {
     /// What is wrong, as `(key, message)` with keys relative to `[character]`.
     pub fn problems(&self) -> Vec<(String, String)> {
+        let mut out = self.source_problems();
+        if let Some(v) = self.marker_scale {
+            use crate::character::file::{MAX_MARKER_SCALE, MIN_MARKER_SCALE};
+            if !(v.is_finite() && (MIN_MARKER_SCALE..=MAX_MARKER_SCALE).contains(&v)) {
+                out.push((
+                    "marker_scale".into(),
+                    format!("must be {MIN_MARKER_SCALE} to {MAX_MARKER_SCALE} (character metres per capture metre), got {v:?}"),
+                ));
+            }
+        }
+        out
+    }
+
+    /// What is wrong with the choice of character.
+    fn source_problems(&self) -> Vec<(String, String)> {
         match (&self.procedural, &self.path) {
             (Some(_), Some(_)) => vec![(
                 String::new(),

@@ -52,6 +52,11 @@ use serde::Deserialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
+/// Smallest `calibration.marker_scale`: a character a tenth of its actor's size.
+pub const MIN_MARKER_SCALE: f64 = 0.1;
+/// Largest: ten times.
+pub const MAX_MARKER_SCALE: f64 = 10.0;
+
 /// The whole character file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -73,6 +78,22 @@ pub struct CharacterFile {
     /// automatically along their bones).
     #[serde(default)]
     pub correspondences: Vec<CorrespondenceSpec>,
+    /// What `rigless calibrate` needs and finds: the label map and the actor's scale.
+    #[serde(default)]
+    pub calibration: CalibrationSpec,
+}
+
+/// `[calibration]`.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSpec {
+    /// Character metres per take metre, applied to incoming markers (written by
+    /// `rigless calibrate --write`; default 1).
+    pub marker_scale: Option<f64>,
+    /// Labels to bones for `rigless calibrate`, before the built-in tables: globs over
+    /// labels (`*`, `?`) to a joint name or a role (`"L*WR*" = "leftHand"`).
+    #[serde(default)]
+    pub bones: BTreeMap<String, String>,
 }
 
 /// `[[correspondences]]`: triangles that follow one joint's segment rigidly in the
@@ -305,6 +326,9 @@ fn join_problems(problems: &[CharacterProblem]) -> String {
 /// triangle numbers are 0-based in the mesh file's order.
 #[derive(Debug, PartialEq, thiserror::Error)]
 pub enum CharacterProblem {
+    /// `calibration.marker_scale` is out of range.
+    #[error("calibration.marker_scale must be {MIN_MARKER_SCALE} to {MAX_MARKER_SCALE} (character metres per take metre), got {value:?}")]
+    MarkerScale { value: f64 },
     /// `mesh.path` has an extension that is not a mesh format.
     #[error("mesh.path {path:?}: unknown mesh format {extension:?} (use .glb, .gltf or .obj)")]
     UnknownMeshFormat { path: PathBuf, extension: String },
@@ -454,6 +478,12 @@ pub struct LoadedCharacter {
     pub cell_choice: Option<CellChoice>,
     /// The humanoid roles found in the skeleton.
     pub roles: RoleSummary,
+    /// Each joint's role, when it has one.
+    pub joint_roles: Vec<Option<Role>>,
+    /// Character metres per take metre (`calibration.marker_scale`, default 1).
+    pub marker_scale: f64,
+    /// `calibration.bones`: label globs to joints or roles.
+    pub calibration_map: BTreeMap<String, String>,
     /// Hash of the mesh (its file and what the parse found) and this crate's version: the
     /// bake cache's key (its contents are used only for the same control mesh too).
     pub inputs_hash: u64,
@@ -558,6 +588,9 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         warnings: built.warnings,
         cell_choice: built.cell_choice,
         roles: built.roles,
+        joint_roles: built.joint_roles,
+        marker_scale: spec.calibration.marker_scale.unwrap_or(1.0),
+        calibration_map: spec.calibration.bones.clone(),
         inputs_hash,
         mesh_path,
     })
@@ -600,6 +633,8 @@ pub struct Built {
     pub cell_choice: Option<CellChoice>,
     /// The humanoid roles of the skeleton's joints.
     pub roles: RoleSummary,
+    /// Each joint's role, when it has one.
+    pub joint_roles: Vec<Option<Role>>,
 }
 
 /// The extent of the vertices' bounding box, metres.
@@ -658,7 +693,8 @@ pub fn build(
     }
     let role_axis: Vec<Option<DVec3>> = role_limits.iter().map(|l| l.map(|l| l.1)).collect();
     apply_limits(sk, &mut joints, &role_axis, &skin_x_axis, &mut problems);
-    let roles = roles_summary(&joints, &roles);
+    let joint_roles = roles;
+    let roles = roles_summary(&joints, &joint_roles);
     let skeleton = finish_skeleton(joints, &mut problems);
     let markers = place_markers(&spec.markers, skeleton.as_ref(), &mut problems);
     let cell_choice = match (&skeleton, spec.bind.cell_size_m, problems.is_empty()) {
@@ -680,6 +716,11 @@ pub fn build(
         });
     }
     let params = bind_params(&spec.bind, size_m, cell_choice.as_ref(), &mut problems);
+    if let Some(v) = spec.calibration.marker_scale {
+        if !(v.is_finite() && (MIN_MARKER_SCALE..=MAX_MARKER_SCALE).contains(&v)) {
+            problems.push(CharacterProblem::MarkerScale { value: v });
+        }
+    }
     let correspondences = correspondences(
         &spec.correspondences,
         skeleton.as_ref(),
@@ -702,6 +743,7 @@ pub fn build(
             warnings,
             cell_choice,
             roles,
+            joint_roles,
         }),
         _ => Err(problems),
     }

@@ -11,6 +11,7 @@
 //! anything is sized by it, the buffers are loaded and read here, and the calls left into
 //! the `gltf` crate run under `catch_unwind` ([`parse_gltf`] lists the checks and limits).
 
+use crate::geom::winding::orient_parts;
 use crate::runtime::files::{read_bounded, MAX_DATA_BYTES};
 use glam::{DMat4, DVec3};
 use std::collections::HashMap;
@@ -1839,6 +1840,25 @@ fn read_skin(
             }
         })
         .collect())
+}
+
+/// The surface as one welded soup (positions closer than 1e-9 of its size merged, so
+/// that parts split by UV seams count as one), its parts oriented outward
+/// ([`orient_parts`]), and whether it was clean before (closed, manifold, consistently
+/// oriented): what winding numbers and enclosed volumes need.
+pub fn welded_outward(
+    vertices: &[DVec3],
+    triangles: &[[u32; 3]],
+) -> (Vec<DVec3>, Vec<[u32; 3]>, bool) {
+    let (lo, hi) = crate::geom::shapes::bounds(vertices);
+    let (ids, unique) = weld(vertices, 1e-9 * (hi - lo).length());
+    let welded: Vec<[u32; 3]> = triangles
+        .iter()
+        .map(|t| t.map(|i| ids[i as usize]))
+        .collect();
+    let clean = surface_issues(&welded).is_clean();
+    let (oriented, _) = orient_parts(&unique, &welded);
+    (unique, oriented, clean)
 }
 
 /// Welds positions closer than `tolerance`: returns, per input vertex, its welded index,

@@ -12,8 +12,10 @@ pub struct BenchArgs {
     /// through `bake --exercise`'s range of motion), `gapfill` (the marker buffer's fill error by gap length, on synthetic
     /// sessions and the shared data folder's recordings), `live` (the whole pipeline in
     /// real time: latency from input to client, missed ticks, Rerun on and off, 50
-    /// clients), `codecs` (decode cost per packet of each input format, 50 markers), or
-    /// `replay` (send-time jitter of `rigless replay` at 120 Hz against the file's clock).
+    /// clients), `codecs` (decode cost per packet of each input format, 50 markers),
+    /// `replay` (send-time jitter of `rigless replay` at 120 Hz against the file's
+    /// clock), or `calibration` (`rigless calibrate` on known truth and on the data
+    /// folder's takes and assets: time, scale and offset errors, misfit).
     #[arg(long, value_enum, default_value_t = Suite::Capsules)]
     suite: Suite,
     /// Print one JSON object per line instead of a table.

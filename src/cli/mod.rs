@@ -4,6 +4,7 @@
 
 pub mod bake;
 pub mod bench;
+pub mod calibrate;
 pub mod demo;
 pub mod export_hand;
 pub mod info;

@@ -69,6 +69,11 @@ pub struct ReplayArgs {
     /// Metres per BVH unit.
     #[arg(long, default_value_t = DEFAULT_BVH_METRES_PER_UNIT)]
     bvh_scale: f64,
+    /// With --solve: character metres per recorded metre, applied to every marker
+    /// (default: the character file's calibration.marker_scale, which `rigless calibrate
+    /// --write` sets; else 1).
+    #[arg(long, requires = "solve")]
+    marker_scale: Option<f64>,
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
@@ -217,6 +222,9 @@ fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::Stage
         "hand" | "body" => ch.insert("procedural".into(), Value::String(character.into())),
         path => ch.insert("path".into(), abs(Path::new(path))?),
     };
+    if let Some(s) = a.marker_scale {
+        ch.insert("marker_scale".into(), Value::Float(s));
+    }
     let mut input = Table::new();
     input.insert("type".into(), Value::String("replay".into()));
     input.insert("path".into(), abs(&a.file)?);

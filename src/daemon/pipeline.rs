@@ -79,6 +79,8 @@ pub struct Pipeline {
     buffer: MarkerBuffer,
     rx: Receiver<MarkerSample>,
     slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    /// Character metres per capture metre, applied to every drained sample.
+    marker_scale: f64,
     /// Every drained sample also goes here (the session recorder), without blocking.
     recorder: Option<Sender<MarkerSample>>,
     /// Samples the recorder's channel had no room for.
@@ -124,6 +126,7 @@ impl Pipeline {
             buffer,
             rx,
             slots,
+            marker_scale: 1.0,
             recorder: None,
             record_dropped: 0,
             markers: MarkerFrame::empty(nm),
@@ -167,6 +170,13 @@ impl Pipeline {
         self
     }
 
+    /// Scales every incoming marker position by `marker_scale` (character metres per
+    /// capture metre, from a calibration) before the buffer sees it.
+    pub fn with_marker_scale(mut self, marker_scale: f64) -> Self {
+        self.marker_scale = marker_scale;
+        self
+    }
+
     /// Publishes the deformed control mesh with every frame (for a wireframe view; the
     /// ARAP method only, the harmonic method has none).
     pub fn with_control_mesh(mut self) -> Self {
@@ -201,7 +211,12 @@ impl Pipeline {
         let start = Instant::now();
         let mut drained = 0;
         while let Ok(s) = self.rx.try_recv() {
-            self.buffer.push(&s);
+            // The buffer works in the character's metres; the recorder keeps the
+            // capture's.
+            self.buffer.push(&MarkerSample {
+                position_m: s.position_m * self.marker_scale,
+                ..s
+            });
             if let Some(tx) = &self.recorder {
                 if tx.try_send(s).is_err() {
                     self.record_dropped += 1;

@@ -256,6 +256,8 @@ struct Bound {
     name: String,
     procedural: Option<Arc<Character>>,
     rig_source: Option<String>,
+    /// Character metres per capture metre for incoming markers.
+    marker_scale: f64,
 }
 
 fn bind_character(
@@ -277,6 +279,7 @@ fn bind_character(
             name: ch.name.clone(),
             procedural: Some(Arc::new(ch)),
             rig_source: None,
+            marker_scale: cfg.character.marker_scale.unwrap_or(1.0),
         });
     }
     let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
@@ -295,6 +298,7 @@ fn bind_character(
         name: loaded.character.name.clone(),
         procedural: None,
         rig_source: Some(format!("{}: {source}", path.display())),
+        marker_scale: cfg.character.marker_scale.unwrap_or(loaded.marker_scale),
     })
 }
 
@@ -396,6 +400,7 @@ impl Stage {
         let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take(), opts.rerun.take())?;
         let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
         let (mut pipeline, pins) = assemble(cfg, solver, rx, &sinks);
+        pipeline = pipeline.with_marker_scale(bound.marker_scale);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
             Some(path) => {
                 let (rec_tx, handle) = start_recorder(cfg, &path, &rig, &clock)?;

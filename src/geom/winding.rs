@@ -115,6 +115,116 @@ impl WindingNumber {
     }
 }
 
+impl WindingNumber {
+    /// The point of the surface nearest to `q` and its distance (`None` for no
+    /// triangles): the same hierarchy, searched depth-first, nearer child first, a node
+    /// skipped when its bounding sphere lies farther than the best point found so far.
+    pub fn closest(&self, q: DVec3) -> Option<(DVec3, f64)> {
+        let mut best = (DVec3::ZERO, f64::INFINITY);
+        let mut stack = [0u32; STACK];
+        let mut top = usize::from(!self.nodes.is_empty());
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if (node.centre - q).length() - node.radius >= best.1 {
+                continue;
+            }
+            match node.kind {
+                NodeKind::Leaf { first, count } => {
+                    for t in &self.tris[first as usize..(first + count) as usize] {
+                        let c = closest_on_triangle(q, t);
+                        let d = (c - q).length();
+                        if d < best.1 {
+                            best = (c, d);
+                        }
+                    }
+                }
+                NodeKind::Inner { left, right } if top + 2 <= STACK => {
+                    let dl = (self.nodes[left as usize].centre - q).length_squared();
+                    let dr = (self.nodes[right as usize].centre - q).length_squared();
+                    // The nearer child on top of the stack: searched first.
+                    let (near, far) = if dl <= dr {
+                        (left, right)
+                    } else {
+                        (right, left)
+                    };
+                    stack[top] = far;
+                    stack[top + 1] = near;
+                    top += 2;
+                }
+                // Deeper than the stack (not reached by a median-split tree): its
+                // triangles are searched one by one.
+                NodeKind::Inner { .. } => {
+                    for t in &self.tris {
+                        let c = closest_on_triangle(q, t);
+                        let d = (c - q).length();
+                        if d < best.1 {
+                            best = (c, d);
+                        }
+                    }
+                }
+            }
+        }
+        best.1.is_finite().then_some(best)
+    }
+}
+
+/// The point of triangle `t` nearest to `p` (Ericson, "Real-Time Collision Detection",
+/// Section 5.1.5: the Voronoi region of `p` among the corners, edges and face).
+pub fn closest_on_triangle(p: DVec3, t: &[DVec3; 3]) -> DVec3 {
+    let [a, b, c] = *t;
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * ratio(d1, d1 - d3);
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * ratio(d2, d2 - d6);
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ratio(d4 - d3, (d4 - d3) + (d5 - d6));
+    }
+    let denom = va + vb + vc;
+    if denom.abs() < f64::MIN_POSITIVE {
+        // A degenerate (zero-area) triangle: its nearest corner.
+        return [a, b, c]
+            .into_iter()
+            .min_by(|x, y| {
+                (*x - p)
+                    .length_squared()
+                    .total_cmp(&(*y - p).length_squared())
+            })
+            .unwrap_or(a);
+    }
+    let (v, w) = (vb / denom, vc / denom);
+    a + ab * v + ac * w
+}
+
+/// `x / y`, or 0 for a zero `y` (an edge of zero length: its start is as near as any).
+fn ratio(x: f64, y: f64) -> f64 {
+    if y != 0.0 {
+        (x / y).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
 /// The signed solid angle of triangle `t` seen from `q` times 1 (the dipole terms above
 /// are in the same units: steradians), Van Oosterom and Strackee's formula.
 fn triangle_solid_angle(t: &[DVec3; 3], q: DVec3) -> f64 {
@@ -262,6 +372,55 @@ pub fn orient_parts(positions: &[DVec3], tris: &[[u32; 3]]) -> (Vec<[u32; 3]>, u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn closest_point_agrees_with_a_search_of_every_triangle() {
+        use crate::geom::shapes::uv_sphere;
+        let (v, t) = uv_sphere(DVec3::new(0.1, 0.2, -0.3), 0.5, 12, 24);
+        let wn = WindingNumber::new(&v, &t);
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for _ in 0..200 {
+            let q = DVec3::new(rnd(), rnd(), rnd()) * 1.5;
+            let (c, d) = wn.closest(q).expect("a surface");
+            let brute = t
+                .iter()
+                .map(|tri| {
+                    let tri = tri.map(|i| v[i as usize]);
+                    (closest_on_triangle(q, &tri) - q).length()
+                })
+                .fold(f64::INFINITY, f64::min);
+            // The same triangles, the same arithmetic: equal to rounding.
+            assert!((d - brute).abs() < 1e-12, "{q}: {d} vs {brute}");
+            assert!(((c - q).length() - d).abs() < 1e-12);
+        }
+        assert!(WindingNumber::new(&v, &[]).closest(DVec3::ZERO).is_none());
+    }
+
+    #[test]
+    fn closest_on_a_triangle_by_region() {
+        let t = [DVec3::ZERO, DVec3::X, DVec3::Y];
+        // Face, corner, edge and hypotenuse regions; equal to rounding.
+        let near = |p: DVec3, want: DVec3| {
+            let got = closest_on_triangle(p, &t);
+            assert!(
+                (got - want).length() < 1e-15,
+                "{p}: {got} instead of {want}"
+            );
+        };
+        near(DVec3::new(0.2, 0.3, 1.0), DVec3::new(0.2, 0.3, 0.0));
+        near(DVec3::new(-1.0, -1.0, 0.0), DVec3::ZERO);
+        near(DVec3::new(0.5, -1.0, 0.0), DVec3::new(0.5, 0.0, 0.0));
+        near(DVec3::new(1.0, 1.0, 0.0), DVec3::new(0.5, 0.5, 0.0));
+        // A degenerate triangle gives a finite point.
+        let flat = [DVec3::ZERO, DVec3::ZERO, DVec3::X];
+        assert!(closest_on_triangle(DVec3::new(0.5, 1.0, 0.0), &flat).is_finite());
+    }
     use crate::geom::shapes::uv_sphere as sphere;
 
     fn brute(v: &[DVec3], t: &[[u32; 3]], q: DVec3) -> f64 {

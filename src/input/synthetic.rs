@@ -26,6 +26,7 @@ impl SyntheticInput {
         let ch = character.ok_or(InputError::NeedsProcedural)?;
         let motion = match (ch.name.as_str(), cfg.motion.as_deref()) {
             ("body", Some("reach")) => Motion::Body(BodyMotion::Reach),
+            ("body", Some("rom")) => Motion::Body(BodyMotion::RangeOfMotion),
             ("body", _) => Motion::Body(BodyMotion::Walk),
             _ => Motion::FingerPlay,
         };

@@ -20,7 +20,7 @@ pub struct BundledSpec {
     pub seconds: f64,
 }
 
-pub const SPECS: [BundledSpec; 3] = [
+pub const SPECS: [BundledSpec; 4] = [
     BundledSpec {
         name: "hand_finger_play",
         character: "hand",
@@ -37,6 +37,12 @@ pub const SPECS: [BundledSpec; 3] = [
         name: "body_reach",
         character: "body",
         motion: Motion::Body(BodyMotion::Reach),
+        seconds: 12.0,
+    },
+    BundledSpec {
+        name: "body_rom",
+        character: "body",
+        motion: Motion::Body(BodyMotion::RangeOfMotion),
         seconds: 12.0,
     },
 ];
@@ -73,13 +79,14 @@ pub fn generate(spec: &BundledSpec) -> Result<Vec<u8>, C3dError> {
 }
 
 /// The bundled sessions' bytes, embedded at build time.
-const EMBEDDED: [(&str, &[u8]); 3] = [
+const EMBEDDED: [(&str, &[u8]); 4] = [
     (
         "hand_finger_play",
         include_bytes!("../../replay/hand_finger_play.c3d"),
     ),
     ("body_walk", include_bytes!("../../replay/body_walk.c3d")),
     ("body_reach", include_bytes!("../../replay/body_reach.c3d")),
+    ("body_rom", include_bytes!("../../replay/body_rom.c3d")),
 ];
 
 /// A bundled session's C3D bytes by name.

@@ -96,6 +96,16 @@ pub enum RecordingError {
 }
 
 impl Recording {
+    /// The recording as a calibration reads it.
+    pub fn as_take(&self) -> crate::calibrate::Take<'_> {
+        crate::calibrate::Take {
+            name: &self.name,
+            rate_hz: self.rate_hz,
+            labels: &self.labels,
+            frames: &self.frames,
+        }
+    }
+
     /// Reads a C3D file's bytes.
     pub fn from_c3d(name: &str, bytes: &[u8]) -> Result<Self, RecordingError> {
         let c = read_c3d(bytes).map_err(|source| RecordingError::C3d {

@@ -18,11 +18,11 @@ use super::lattice::{barycentric, sample_surface, solid_or, surface_cells, surfa
 use super::tetmesh::{bounds, TetMesh, TetMeshError};
 use crate::character::bind_params::BindParams;
 use crate::character::file::{fnv1a, point_bytes};
-use crate::character::mesh::{surface_issues, weld};
+use crate::character::mesh::welded_outward;
 use crate::character::skeleton::Skeleton;
 use crate::character::Character;
 use crate::geom::lattice::{Grid, KUHN};
-use crate::geom::winding::{orient_parts, WindingNumber};
+use crate::geom::winding::WindingNumber;
 use glam::DVec3;
 use std::collections::HashMap;
 
@@ -378,18 +378,8 @@ fn anchors_of_free_parts(control: &TetMesh, rows: &LinearRows) -> (Vec<usize>, u
 /// consistently oriented surface, whose inside the flood fill alone finds exactly (and
 /// at no cost).
 fn winding_of(ch: &Character) -> Option<WindingNumber> {
-    let (lo, hi) = bounds(&ch.vertices);
-    let (ids, unique) = weld(&ch.vertices, 1e-9 * (hi - lo).length());
-    let welded: Vec<[u32; 3]> = ch
-        .triangles
-        .iter()
-        .map(|t| t.map(|i| ids[i as usize]))
-        .collect();
-    if surface_issues(&welded).is_clean() {
-        return None;
-    }
-    let (oriented, _) = orient_parts(&unique, &welded);
-    Some(WindingNumber::new(&unique, &oriented))
+    let (unique, oriented, clean) = welded_outward(&ch.vertices, &ch.triangles);
+    (!clean).then(|| WindingNumber::new(&unique, &oriented))
 }
 
 /// Skeleton samples, each in a cell instance labelled by its segment's owner: their

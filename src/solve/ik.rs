@@ -80,6 +80,9 @@ pub struct IkState {
     pub angles: Vec<f64>,
     /// The previous frame's angles (the prior's centre).
     prev_angles: Vec<f64>,
+    /// Per parameter, a factor on the rest prior (1 unless a caller holds some joints
+    /// near rest: a calibration's rest-like frame).
+    pub(crate) rest_scale: Vec<f64>,
     /// World rotation and position of each root joint (unused for other joints).
     root_rot: Vec<DQuat>,
     root_pos: Vec<DVec3>,
@@ -168,6 +171,7 @@ impl IkModel {
         let mut st = IkState {
             angles: vec![0.0; np],
             prev_angles: vec![0.0; np],
+            rest_scale: vec![1.0; np],
             root_rot: vec![DQuat::IDENTITY; nj],
             root_pos: self.rest.clone(),
             world_rot: vec![DQuat::IDENTITY; nj],
@@ -190,7 +194,7 @@ impl IkModel {
 
     /// Recomputes the forward kinematics (`world_rot`, `world_pos`, `predicted`) of the
     /// state's own posture.
-    fn refresh(&self, st: &mut IkState) {
+    pub(crate) fn refresh(&self, st: &mut IkState) {
         self.forward(
             &st.angles,
             &st.root_rot,
@@ -254,6 +258,7 @@ impl IkModel {
         w: Priors,
         angles: &[f64],
         prev: &[f64],
+        rest_scale: &[f64],
         predicted: &[DVec3],
         m: &[DVec3],
     ) -> f64 {
@@ -267,8 +272,8 @@ impl IkModel {
         for d in &self.dofs {
             if let Dofs::Angles { first } = *d {
                 for i in first..first + 3 {
-                    prior +=
-                        w.rest * angles[i] * angles[i] + w.prev * (angles[i] - prev[i]).powi(2);
+                    prior += w.rest * rest_scale[i] * angles[i] * angles[i]
+                        + w.prev * (angles[i] - prev[i]).powi(2);
                 }
             }
         }
@@ -287,6 +292,38 @@ impl IkModel {
         self.refresh(st);
     }
 
+    /// Moves the whole posture rigidly: every root joint gets the world rotation `q`
+    /// and the position `q · r_root + t` (its rest position moved by `x ↦ q x + t`);
+    /// the joint angles are kept. Recomputes the forward kinematics.
+    pub fn place_roots(&self, st: &mut IkState, q: DQuat, t: DVec3) {
+        for (j, d) in self.dofs.iter().enumerate() {
+            if let Dofs::Root { .. } = d {
+                st.root_rot[j] = q;
+                st.root_pos[j] = q * self.rest[j] + t;
+            }
+        }
+        self.refresh(st);
+    }
+
+    /// Gives `to` the posture of `from` (a state of a model of the same skeleton, with
+    /// other markers) and recomputes its forward kinematics.
+    pub fn copy_posture(&self, to: &mut IkState, from: &IkState) {
+        to.angles.copy_from_slice(&from.angles);
+        to.prev_angles.copy_from_slice(&from.prev_angles);
+        to.root_rot.copy_from_slice(&from.root_rot);
+        to.root_pos.copy_from_slice(&from.root_pos);
+        self.refresh(to);
+    }
+
+    /// The prior weights `((ε_rest h)², (ε_prev h)²)` of [`Self::solve`] with `params`:
+    /// what it adds to the diagonal of the normal equations per angle unknown.
+    pub(crate) fn prior_weights(&self, params: &IkParams) -> (f64, f64) {
+        (
+            (params.rest_prior * self.height_m).powi(2),
+            (params.prev_prior * self.height_m).powi(2),
+        )
+    }
+
     /// Marks the start of a new frame: the current posture becomes the prior's centre.
     pub fn begin_frame(&self, st: &mut IkState) {
         st.prev_angles.copy_from_slice(&st.angles);
@@ -298,11 +335,16 @@ impl IkModel {
     /// `st.world_rot`/`st.world_pos` hold its forward kinematics.
     pub fn solve(&self, st: &mut IkState, m: &[DVec3], params: &IkParams) -> IkReport {
         let np = self.n_params;
-        let w = Priors {
-            rest: (params.rest_prior * self.height_m).powi(2),
-            prev: (params.prev_prior * self.height_m).powi(2),
-        };
-        let mut cost = self.objective(w, &st.angles, &st.prev_angles, &st.predicted, m);
+        let (rest, prev) = self.prior_weights(params);
+        let w = Priors { rest, prev };
+        let mut cost = self.objective(
+            w,
+            &st.angles,
+            &st.prev_angles,
+            &st.rest_scale,
+            &st.predicted,
+            m,
+        );
         let mut iterations = 0;
         st.mu = st.mu.clamp(1e-9, 1e3);
         while iterations < params.max_iterations {
@@ -359,7 +401,14 @@ impl IkModel {
                     &mut t.world_pos,
                     &mut t.predicted,
                 );
-                let c = self.objective(w, &t.angles, &st.prev_angles, &t.predicted, m);
+                let c = self.objective(
+                    w,
+                    &t.angles,
+                    &st.prev_angles,
+                    &st.rest_scale,
+                    &t.predicted,
+                    m,
+                );
                 if c <= cost {
                     std::mem::swap(&mut st.angles, &mut t.angles);
                     std::mem::swap(&mut st.root_rot, &mut t.root_rot);
@@ -400,7 +449,37 @@ impl IkModel {
         let np = self.n_params;
         st.hess.fill(0.0);
         st.grad.fill(0.0);
-        // World angular velocities of the angle unknowns.
+        self.update_omega(st);
+        // Per marker: 3 rows, nonzero only in its chain's columns.
+        let mut cols = std::mem::take(&mut st.cols);
+        for (k, &target) in m.iter().enumerate().take(self.marker_joint.len()) {
+            if !target.is_finite() {
+                continue;
+            }
+            let r = st.predicted[k] - target;
+            self.marker_columns(st, k, &mut cols);
+            for &(ix, cx) in cols.iter() {
+                st.grad[ix] += cx.dot(r);
+                for &(iy, cy) in cols.iter() {
+                    st.hess[ix * np + iy] += cx.dot(cy);
+                }
+            }
+        }
+        st.cols = cols;
+        for d in &self.dofs {
+            if let Dofs::Angles { first } = *d {
+                for i in first..first + 3 {
+                    let rest = w.rest * st.rest_scale[i];
+                    st.hess[i * np + i] += rest + w.prev;
+                    st.grad[i] += rest * st.angles[i] + w.prev * (st.angles[i] - st.prev_angles[i]);
+                }
+            }
+        }
+    }
+
+    /// Recomputes the world angular velocity of every angle unknown at the state's
+    /// posture (what [`Self::marker_columns`] reads).
+    pub(crate) fn update_omega(&self, st: &mut IkState) {
         for (j, d) in self.dofs.iter().enumerate() {
             if let Dofs::Angles { first } = *d {
                 let [a, b, s] = self.axes[j];
@@ -414,46 +493,30 @@ impl IkModel {
                 ];
             }
         }
-        // Per marker: 3 rows, nonzero only in its chain's columns.
-        for (k, &target) in m.iter().enumerate().take(self.marker_joint.len()) {
-            if !target.is_finite() {
-                continue;
-            }
-            let p = st.predicted[k];
-            let r = p - target;
-            let cols = &mut st.cols;
-            cols.clear();
-            for &j in &self.chain[self.chain_start[k]..self.chain_start[k + 1]] {
-                let arm = p - st.world_pos[j];
-                match self.dofs[j] {
-                    Dofs::Root { first } => {
-                        for (i, e) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
-                            cols.push((first + i, e.cross(arm)));
-                            cols.push((first + 3 + i, e));
-                        }
+    }
+
+    /// The nonzero Jacobian columns of marker `k`'s predicted position, `(unknown,
+    /// ∂p_k/∂θ_unknown)` (a root's rotation increment and position, then each joint's
+    /// angles down the chain), at the state's posture; [`Self::update_omega`] must have
+    /// run on it.
+    pub(crate) fn marker_columns(&self, st: &IkState, k: usize, cols: &mut Vec<(usize, DVec3)>) {
+        let p = st.predicted[k];
+        cols.clear();
+        for &j in &self.chain[self.chain_start[k]..self.chain_start[k + 1]] {
+            let arm = p - st.world_pos[j];
+            match self.dofs[j] {
+                Dofs::Root { first } => {
+                    for (i, e) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+                        cols.push((first + i, e.cross(arm)));
+                        cols.push((first + 3 + i, e));
                     }
-                    Dofs::Angles { first } => {
-                        for i in 0..3 {
-                            cols.push((first + i, st.omega[j][i].cross(arm)));
-                        }
+                }
+                Dofs::Angles { first } => {
+                    for i in 0..3 {
+                        cols.push((first + i, st.omega[j][i].cross(arm)));
                     }
-                    Dofs::None => {}
                 }
-            }
-            for &(ix, cx) in cols.iter() {
-                st.grad[ix] += cx.dot(r);
-                for &(iy, cy) in cols.iter() {
-                    st.hess[ix * np + iy] += cx.dot(cy);
-                }
-            }
-        }
-        for d in &self.dofs {
-            if let Dofs::Angles { first } = *d {
-                for i in first..first + 3 {
-                    st.hess[i * np + i] += w.rest + w.prev;
-                    st.grad[i] +=
-                        w.rest * st.angles[i] + w.prev * (st.angles[i] - st.prev_angles[i]);
-                }
+                Dofs::None => {}
             }
         }
     }
@@ -662,7 +725,14 @@ mod tests {
         let h = 1e-6;
         for i in 0..m.n_params() {
             let e = |s: &IkState| {
-                0.5 * m.objective(w, &s.angles, &s.prev_angles, &s.predicted, &targets)
+                0.5 * m.objective(
+                    w,
+                    &s.angles,
+                    &s.prev_angles,
+                    &s.rest_scale,
+                    &s.predicted,
+                    &targets,
+                )
             };
             let fd = (e(&perturbed(&m, &st, i, h)) - e(&perturbed(&m, &st, i, -h))) / (2.0 * h);
             // Central differences at h = 1e-6 on an objective of size ~1e-3: error ~1e-12.

@@ -1,0 +1,252 @@
+//! Which of the character's joints may carry each label of a take, and on whose word: the
+//! character's own layout, the user's map (globs to joints or roles), a marker-set table
+//! (a humanoid part per label, matched to joints by role), or nothing (any joint; the
+//! solve picks the one the marker moves rigidly with).
+
+use super::marker_sets::{best_set, candidate_joints, normalise, MarkerSet, Placed};
+use crate::character::roles::Role;
+use crate::character::Character;
+use glam::DVec3;
+
+/// Where a label's bone came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    /// The character's `[[markers]]` entry of that name.
+    Layout,
+    /// The user's map: the glob that matched.
+    Map(String),
+    /// A marker-set table: its name and the role it gives.
+    Table { set: &'static str, role: Role },
+    /// No one: the joint whose segments the marker moves with most rigidly.
+    Motion,
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Source::Layout => f.write_str("layout"),
+            Source::Map(glob) => write!(f, "map {glob:?}"),
+            Source::Table { set, role } => write!(f, "{set}: {role}"),
+            Source::Motion => f.write_str("motion"),
+        }
+    }
+}
+
+/// A label the calibration places.
+#[derive(Clone, Debug)]
+pub struct LabelPlan {
+    /// Index in the take's labels.
+    pub take_index: usize,
+    pub label: String,
+    pub source: Source,
+    /// Joints that may carry it (one for the layout and a map naming a joint).
+    pub candidates: Vec<usize>,
+    /// Its rest position, when the layout gives one (metres, world frame).
+    pub rest: Option<DVec3>,
+}
+
+/// Why a label is left out.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LeftOut {
+    /// The take never sees it.
+    NoSamples,
+    /// The table says it is on a prop, not the body.
+    Prop { set: &'static str },
+    /// The table or map gives a role no joint of this character has.
+    NoJointForRole { role: Role },
+    /// Fewer frames of the calibration have it than the fit needs.
+    TooFewFrames { frames: usize },
+}
+
+impl std::fmt::Display for LeftOut {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LeftOut::NoSamples => f.write_str("no sample in the take"),
+            LeftOut::Prop { set } => write!(f, "{set} puts it on a prop, not the body"),
+            LeftOut::NoJointForRole { role } => {
+                write!(f, "no joint of the character has the role {role}")
+            }
+            LeftOut::TooFewFrames { frames } => {
+                write!(f, "seen in only {frames} of the frames used")
+            }
+        }
+    }
+}
+
+/// A user map entry: a glob over labels (`*` any run, `?` one character; compared
+/// without case, against the label as written and normalised) and what it names.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapEntry {
+    pub glob: String,
+    /// A joint name of the skeleton, or a role (VRM humanoid name).
+    pub target: String,
+}
+
+/// Why a user map entry cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("calibration.bones.{glob:?}: {target:?} is neither a joint of the character nor a role (VRM humanoid names such as \"leftHand\")")]
+pub struct MapError {
+    pub glob: String,
+    pub target: String,
+}
+
+/// Whether `glob` matches `text` (ASCII case-insensitive; `*` and `?`).
+pub fn glob_match(glob: &str, text: &str) -> bool {
+    let g: Vec<char> = glob.chars().map(|c| c.to_ascii_uppercase()).collect();
+    let t: Vec<char> = text.chars().map(|c| c.to_ascii_uppercase()).collect();
+    // Iterative matching with one backtrack point (the last star).
+    let (mut gi, mut ti) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ti < t.len() {
+        if gi < g.len() && (g[gi] == '?' || g[gi] == t[ti]) {
+            gi += 1;
+            ti += 1;
+        } else if gi < g.len() && g[gi] == '*' {
+            star = Some((gi, ti));
+            gi += 1;
+        } else if let Some((sg, st)) = star {
+            gi = sg + 1;
+            ti = st + 1;
+            star = Some((sg, st + 1));
+        } else {
+            return false;
+        }
+    }
+    g[gi..].iter().all(|&c| c == '*')
+}
+
+/// The joints a map target names: a joint by name, else joints by role.
+fn map_joints(
+    ch: &Character,
+    roles: &[Option<Role>],
+    entry: &MapEntry,
+) -> Result<Vec<usize>, MapError> {
+    if let Some(j) = ch
+        .skeleton
+        .joints
+        .iter()
+        .position(|j| j.name == entry.target)
+    {
+        return Ok(vec![j]);
+    }
+    match entry.target.parse::<Role>() {
+        Ok(role) => Ok(candidate_joints(role, roles)),
+        Err(_) => Err(MapError {
+            glob: entry.glob.clone(),
+            target: entry.target.clone(),
+        }),
+    }
+}
+
+/// What the planning found.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    pub labels: Vec<LabelPlan>,
+    pub left_out: Vec<(String, LeftOut)>,
+    /// The table used and how many of the take's labels it knows.
+    pub set: Option<(&'static MarkerSet, usize)>,
+}
+
+/// Decides the candidate joints of every label of a take: the layout, then the map,
+/// then the table (`set`, or the one that knows most labels when `None`), then any joint
+/// with children. `present[k]` is how many frames have label `k`.
+pub fn plan(
+    ch: &Character,
+    roles: &[Option<Role>],
+    labels: &[String],
+    present: &[usize],
+    map: &[MapEntry],
+    set: Option<&'static MarkerSet>,
+) -> Result<Plan, Vec<MapError>> {
+    let mut errors = Vec::new();
+    let mut map_targets = Vec::with_capacity(map.len());
+    for e in map {
+        match map_joints(ch, roles, e) {
+            Ok(js) => map_targets.push(js),
+            Err(err) => {
+                errors.push(err);
+                map_targets.push(Vec::new());
+            }
+        }
+    }
+    if !errors.is_empty() {
+        return Err(errors);
+    }
+    let set = match set {
+        Some(s) => Some((s, s.known(labels))),
+        None => best_set(labels),
+    };
+    let any_joint: Vec<usize> = (0..ch.skeleton.len())
+        .filter(|&j| ch.skeleton.children(j).next().is_some())
+        .collect();
+    let mut out = Plan {
+        labels: Vec::new(),
+        left_out: Vec::new(),
+        set,
+    };
+    for (k, label) in labels.iter().enumerate() {
+        if present[k] == 0 {
+            out.left_out.push((label.clone(), LeftOut::NoSamples));
+            continue;
+        }
+        let norm = normalise(label);
+        let own = ch
+            .markers
+            .iter()
+            .find(|m| m.name == *label || normalise(&m.name) == norm);
+        let mapped = map
+            .iter()
+            .zip(&map_targets)
+            .find(|(e, _)| glob_match(&e.glob, label) || glob_match(&e.glob, &norm));
+        let (source, candidates, rest) = if let Some(m) = own {
+            let c = m.joint.map_or_else(|| any_joint.clone(), |j| vec![j]);
+            (Source::Layout, c, Some(m.rest))
+        } else if let Some((e, js)) = mapped {
+            (Source::Map(e.glob.clone()), js.clone(), None)
+        } else if let Some(placed) = set.and_then(|(s, _)| s.place(label).map(|p| (s, p))) {
+            match placed {
+                (s, Placed::Prop) => {
+                    out.left_out
+                        .push((label.clone(), LeftOut::Prop { set: s.name }));
+                    continue;
+                }
+                (s, Placed::Body(role)) => {
+                    let js = candidate_joints(role, roles);
+                    if js.is_empty() {
+                        out.left_out
+                            .push((label.clone(), LeftOut::NoJointForRole { role }));
+                        continue;
+                    }
+                    (Source::Table { set: s.name, role }, js, None)
+                }
+            }
+        } else {
+            (Source::Motion, any_joint.clone(), None)
+        };
+        out.labels.push(LabelPlan {
+            take_index: k,
+            label: label.clone(),
+            source,
+            candidates,
+            rest,
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn globs() {
+        assert!(glob_match("L*WR*", "LWRA"));
+        assert!(glob_match("l*wr*", "LWRB"));
+        assert!(!glob_match("L*WR*", "RWRA"));
+        assert!(glob_match("?FHD", "LFHD"));
+        assert!(!glob_match("?FHD", "LLFHD"));
+        assert!(glob_match("*", ""));
+        assert!(glob_match("a*b*c", "aXXbYYc"));
+        assert!(!glob_match("a*b*c", "aXXbYY"));
+    }
+}

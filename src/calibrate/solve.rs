@@ -1,0 +1,656 @@
+//! The offset solve: every marker's offset on its joint and the global scale between
+//! take and character, fitted over a few frames of the take at once (MoSh's first stage,
+//! Loper, Mahmood and Black, "MoSh: Motion and Shape Capture from Sparse Markers",
+//! SIGGRAPH Asia 2014, Section 4, on this character's skeleton instead of a body model).
+//!
+//! Unknowns: per frame `f` the posture `θ_f` of [`crate::solve::ik`]; per marker `k` its
+//! offset `o_k` from its joint `J_k` at rest (world axes, metres); the scale `s`
+//! (character metres per take metre). Objective:
+//!
+//! ```text
+//! E = Σ_f Σ_k ‖(P_J(θ_f) + Q_J(θ_f) o_k) / s − m_fk‖² + (ε_rest h)² Σ_f ‖θ_f‖²
+//!   + Σ_k w_band² band(d_k)² + w_pull² (d_k − d_0)² + w_s² (s / s⁰ − 1)²
+//! ```
+//!
+//! The misfit is measured in the take's units: measured in the character's, shrinking
+//! the take (`s → 0`) would shrink the misfit with it. For fixed `s` and offsets each
+//! frame's posture is the posture solver's fit to the targets `s m` with the rest prior
+//! `ε_rest s` (the same minimiser: the objective times `s²`).
+//!
+//! where `d_k` is the signed distance (positive outside) of the marker's rest position
+//! `r_J + o_k` from the rest surface, `band(d)` its excess outside `[d_lo, d_hi]` (a
+//! marker sits a few millimetres to two centimetres off the skin: its radius and soft
+//! tissue), `d_0` the usual distance (a 14 mm ball on the skin) and `s⁰` the scale the
+//! run starts from (the first guess's): a hand's eight markers fit a smaller or larger
+//! hand equally well by bending its fingers, and without the prior the scale would
+//! drift; a change of 5 % costs as much as 1 mm of misfit on every marker in every frame.
+//!
+//! One frame may be held near the rest pose: in a frame where the actor stands as the
+//! character does at rest (a T or A pose at the start of a take), the joints whose
+//! markers lie on their skin get a rest prior `ε_hold` instead of `ε_rest`. That is
+//! MoSh's marker placement prior (Section 4.1: markers start where the marker set puts
+//! them on the template body) taken from the take itself, and it holds what the
+//! markers cannot tell: two markers on a foot whose leg carries none leave the foot free
+//! to roll about their line and the offsets free to slide with it, in every frame but
+//! the held one.
+//!
+//! Method: variable projection (Golub and Pereyra 1973; Ruhe and Wedin 1980, algorithm
+//! II): the postures are eliminated, each fitted by the posture solver for the current
+//! offsets and scale, and Levenberg–Marquardt runs on the offsets and scale alone with
+//! the reduced Gauss–Newton matrix `H_gg − Σ_f H_gθ H_θθ⁻¹ H_θg` (the Schur complement of
+//! each frame's posture block, over the unknowns that are free in that frame). Plain
+//! alternation (posture, then the mean offset in each joint's frame) has the same fixed
+//! points but crawls along the valleys where an offset and an unobserved joint angle
+//! trade off; the Schur complement sees that trade.
+
+use crate::geom::winding::WindingNumber;
+use crate::rig::ik_model::{Dofs, IkModel};
+use crate::solve::ik::{IkParams, IkState};
+use glam::{DQuat, DVec3};
+
+/// Weights and tolerances of the offset solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveParams {
+    /// Nearest a marker's centre may sit to the skin without cost, metres.
+    pub skin_min_m: f64,
+    /// Farthest, metres.
+    pub skin_max_m: f64,
+    /// The usual distance, metres (a 14 mm marker on the skin: 7 mm, plus a millimetre).
+    pub skin_usual_m: f64,
+    /// Weight of the band, per frame used (a marker 1 cm outside the band costs as much
+    /// as `skin_band_weight` cm of misfit in every frame).
+    pub skin_band_weight: f64,
+    /// Weight of the pull to the usual distance, per frame used.
+    pub skin_pull_weight: f64,
+    /// Misfit (metres, on every marker in every frame) that a 5 % change of the scale
+    /// from its start is worth.
+    pub scale_prior_m: f64,
+    /// `ε_hold`: the rest prior of the joints a frame holds near rest (see the module
+    /// doc), in the units of [`IkParams::rest_prior`].
+    pub rest_hold_prior: f64,
+    /// Levenberg–Marquardt iterations on the offsets at most.
+    pub max_iterations: usize,
+    /// Stop when no offset moves more than this in one step, metres (and the scale by
+    /// less than this per metre of height) ...
+    pub step_tolerance_m: f64,
+    /// ... or a step lowers the objective by less than this fraction of it.
+    pub cost_tolerance: f64,
+    /// The posture fits' settings.
+    pub posture: IkParams,
+}
+
+impl Default for SolveParams {
+    fn default() -> Self {
+        Self {
+            skin_min_m: 0.003,
+            skin_max_m: 0.02,
+            skin_usual_m: 0.008,
+            skin_band_weight: 2.0,
+            skin_pull_weight: 0.3,
+            rest_hold_prior: 0.05,
+            scale_prior_m: 0.001,
+            max_iterations: 60,
+            step_tolerance_m: 2e-5,
+            cost_tolerance: 1e-4,
+            posture: IkParams {
+                // A tenth of the live prior: the prior pulls every posture toward rest,
+                // and offsets can give way to it (a foot's two markers turned about
+                // their line); at the live weight that bias moved them 2 cm.
+                rest_prior: 2e-4,
+                prev_prior: 0.0,
+                // Tight: the offset steps are judged on the postures' objective, which
+                // must not move for a posture left half fitted (at 1e-5 rad and 1e-9
+                // the offsets came out 3 to 10 times worse on the bundled takes).
+                max_iterations: 200,
+                step_tolerance_rad: 1e-6,
+                cost_tolerance: 1e-11,
+            },
+        }
+    }
+}
+
+/// The offset problem over a set of frames, and its current solution.
+pub struct OffsetSolve<'a> {
+    /// The posture problem with the current offsets (`marker_offset`).
+    pub model: IkModel,
+    /// The frames used: `frames[f][k]`, take coordinates (metres, Y up), NaN for a gap.
+    pub frames: Vec<Vec<DVec3>>,
+    /// Per frame the fitted posture.
+    pub states: Vec<IkState>,
+    /// Character metres per take metre.
+    pub scale: f64,
+    surface: &'a WindingNumber,
+    params: SolveParams,
+    /// `s⁰`: the scale [`Self::run`] started from.
+    start_scale: f64,
+    /// Scratch: scaled targets of one frame.
+    targets: Vec<DVec3>,
+}
+
+/// What [`OffsetSolve::run`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SolveReport {
+    pub iterations: usize,
+    /// The objective at the start and the end (metres²).
+    pub cost_start: f64,
+    pub cost_end: f64,
+    /// Whether it stopped on a tolerance (rather than the iteration cap).
+    pub converged: bool,
+}
+
+/// The skin prior of one marker: residuals and their gradient direction.
+struct SkinTerm {
+    /// `(w_band band(d), w_pull (d − d_0))`.
+    residual: [f64; 2],
+    /// `∂d/∂o`: the outward direction from the nearest surface point.
+    normal: DVec3,
+    /// `(w_band or 0, w_pull)`: the rows' scales (the band's is 0 inside the band).
+    slope: [f64; 2],
+}
+
+impl<'a> OffsetSolve<'a> {
+    /// A problem over `frames` (one entry per marker of `model`, take coordinates) with
+    /// per-frame starting poses `start[f]` (the rigid motion taking the character's rest
+    /// pose into the frame's scaled take coordinates) and the starting scale.
+    pub fn new(
+        model: IkModel,
+        frames: Vec<Vec<DVec3>>,
+        start: &[(DQuat, DVec3)],
+        scale: f64,
+        surface: &'a WindingNumber,
+        params: SolveParams,
+    ) -> Self {
+        let states = start
+            .iter()
+            .map(|&(q, t)| {
+                let mut st = model.new_state();
+                model.place_roots(&mut st, q, t);
+                st
+            })
+            .collect();
+        let targets = vec![DVec3::NAN; model.marker_joint.len()];
+        Self {
+            model,
+            frames,
+            states,
+            scale,
+            surface,
+            params,
+            start_scale: scale,
+            targets,
+        }
+    }
+
+    /// `w_s`: a 5 % change of scale weighs `scale_prior_m` on every sample.
+    fn scale_weight(&self) -> f64 {
+        let samples: usize = self
+            .frames
+            .iter()
+            .map(|f| f.iter().filter(|m| m.is_finite()).count())
+            .sum();
+        self.params.scale_prior_m * (3.0 * samples as f64).sqrt() / 0.05
+    }
+
+    /// Holds frame `frame` near the rest pose at the joints `held[j]` (see the module
+    /// doc).
+    pub fn hold_rest(&mut self, frame: usize, held: &[bool]) {
+        let factor = (self.params.rest_hold_prior / self.params.posture.rest_prior).powi(2);
+        let st = &mut self.states[frame];
+        for (j, d) in self.model.dofs.iter().enumerate() {
+            if let (Dofs::Angles { first }, true) = (*d, held.get(j).copied().unwrap_or(false)) {
+                st.rest_scale[first..first + 3].fill(factor);
+            }
+        }
+    }
+
+    /// Marker `k`'s current offset from its joint at rest (world axes, metres).
+    pub fn model_offset(&self, k: usize) -> DVec3 {
+        self.model.marker_offset[k]
+    }
+
+    /// Markers of the problem.
+    pub fn markers(&self) -> usize {
+        self.model.marker_joint.len()
+    }
+
+    /// Fits every frame's posture to the current offsets and scale (warm-started).
+    pub fn fit_postures(&mut self) {
+        let params = IkParams {
+            rest_prior: self.params.posture.rest_prior * self.scale,
+            ..self.params.posture
+        };
+        for (st, frame) in self.states.iter_mut().zip(&self.frames) {
+            for (t, m) in self.targets.iter_mut().zip(frame) {
+                *t = *m * self.scale;
+            }
+            self.model.begin_frame(st);
+            self.model.solve(st, &self.targets, &params);
+        }
+    }
+
+    /// The skin prior's terms of marker `k` at its current offset.
+    fn skin_term(&self, k: usize) -> SkinTerm {
+        let p = &self.params;
+        let n_frames = self.frames.len().max(1) as f64;
+        let (wb, wp) = (
+            p.skin_band_weight * n_frames.sqrt(),
+            p.skin_pull_weight * n_frames.sqrt(),
+        );
+        let x = self.model.rest[self.model.marker_joint[k]] + self.model.marker_offset[k];
+        let Some((c, dist)) = self.surface.closest(x) else {
+            return SkinTerm {
+                residual: [0.0; 2],
+                normal: DVec3::ZERO,
+                slope: [0.0; 2],
+            };
+        };
+        let inside = self.surface.at(x) > 0.5;
+        let d = if inside { -dist } else { dist };
+        let away = if dist > 1e-12 {
+            (x - c) / dist
+        } else {
+            DVec3::ZERO
+        };
+        let normal = if inside { -away } else { away };
+        let excess = d - d.clamp(p.skin_min_m, p.skin_max_m);
+        SkinTerm {
+            residual: [wb * excess, wp * (d - p.skin_usual_m)],
+            normal,
+            slope: [if excess != 0.0 { wb } else { 0.0 }, wp],
+        }
+    }
+
+    /// The objective at the current postures, offsets and scale.
+    pub fn cost(&self) -> f64 {
+        let (rest_w, _) = self.model.prior_weights(&self.params.posture);
+        let mut e = 0.0;
+        for (st, frame) in self.states.iter().zip(&self.frames) {
+            for (p, m) in st.predicted.iter().zip(frame) {
+                if m.is_finite() {
+                    e += (*p / self.scale - *m).length_squared();
+                }
+            }
+            e += rest_w * angle_norm2(&self.model, &st.angles, &st.rest_scale);
+        }
+        e += (self.scale_weight() * (self.scale / self.start_scale - 1.0)).powi(2);
+        for k in 0..self.markers() {
+            let t = self.skin_term(k);
+            e += t.residual[0].powi(2) + t.residual[1].powi(2);
+        }
+        e
+    }
+
+    /// One pass of plain alternation: every offset set to its mean in its joint's frame
+    /// over the frames (postures fixed), then pulled onto the skin band if it left it;
+    /// the postures refitted. The start of the solve, from offsets that may be far off.
+    pub fn alternate(&mut self) {
+        for k in 0..self.markers() {
+            let samples = self.samples(k);
+            if let Some(mean) = self.mean_in_joint_frame(&samples, self.model.marker_joint[k]) {
+                self.model.marker_offset[k] = mean.0;
+            }
+            let t = self.skin_term(k);
+            let p = &self.params;
+            let x = self.model.rest[self.model.marker_joint[k]] + self.model.marker_offset[k];
+            if t.slope[0] != 0.0 {
+                if let Some((c, _)) = self.surface.closest(x) {
+                    let inside = self.surface.at(x) > 0.5;
+                    let out = if inside { c - x } else { x - c }.normalize_or_zero();
+                    let target = c + out * p.skin_usual_m;
+                    self.model.marker_offset[k] =
+                        target - self.model.rest[self.model.marker_joint[k]];
+                }
+            }
+        }
+        for st in &mut self.states {
+            self.model.refresh(st);
+        }
+        self.fit_postures();
+    }
+
+    /// The mean and RMS spread of a marker's measured positions (`samples[f]`, take
+    /// coordinates, one per frame, NaN for a gap) in joint `j`'s rest frame over the
+    /// fitted frames (`Q_j⁻¹ (s m − P_j)`, relative to `r_j`), or `None` when no frame
+    /// has it.
+    pub fn mean_in_joint_frame(&self, samples: &[DVec3], j: usize) -> Option<(DVec3, f64)> {
+        let mut xs = Vec::with_capacity(self.frames.len());
+        for (st, &m) in self.states.iter().zip(samples) {
+            if m.is_finite() {
+                xs.push(st.world_rot[j].inverse() * (m * self.scale - st.world_pos[j]));
+            }
+        }
+        if xs.is_empty() {
+            return None;
+        }
+        let mean = xs.iter().copied().sum::<DVec3>() / xs.len() as f64;
+        let spread =
+            (xs.iter().map(|x| (*x - mean).length_squared()).sum::<f64>() / xs.len() as f64).sqrt();
+        Some((mean, spread))
+    }
+
+    /// The marker `k`'s samples over the frames.
+    fn samples(&self, k: usize) -> Vec<DVec3> {
+        self.frames.iter().map(|f| f[k]).collect()
+    }
+
+    /// Signed distance of a rest position from the skin, metres (positive outside).
+    pub fn surface_distance(&self, x: DVec3) -> Option<f64> {
+        let (_, d) = self.surface.closest(x)?;
+        Some(if self.surface.at(x) > 0.5 { -d } else { d })
+    }
+
+    /// Frames where marker `k` misses its fitted position by more than `threshold_m`
+    /// (take metres).
+    pub fn frames_off(&self, k: usize, threshold_m: f64) -> usize {
+        self.states
+            .iter()
+            .zip(&self.frames)
+            .filter(|(st, f)| {
+                f[k].is_finite()
+                    && (st.predicted[k] - f[k] * self.scale).length() > threshold_m * self.scale
+            })
+            .count()
+    }
+
+    /// The solve's settings.
+    pub fn params(&self) -> &SolveParams {
+        &self.params
+    }
+
+    /// Levenberg–Marquardt on the offsets and scale with the postures eliminated (see
+    /// the module doc), until the step falls below the tolerance.
+    pub fn run(&mut self) -> SolveReport {
+        let ng = 3 * self.markers() + 1;
+        self.start_scale = self.scale;
+        let mut report = SolveReport {
+            cost_start: self.cost(),
+            ..SolveReport::default()
+        };
+        let mut cost = report.cost_start;
+        let mut mu = 1e-4;
+        let mut h = vec![0.0; ng * ng];
+        let mut g = vec![0.0; ng];
+        let mut a = vec![0.0; ng * ng];
+        let mut step = vec![0.0; ng];
+        let height = self.model.height_m;
+        while report.iterations < self.params.max_iterations {
+            report.iterations += 1;
+            self.reduced_system(&mut h, &mut g);
+            let cost_before = cost;
+            let mut accepted = false;
+            let mut largest = 0.0;
+            for _ in 0..10 {
+                a.copy_from_slice(&h);
+                for i in 0..ng {
+                    a[i * ng + i] += mu * h[i * ng + i].max(1e-12);
+                }
+                for (s, gi) in step.iter_mut().zip(&g) {
+                    *s = -gi;
+                }
+                if !cholesky(&mut a, ng) {
+                    mu *= 8.0;
+                    continue;
+                }
+                cholesky_solve(&a, ng, &mut step);
+                let saved = (
+                    self.model.marker_offset.clone(),
+                    self.scale,
+                    self.states.clone(),
+                );
+                for k in 0..self.markers() {
+                    self.model.marker_offset[k] +=
+                        DVec3::new(step[3 * k], step[3 * k + 1], step[3 * k + 2]);
+                }
+                self.scale = (self.scale + step[ng - 1]).max(1e-3 * saved.1);
+                for st in &mut self.states {
+                    self.model.refresh(st);
+                }
+                self.fit_postures();
+                let c = self.cost();
+                largest = (0..self.markers())
+                    .map(|k| DVec3::new(step[3 * k], step[3 * k + 1], step[3 * k + 2]).length())
+                    .fold(step[ng - 1].abs() * height, f64::max);
+                if c <= cost {
+                    cost = c;
+                    mu = (mu / 3.0).max(1e-9);
+                    accepted = true;
+                    break;
+                }
+                (self.model.marker_offset, self.scale, self.states) = saved;
+                mu = (mu * 8.0).min(1e9);
+            }
+            // Done when no step lowers the objective, the offsets stop moving, or a step
+            // gains less than the cost tolerance.
+            let gain = (cost_before - cost) / cost_before.max(f64::MIN_POSITIVE);
+            if !accepted
+                || largest < self.params.step_tolerance_m
+                || gain < self.params.cost_tolerance
+            {
+                report.converged = true;
+                break;
+            }
+        }
+        report.cost_end = cost;
+        report
+    }
+
+    /// The reduced Gauss–Newton system of the offsets and scale: `h` (`ng × ng`,
+    /// row-major, `ng = 3 markers + 1`, the scale last) and `g`.
+    fn reduced_system(&mut self, h: &mut [f64], g: &mut [f64]) {
+        let ng = g.len();
+        h.fill(0.0);
+        g.fill(0.0);
+        let (rest_w, _) = self.model.prior_weights(&self.params.posture);
+        let np = self.model.n_params;
+        let mut cols = Vec::new();
+        // Per frame: active posture unknowns, their block and coupling.
+        let mut active_of = vec![usize::MAX; np];
+        let mut active: Vec<usize> = Vec::with_capacity(np);
+        for f in 0..self.frames.len() {
+            let mut st = std::mem::replace(&mut self.states[f], self.model.new_state());
+            self.model.update_omega(&mut st);
+            active.clear();
+            active_of.fill(usize::MAX);
+            let frame = &self.frames[f];
+            for (k, m) in frame.iter().enumerate() {
+                if !m.is_finite() {
+                    continue;
+                }
+                self.model.marker_columns(&st, k, &mut cols);
+                for &(i, _) in &cols {
+                    let on_bound =
+                        st.angles[i] <= self.model.lo[i] || st.angles[i] >= self.model.hi[i];
+                    if active_of[i] == usize::MAX && !on_bound {
+                        active_of[i] = active.len();
+                        active.push(i);
+                    }
+                }
+            }
+            let na = active.len();
+            let mut haa = vec![0.0; na * na];
+            let mut ga = vec![0.0; na];
+            // H_ag as dense na × ng (most columns zero: fine at these sizes).
+            let mut hag = vec![0.0; na * ng];
+            for (k, m) in frame.iter().enumerate() {
+                if !m.is_finite() {
+                    continue;
+                }
+                // Rows in take units: r = p / s − m.
+                let inv = 1.0 / self.scale;
+                let p = st.predicted[k];
+                let r = p * inv - *m;
+                let q = st.world_rot[self.model.marker_joint[k]];
+                let gcols = [
+                    (3 * k, q * DVec3::X * inv),
+                    (3 * k + 1, q * DVec3::Y * inv),
+                    (3 * k + 2, q * DVec3::Z * inv),
+                    (ng - 1, -p * inv * inv),
+                ];
+                for &(x, cx) in &gcols {
+                    g[x] += cx.dot(r);
+                    for &(y, cy) in &gcols {
+                        h[x * ng + y] += cx.dot(cy);
+                    }
+                }
+                self.model.marker_columns(&st, k, &mut cols);
+                for c in cols.iter_mut() {
+                    c.1 *= inv;
+                }
+                for &(i, ci) in &cols {
+                    let ai = active_of[i];
+                    if ai == usize::MAX {
+                        continue;
+                    }
+                    ga[ai] += ci.dot(r);
+                    for &(j, cj) in &cols {
+                        let aj = active_of[j];
+                        if aj != usize::MAX {
+                            haa[ai * na + aj] += ci.dot(cj);
+                        }
+                    }
+                    for &(y, cy) in &gcols {
+                        hag[ai * ng + y] += ci.dot(cy);
+                    }
+                }
+            }
+            for (ai, &i) in active.iter().enumerate() {
+                if is_angle(&self.model, i) {
+                    let w = rest_w * st.rest_scale[i];
+                    haa[ai * na + ai] += w;
+                    ga[ai] += w * st.angles[i];
+                }
+            }
+            self.states[f] = st;
+            if na == 0 || !cholesky(&mut haa, na) {
+                continue;
+            }
+            // X = H_aa⁻¹ [H_ag | g_a], column by column; then subtract H_ga X.
+            let mut col = vec![0.0; na];
+            let mut x = vec![0.0; na * (ng + 1)];
+            for y in 0..=ng {
+                let mut nonzero = false;
+                for ai in 0..na {
+                    col[ai] = if y < ng { hag[ai * ng + y] } else { ga[ai] };
+                    nonzero |= col[ai] != 0.0;
+                }
+                if !nonzero {
+                    continue;
+                }
+                cholesky_solve(&haa, na, &mut col);
+                for ai in 0..na {
+                    x[ai * (ng + 1) + y] = col[ai];
+                }
+            }
+            for xg in 0..ng {
+                for ai in 0..na {
+                    let c = hag[ai * ng + xg];
+                    if c == 0.0 {
+                        continue;
+                    }
+                    let row = &x[ai * (ng + 1)..(ai + 1) * (ng + 1)];
+                    for y in 0..ng {
+                        h[xg * ng + y] -= c * row[y];
+                    }
+                    g[xg] -= c * row[ng];
+                }
+            }
+        }
+        let ws = self.scale_weight() / self.start_scale;
+        g[ng - 1] += ws * ws * (self.scale - self.start_scale);
+        h[ng * ng - 1] += ws * ws;
+        for k in 0..self.markers() {
+            let t = self.skin_term(k);
+            for (res, slope) in t.residual.iter().zip(t.slope) {
+                let jrow = t.normal * slope;
+                for i in 0..3 {
+                    g[3 * k + i] += jrow[i] * res;
+                    for j in 0..3 {
+                        h[(3 * k + i) * ng + 3 * k + j] += jrow[i] * jrow[j];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Per marker the RMS and largest misfit over the frames that have it, in take
+    /// metres (the character's divided by the scale), and how many frames had it.
+    pub fn residuals(&self) -> Vec<(f64, f64, usize)> {
+        (0..self.markers())
+            .map(|k| {
+                let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0);
+                for (st, frame) in self.states.iter().zip(&self.frames) {
+                    if frame[k].is_finite() {
+                        let e = (st.predicted[k] - frame[k] * self.scale).length() / self.scale;
+                        sum += e * e;
+                        max = max.max(e);
+                        n += 1;
+                    }
+                }
+                ((sum / n.max(1) as f64).sqrt(), max, n)
+            })
+            .collect()
+    }
+}
+
+/// Whether unknown `i` is a joint angle (priors apply) rather than a root's.
+fn is_angle(m: &IkModel, i: usize) -> bool {
+    m.dofs
+        .iter()
+        .any(|d| matches!(*d, Dofs::Angles { first } if (first..first + 3).contains(&i)))
+}
+
+/// `Σ c θ²` over the joint angles, `c` their rest prior factors.
+fn angle_norm2(m: &IkModel, angles: &[f64], factor: &[f64]) -> f64 {
+    m.dofs
+        .iter()
+        .filter_map(|d| match *d {
+            Dofs::Angles { first } => Some(
+                (first..first + 3)
+                    .map(|i| factor[i] * angles[i] * angles[i])
+                    .sum::<f64>(),
+            ),
+            _ => None,
+        })
+        .sum()
+}
+
+/// In-place Cholesky factorization of the symmetric `n × n` row-major `a` (lower
+/// triangle read and written); false when it is not positive definite.
+pub(crate) fn cholesky(a: &mut [f64], n: usize) -> bool {
+    for j in 0..n {
+        for k in 0..j {
+            let mut v = a[j * n + k];
+            for i in 0..k {
+                v -= a[j * n + i] * a[k * n + i];
+            }
+            a[j * n + k] = v / a[k * n + k];
+        }
+        let mut d = a[j * n + j];
+        for i in 0..j {
+            d -= a[j * n + i] * a[j * n + i];
+        }
+        if d.is_nan() || d <= 0.0 {
+            return false;
+        }
+        a[j * n + j] = d.sqrt();
+    }
+    true
+}
+
+/// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`].
+pub(crate) fn cholesky_solve(l: &[f64], n: usize, b: &mut [f64]) {
+    for i in 0..n {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= l[i * n + k] * b[k];
+        }
+        b[i] = v / l[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut v = b[i];
+        for k in i + 1..n {
+            v -= l[k * n + i] * b[k];
+        }
+        b[i] = v / l[i * n + i];
+    }
+}

@@ -1,0 +1,365 @@
+//! `rigless calibrate` on known truth: the bundled body takes (the procedural body's 36
+//! markers, 8 mm off the skin, 0.5 mm noise, 5 % gaps, written as C3D) calibrated onto
+//! the body with its layout removed; the actor scaled against the character; labels
+//! renamed, mapped, swapped and lost; the layout written into a character file.
+
+use glam::DVec3;
+use rigless::calibrate::labels::{LeftOut, MapEntry, Source};
+use rigless::calibrate::layout::write_into;
+use rigless::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Flag};
+use rigless::character::body::BodyMotion;
+use rigless::character::demo::{demo_body, Motion};
+use rigless::character::procedural::skin_pose;
+use rigless::character::roles::recognise;
+use rigless::character::{Character, MarkerDef};
+use rigless::markers::{FillState, MarkerFrame};
+use rigless::replay::bundled::bundled;
+use rigless::replay::recording::Recording;
+use rigless::rig::bind::Rig;
+use rigless::solve::frame::{Solver, SolverParams};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+fn take(name: &str, factor: f64) -> Recording {
+    let mut rec = Recording::from_c3d(name, bundled(name).expect("bundled take")).expect("C3D");
+    for f in &mut rec.frames {
+        for p in f.iter_mut() {
+            *p *= factor;
+        }
+    }
+    rec
+}
+
+/// The body without its layout, and the body with it (the truth).
+fn bodies() -> (Character, Character) {
+    let truth = demo_body();
+    let mut bare = truth.clone();
+    bare.markers.clear();
+    (bare, truth)
+}
+
+fn run(ch: &Character, rec: &Recording, opts: &CalibrationOptions) -> Calibration {
+    let roles = recognise(&ch.skeleton.joints, &[]);
+    calibrate(ch, &roles, rec.as_take(), opts).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Per placed label: (bone right, distance of its rest position from the truth's, m).
+fn against_truth(cal: &Calibration, bare: &Character, truth: &Character) -> Vec<(bool, f64)> {
+    cal.placed
+        .iter()
+        .map(|p| {
+            let t = truth
+                .markers
+                .iter()
+                .find(|m| m.name == p.label)
+                .expect("a true marker");
+            let rest = bare.skeleton.joints[p.joint].rest + p.offset_m;
+            (t.joint == Some(p.joint), (rest - t.rest).length())
+        })
+        .collect()
+}
+
+/// The range-of-motion take (1.5 s in the rest pose, then every joint group in turn),
+/// at the actor's own size and with the actor 15 % smaller and larger than the
+/// character: every bone right, offsets within 5 mm mean and 10 mm worst, the scale
+/// within 1 % (the targets). Measured: 1.0 mm mean, 1.9 mm worst, scale within
+/// 0.12 %, at all three sizes.
+#[test]
+fn a_range_of_motion_take_recovers_the_layout_and_the_scale() {
+    let (bare, truth) = bodies();
+    for factor in [1.0, 0.85, 1.15] {
+        let cal = run(
+            &bare,
+            &take("body_rom", factor),
+            &CalibrationOptions::default(),
+        );
+        assert_eq!(cal.marker_set.map(|s| s.0), Some("rigless-body"));
+        assert_eq!(cal.placed.len(), 36);
+        assert!(cal.left_out.is_empty(), "{:?}", cal.left_out);
+        let errs = against_truth(&cal, &bare, &truth);
+        for (p, (right, _)) in cal.placed.iter().zip(&errs) {
+            assert!(right, "x{factor}: {} on {}", p.label, p.joint_name);
+            assert!(
+                p.flag.is_none(),
+                "x{factor}: {} flagged {:?}",
+                p.label,
+                p.flag
+            );
+        }
+        let mean = errs.iter().map(|e| e.1).sum::<f64>() / errs.len() as f64;
+        let worst = errs.iter().map(|e| e.1).fold(0.0, f64::max);
+        assert!(mean < 0.005, "x{factor}: mean offset error {mean} m");
+        assert!(worst < 0.010, "x{factor}: worst offset error {worst} m");
+        // The actor is `factor` times the character: the scale is its inverse.
+        let scale_error = (cal.scale * factor - 1.0).abs();
+        assert!(scale_error < 0.01, "x{factor}: scale {} ", cal.scale);
+        // Residuals are the noise (±0.5 mm uniform per axis: 0.5 mm RMS in 3D) and the
+        // frames' fitting; measured 0.3 to 0.4 mm RMS.
+        assert!(
+            cal.residual_mm_rms < 1.0,
+            "x{factor}: {}",
+            cal.residual_mm_rms
+        );
+    }
+}
+
+/// The mean distance between the solved mesh and the skinned truth over a take, per
+/// metre of height, with the character's markers at `layout` (name order of the take).
+fn replay_error(
+    truth: &Character,
+    layout: &[MarkerDef],
+    rec: &Recording,
+    marker_scale: f64,
+) -> f64 {
+    let mut ch = truth.clone();
+    ch.markers = layout.to_vec();
+    let rig =
+        Arc::new(Rig::bind(&ch, &rigless::character::demo::body_bind_params()).expect("bind"));
+    let mut solver = Solver::try_new(Arc::clone(&rig), SolverParams::default()).expect("solver");
+    let order: Vec<usize> = ch
+        .markers
+        .iter()
+        .map(|m| rec.labels.iter().position(|l| *l == m.name).expect("label"))
+        .collect();
+    let nv = ch.vertices.len();
+    let (mut out, mut skinned) = (vec![DVec3::ZERO; nv], vec![DVec3::ZERO; nv]);
+    let mut true_markers = vec![DVec3::ZERO; truth.markers.len()];
+    let mut sum = 0.0;
+    for (f, frame) in rec.frames.iter().enumerate() {
+        let t = f as f64 / rec.rate_hz;
+        let m: Vec<DVec3> = order.iter().map(|&k| frame[k] * marker_scale).collect();
+        let mut mf = MarkerFrame::all_present(t, m);
+        for (state, p) in mf.states.iter_mut().zip(mf.positions.iter_mut()) {
+            if !p.is_finite() {
+                // A gap: no information this frame.
+                *state = FillState::Held;
+                *p = DVec3::ZERO;
+            }
+        }
+        solver.solve(&mf, Instant::now() + Duration::from_millis(50), &mut out);
+        let pose = Motion::Body(BodyMotion::RangeOfMotion).pose(&truth.skeleton, t);
+        skin_pose(truth, &pose, &mut skinned, &mut true_markers);
+        sum += out
+            .iter()
+            .zip(&skinned)
+            .map(|(a, b)| (*a - *b).length())
+            .sum::<f64>()
+            / nv as f64;
+    }
+    sum / rec.frames.len() as f64 / rig.height_m
+}
+
+/// Replaying the take with the calibrated layout (and its scale) gives the same error
+/// against the skinned truth as the true layout, within 0.2 % of the height (the
+/// issue's target). Measured: 0.204 % with the true layout, 0.250 % calibrated.
+#[test]
+fn the_calibrated_layout_drives_the_body_as_well_as_the_true_one() {
+    let (bare, truth) = bodies();
+    let rec = take("body_rom", 1.0);
+    let cal = run(&bare, &rec, &CalibrationOptions::default());
+    let layout: Vec<MarkerDef> = cal
+        .placed
+        .iter()
+        .map(|p| MarkerDef {
+            name: p.label.clone(),
+            rest: bare.skeleton.joints[p.joint].rest + p.offset_m,
+            joint: Some(p.joint),
+        })
+        .collect();
+    let with_truth = replay_error(&truth, &truth.markers, &rec, 1.0);
+    let with_calibration = replay_error(&truth, &layout, &rec, cal.scale);
+    eprintln!("gt_vertex_error: true layout {with_truth:.5}, calibrated {with_calibration:.5} (per metre of height)");
+    assert!(
+        (with_calibration - with_truth).abs() < 0.002,
+        "true layout {with_truth}, calibrated {with_calibration}"
+    );
+}
+
+/// A take with no rest-like frame for the right arm (the reach starts with it bent):
+/// every bone right and the scale within 1 %; the right hand's markers are placed where
+/// the arm's posture leaves them (measured: 3.8 to 8 mm mean, up to 27 mm on the right
+/// hand), so the bound here is looser than the range of motion's.
+#[test]
+fn a_reach_take_places_every_label_on_its_bone() {
+    let (bare, truth) = bodies();
+    let cal = run(
+        &bare,
+        &take("body_reach", 1.0),
+        &CalibrationOptions::default(),
+    );
+    let errs = against_truth(&cal, &bare, &truth);
+    assert!(
+        errs.iter().all(|e| e.0),
+        "{:?}",
+        cal.placed
+            .iter()
+            .map(|p| (&p.label, &p.joint_name))
+            .collect::<Vec<_>>()
+    );
+    let mean = errs.iter().map(|e| e.1).sum::<f64>() / errs.len() as f64;
+    assert!(mean < 0.015, "mean offset error {mean} m");
+    assert!((cal.scale - 1.0).abs() < 0.01, "scale {}", cal.scale);
+}
+
+/// Renamed labels: a user map (`"XL*" = "leftHand"`) places them; without it, the ones
+/// on the left hand are placed by their motion (the joint they move rigidly with).
+#[test]
+fn a_map_places_renamed_labels_and_motion_places_unknown_ones() {
+    let (bare, truth) = bodies();
+    let mut rec = take("body_rom", 1.0);
+    for l in &mut rec.labels {
+        if let Some(n) = l.strip_prefix("LHND") {
+            *l = format!("XL{n}");
+        }
+    }
+    let wrist_l = bare
+        .skeleton
+        .joints
+        .iter()
+        .position(|j| j.name == "wrist_l")
+        .expect("wrist");
+    let opts = CalibrationOptions {
+        map: vec![MapEntry {
+            glob: "XL*".into(),
+            target: "leftHand".into(),
+        }],
+        ..CalibrationOptions::default()
+    };
+    let mapped = run(&bare, &rec, &opts);
+    let by_motion = run(&bare, &rec, &CalibrationOptions::default());
+    for cal in [&mapped, &by_motion] {
+        let xl: Vec<_> = cal
+            .placed
+            .iter()
+            .filter(|p| p.label.starts_with("XL"))
+            .collect();
+        assert_eq!(xl.len(), 8);
+        for p in xl {
+            assert_eq!(p.joint, wrist_l, "{} on {}", p.label, p.joint_name);
+        }
+    }
+    assert!(mapped
+        .placed
+        .iter()
+        .any(|p| p.source == Source::Map("XL*".into())));
+    assert!(by_motion.placed.iter().any(|p| p.source == Source::Motion));
+    let errs = against_truth(&mapped, &bare, &{
+        let mut t = truth.clone();
+        for m in &mut t.markers {
+            if let Some(n) = m.name.strip_prefix("LHND") {
+                m.name = format!("XL{n}");
+            }
+        }
+        t
+    });
+    assert!(errs.iter().all(|e| e.1 < 0.01), "{errs:?}");
+}
+
+/// Bad takes: labels no table knows and no map names (an error naming the take and
+/// what to do); a marker missing in every frame (left out, said why); two labels swapped
+/// halfway through (flagged, not silently averaged).
+#[test]
+fn bad_takes_are_reported() {
+    let (bare, _) = bodies();
+    let mut unknown = take("body_rom", 1.0);
+    for (k, l) in unknown.labels.iter_mut().enumerate() {
+        *l = format!("M{k}");
+    }
+    let roles = recognise(&bare.skeleton.joints, &[]);
+    match calibrate(
+        &bare,
+        &roles,
+        unknown.as_take(),
+        &CalibrationOptions::default(),
+    ) {
+        Err(
+            e @ CalibrationError::TooFewKnown {
+                known: 0,
+                labels: 36,
+                ..
+            },
+        ) => {
+            let text = e.to_string();
+            assert!(
+                text.contains("body_rom") && text.contains("[calibration.bones]"),
+                "{text}"
+            );
+        }
+        other => panic!(
+            "expected TooFewKnown, got {:?}",
+            other.map(|c| c.placed.len())
+        ),
+    }
+
+    let mut lost = take("body_rom", 1.0);
+    let k = lost.labels.iter().position(|l| l == "RASI").expect("RASI");
+    for f in &mut lost.frames {
+        f[k] = DVec3::NAN;
+    }
+    let cal = run(&bare, &lost, &CalibrationOptions::default());
+    assert_eq!(cal.left_out, vec![("RASI".to_string(), LeftOut::NoSamples)]);
+    assert_eq!(cal.placed.len(), 35);
+
+    let mut swapped = take("body_rom", 1.0);
+    let a = swapped
+        .labels
+        .iter()
+        .position(|l| l == "LHEE")
+        .expect("LHEE");
+    let b = swapped
+        .labels
+        .iter()
+        .position(|l| l == "RHEE")
+        .expect("RHEE");
+    let half = swapped.frames.len() / 2;
+    for f in &mut swapped.frames[half..] {
+        f.swap(a, b);
+    }
+    let cal = run(&bare, &swapped, &CalibrationOptions::default());
+    for label in ["LHEE", "RHEE"] {
+        let p = cal
+            .placed
+            .iter()
+            .find(|p| p.label == label)
+            .expect("placed");
+        assert!(
+            matches!(p.flag, Some(Flag::Jumps { .. } | Flag::FitsBadly { .. })),
+            "{label}: {:?}, rms {} max {}",
+            p.flag,
+            p.residual_mm_rms,
+            p.residual_mm_max
+        );
+    }
+}
+
+/// `--write`: the layout and scale go into the character file; its other tables and
+/// comments stay; the result reads back as a character file with those markers.
+#[test]
+fn the_layout_is_written_into_a_character_file() {
+    let (bare, _) = bodies();
+    let cal = run(
+        &bare,
+        &take("body_rom", 1.0),
+        &CalibrationOptions::default(),
+    );
+    let text = "# my character\nname = \"me\"\n\n[mesh]\npath = \"me.obj\" # the scan\n\n[[markers]]\nname = \"OLD\"\nposition_m = [0, 1, 0]\n";
+    let out = write_into(text, "me.toml", &cal).expect("writes");
+    assert!(
+        out.contains("# my character") && out.contains("# the scan"),
+        "{out}"
+    );
+    assert!(!out.contains("OLD"));
+    let spec = rigless::character::file::read_spec(&out).expect("reads back");
+    assert_eq!(spec.markers.len(), 36);
+    assert_eq!(
+        spec.markers[0].bone.as_deref(),
+        Some(cal.placed[0].joint_name.as_str())
+    );
+    let scale = spec.calibration.marker_scale.expect("marker_scale");
+    assert!((scale - cal.scale).abs() < 1e-5);
+    for (m, p) in spec.markers.iter().zip(&cal.placed) {
+        let o = DVec3::from_array(m.offset_m.expect("offset"));
+        // Written to 0.1 mm.
+        assert!((o - p.offset_m).length() < 1e-4, "{}", m.name);
+    }
+}
