@@ -364,9 +364,11 @@ pub fn by_name(name: &str) -> Option<&'static MarkerSet> {
 }
 
 /// The joints a label placed on role `role` may ride, given the skeleton's roles: the
-/// joints with that role; failing that, for a finger bone, the finger's nearest bone
-/// that has a role (a distal marker on a finger modelled with two bones), and for a
-/// part with a side, the same part without a side (a hand asset of unknown side).
+/// joints with that role; failing that, for a part with a side, the same part without
+/// a side (a hand asset of unknown side); for a finger bone, the finger's nearest bone
+/// that has a role (a distal marker on a finger modelled with two bones); then the part
+/// it hangs from (head to neck to spine, clavicle to spine, finger to hand to forearm,
+/// toes to foot to shank).
 pub fn candidate_joints(role: Role, roles: &[Option<Role>]) -> Vec<usize> {
     let with =
         |r: Role| -> Vec<usize> { (0..roles.len()).filter(|&j| roles[j] == Some(r)).collect() };
@@ -381,22 +383,59 @@ pub fn candidate_joints(role: Role, roles: &[Option<Role>]) -> Vec<usize> {
         }
     }
     if let Part::Finger(d, s) = role.part {
-        let order = [
-            Segment::Distal,
-            Segment::Intermediate,
-            Segment::Proximal,
-            Segment::Metacarpal,
-        ];
-        let from = order.iter().position(|&x| x == s).unwrap_or(0);
-        for &seg in &order[from..] {
-            for side in [role.side, None] {
-                let found = with(Role {
-                    part: Part::Finger(d, seg),
-                    side,
-                });
-                if !found.is_empty() {
-                    return found;
-                }
+        let along = finger_fallback(d, s, role.side, &with);
+        if !along.is_empty() {
+            return along;
+        }
+    }
+    // A part the character lacks rides the part it hangs from: a head marker on a neck
+    // that ends the chain, an acromion marker on the chest of a character without
+    // clavicles, a toe marker on a foot without toes.
+    let parent = match role.part {
+        Part::Head => Some(Part::Neck),
+        Part::Neck | Part::Shoulder => Some(Part::Spine),
+        Part::Hand => Some(Part::LowerArm),
+        Part::Finger(..) => Some(Part::Hand),
+        Part::Toes => Some(Part::Foot),
+        Part::Foot => Some(Part::LowerLeg),
+        _ => None,
+    };
+    match parent {
+        Some(part) => {
+            let side = if matches!(part, Part::Spine | Part::Neck) {
+                None
+            } else {
+                role.side
+            };
+            candidate_joints(Role { part, side }, roles)
+        }
+        None => Vec::new(),
+    }
+}
+
+/// A finger bone the character lacks: the finger's nearest bone that it has (a distal
+/// marker on a finger modelled with two bones), with the side or without.
+fn finger_fallback(
+    d: Digit,
+    s: Segment,
+    side: Option<Side>,
+    with: &dyn Fn(Role) -> Vec<usize>,
+) -> Vec<usize> {
+    let order = [
+        Segment::Distal,
+        Segment::Intermediate,
+        Segment::Proximal,
+        Segment::Metacarpal,
+    ];
+    let from = order.iter().position(|&x| x == s).unwrap_or(0);
+    for &seg in &order[from..] {
+        for side in [side, None] {
+            let found = with(Role {
+                part: Part::Finger(d, seg),
+                side,
+            });
+            if !found.is_empty() {
+                return found;
             }
         }
     }
@@ -467,5 +506,30 @@ mod tests {
             side: Some(Side::Left),
         };
         assert!(candidate_joints(knee, &roles).is_empty());
+    }
+
+    #[test]
+    fn a_missing_part_falls_back_to_the_part_it_hangs_from() {
+        let r = |part, side| Some(Role { part, side });
+        let l = Some(Side::Left);
+        // CesiumMan-like: hips, spine, neck, no head, no clavicles, upper arm, forearm,
+        // no hand.
+        let roles = vec![
+            r(Hips, None),
+            r(Spine, None),
+            r(Neck, None),
+            r(UpperArm, l),
+            r(LowerArm, l),
+        ];
+        let want = |part, side| candidate_joints(Role { part, side }, &roles);
+        assert_eq!(want(Head, l), vec![2], "a head marker rides the neck");
+        assert_eq!(
+            want(Shoulder, l),
+            vec![1],
+            "an acromion marker rides the spine"
+        );
+        assert_eq!(want(Hand, l), vec![4], "a hand marker rides the forearm");
+        assert_eq!(want(Finger(Digit::Index, Segment::Distal), l), vec![4]);
+        assert!(want(Foot, l).is_empty(), "no leg at all");
     }
 }

@@ -50,6 +50,8 @@ enum DemoCharacter {
 enum DemoMotion {
     Walk,
     Reach,
+    /// The range of motion: rest pose, then each group of joints bent and back.
+    Rom,
 }
 
 pub fn run(a: DemoArgs) -> Result<()> {
@@ -58,6 +60,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         (DemoCharacter::Hand, _) => ("hand", "hand_finger_play"),
         (DemoCharacter::Body, DemoMotion::Walk) => ("body", "body_walk"),
         (DemoCharacter::Body, DemoMotion::Reach) => ("body", "body_reach"),
+        (DemoCharacter::Body, DemoMotion::Rom) => ("body", "body_rom"),
     };
     let ws_line = a
         .websocket
