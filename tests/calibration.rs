@@ -1,7 +1,8 @@
 //! `rigless calibrate` on known truth: the bundled body takes (the procedural body's 36
 //! markers, 8 mm off the skin, 0.5 mm noise, 5 % gaps, written as C3D) calibrated onto
 //! the body with its layout removed; the actor scaled against the character; labels
-//! renamed, mapped, swapped and lost; the layout written into a character file.
+//! renamed, mapped, swapped and lost; the layout written into a character file; and the
+//! shared data folder's real takes (skipped, with the reason printed, when it is absent).
 
 use glam::DVec3;
 use rigless::calibrate::labels::{LeftOut, MapEntry, Source};
@@ -362,4 +363,51 @@ fn the_layout_is_written_into_a_character_file() {
         // Written to 0.1 mm.
         assert!((o - p.offset_m).length() < 1e-4, "{}", m.name);
     }
+}
+
+/// A real take of the shared data folder, or `None` (skipped, with the reason printed).
+fn shared_take(rel: &str) -> Option<Recording> {
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel);
+    if !p.is_file() {
+        eprintln!(
+            "skipped: {} is absent (the shared test data is not part of this repository)",
+            p.display()
+        );
+        return None;
+    }
+    Some(Recording::load(&p).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// Real takes onto the procedural characters: every label the character can carry is
+/// placed, and the misfit stays within the 15 mm RMS for a real full-body take.
+/// Measured: the Qualisys ISB take onto the body 7.6 mm RMS (its 8 wands placed by their
+/// motion); the DFKI hand onto the hand 0.96 mm (elbow, shoulder and back have no bones
+/// on a hand, the pillow is a prop).
+#[test]
+fn real_takes_calibrate_onto_the_procedural_characters() {
+    let Some(qualisys) = shared_take("c3d/Qualisys.c3d") else {
+        return;
+    };
+    let (bare, _) = bodies();
+    let cal = run(&bare, &qualisys, &CalibrationOptions::default());
+    assert_eq!(cal.marker_set.map(|s| s.0), Some("isb"));
+    assert_eq!(cal.placed.len(), 55, "{:?}", cal.left_out);
+    let wands = cal
+        .placed
+        .iter()
+        .filter(|p| p.source == Source::Motion)
+        .count();
+    assert_eq!(wands, 8);
+    assert!(cal.residual_mm_rms < 15.0, "{}", cal.residual_mm_rms);
+    let Some(dfki) = shared_take("hand/dfki_hand_recording.tsv") else {
+        return;
+    };
+    let mut hand = rigless::character::demo::demo_hand();
+    hand.markers.clear();
+    let cal = run(&hand, &dfki, &CalibrationOptions::default());
+    assert_eq!(cal.placed.len(), 13, "{:?}", cal.left_out);
+    assert_eq!(cal.left_out.len(), 8);
+    assert!(cal.residual_mm_rms < 2.0, "{}", cal.residual_mm_rms);
 }
