@@ -54,8 +54,10 @@ pub enum LeftOut {
     Prop { set: &'static str },
     /// The table or map gives a role no joint of this character has.
     NoJointForRole { role: Role },
-    /// Fewer frames of the calibration have it than the fit needs.
-    TooFewFrames { frames: usize },
+    /// The user's map names a role no joint of this character has.
+    MapNamesNoJoint { target: String },
+    /// The character has no joint with a bone to carry it.
+    NoBones,
 }
 
 impl std::fmt::Display for LeftOut {
@@ -66,9 +68,13 @@ impl std::fmt::Display for LeftOut {
             LeftOut::NoJointForRole { role } => {
                 write!(f, "no joint of the character has the role {role}")
             }
-            LeftOut::TooFewFrames { frames } => {
-                write!(f, "seen in only {frames} of the frames used")
+            LeftOut::MapNamesNoJoint { target } => {
+                write!(
+                    f,
+                    "the map sends it to {target:?}, and no joint of the character is that"
+                )
             }
+            LeftOut::NoBones => f.write_str("the character has no bone to carry it"),
         }
     }
 }
@@ -223,6 +229,19 @@ pub fn plan(
         } else {
             (Source::Motion, any_joint.clone(), None)
         };
+        if candidates.is_empty() {
+            let why = match &source {
+                Source::Map(glob) => LeftOut::MapNamesNoJoint {
+                    target: map
+                        .iter()
+                        .find(|e| &e.glob == glob)
+                        .map_or_else(String::new, |e| e.target.clone()),
+                },
+                _ => LeftOut::NoBones,
+            };
+            out.left_out.push((label.clone(), why));
+            continue;
+        }
         out.labels.push(LabelPlan {
             take_index: k,
             label: label.clone(),

@@ -49,6 +49,10 @@ pub struct CalibrationOptions {
     pub marker_set: Option<&'static MarkerSet>,
     /// The user's label map, tried before the tables.
     pub map: Vec<MapEntry>,
+    /// Whether the take's points are markers on the skin (an optical take) or joint
+    /// centres inside the body (a BVH's joints): then each labelled point starts at its
+    /// joint and the skin prior is off.
+    pub markers_on_skin: bool,
     pub solve: SolveParams,
 }
 
@@ -59,6 +63,7 @@ impl Default for CalibrationOptions {
             span_s: None,
             marker_set: None,
             map: Vec::new(),
+            markers_on_skin: true,
             solve: SolveParams::default(),
         }
     }
@@ -177,8 +182,22 @@ pub fn calibrate(
     let present: Vec<usize> = (0..rec.labels.len())
         .map(|k| rec.frames.iter().filter(|f| f[k].is_finite()).count())
         .collect();
-    let plan = plan(ch, roles, rec.labels, &present, &opts.map, opts.marker_set)
+    let mut plan = plan(ch, roles, rec.labels, &present, &opts.map, opts.marker_set)
         .map_err(CalibrationError::Map)?;
+    let mut params = opts.solve;
+    if !opts.markers_on_skin {
+        // Joint centres: each starts at its joint (as a layout's rest position would),
+        // and nothing pulls it to the skin.
+        for l in plan
+            .labels
+            .iter_mut()
+            .filter(|l| l.source != Source::Motion)
+        {
+            l.rest = l.rest.or(Some(ch.skeleton.joints[l.candidates[0]].rest));
+        }
+        params.skin_band_weight = 0.0;
+        params.skin_pull_weight = 0.0;
+    }
     let known: Vec<&LabelPlan> = plan
         .labels
         .iter()
@@ -224,7 +243,7 @@ pub fn calibrate(
         height,
         frames: &frames,
         surface: &surface,
-        params: opts.solve,
+        params,
         hold,
     };
     // Every label where the rest-like frame puts it, on the nearest candidate bone.
@@ -254,7 +273,15 @@ pub fn calibrate(
     fit.choose_candidates(&solve, &mut placed);
     let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
     let report = solve.run();
-    Ok(finish(ch, &solve, &placed, plan, chosen, report))
+    Ok(finish(
+        ch,
+        &solve,
+        &placed,
+        plan,
+        chosen,
+        report,
+        opts.markers_on_skin,
+    ))
 }
 
 /// The frame indices of `span_s` (seconds from the take's start), or all.
@@ -732,6 +759,7 @@ fn finish(
     plan: labels::Plan,
     frames: Vec<usize>,
     report: SolveReport,
+    on_skin: bool,
 ) -> Calibration {
     let residuals = solve.residuals();
     let mut rms: Vec<f64> = residuals.iter().map(|r| r.0).collect();
@@ -754,7 +782,7 @@ fn finish(
             })
         } else if frames_off >= (count / 10).max(2) && frames_off * 2 < count {
             Some(Flag::Jumps { frames_off })
-        } else if skin.abs() > 2.0 * solve.params().skin_max_m {
+        } else if on_skin && skin.abs() > 2.0 * solve.params().skin_max_m {
             Some(Flag::OffSkin {
                 distance_mm: skin * 1e3,
             })

@@ -3,6 +3,7 @@
 //! `--write` stores the layout in the character file.
 
 use anyhow::{bail, Context, Result};
+use glam::DVec3;
 use rigless::calibrate::labels::MapEntry;
 use rigless::calibrate::layout::write_into;
 use rigless::calibrate::marker_sets::{by_name, MARKER_SETS};
@@ -10,7 +11,9 @@ use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, DEFAULT_FRA
 use rigless::character::demo::{demo_body, demo_hand};
 use rigless::character::file::load_character;
 use rigless::character::roles::{recognise, Role};
+use rigless::character::skeleton::Joint;
 use rigless::character::Character;
+use rigless::replay::bvh::parse_bvh;
 use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
 use std::path::{Path, PathBuf};
 
@@ -18,7 +21,9 @@ use std::path::{Path, PathBuf};
 pub struct CalibrateArgs {
     /// The character: `hand`, `body` (the procedural ones) or a character file (TOML).
     character: String,
-    /// The take: C3D, Qualisys TSV, BVH (joints as markers) or session file.
+    /// The take: C3D, Qualisys TSV, BVH or session file. A BVH's joints are taken as
+    /// points at the character's joints of the same roles (from their names), not as
+    /// markers on the skin.
     take: PathBuf,
     /// How many frames to fit, chosen over the take to cover its range of motion (and
     /// the one where the actor stands most like the character's rest pose).
@@ -88,6 +93,33 @@ fn load(spec: &str) -> Result<Target> {
     })
 }
 
+/// A BVH take's joints (its labels) with their humanoid roles, recognised from their
+/// names and hierarchy as a character's are, as map entries (label to role).
+fn bvh_roles(path: &Path, metres_per_unit: f64) -> Result<Vec<MapEntry>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let bvh = parse_bvh(&text, metres_per_unit).with_context(|| format!("{}", path.display()))?;
+    let rest = |j: usize| bvh.positions.first().map_or(DVec3::ZERO, |f| f[j]);
+    let joints: Vec<Joint> = (0..bvh.joint_names.len())
+        .map(|j| Joint {
+            name: bvh.joint_names[j].clone(),
+            parent: bvh.parents[j],
+            rest: rest(j),
+            limits: None,
+            bend_axis: DVec3::X,
+        })
+        .collect();
+    Ok(recognise(&joints, &[])
+        .into_iter()
+        .zip(&bvh.joint_names)
+        .filter_map(|(role, name)| {
+            role.map(|r| MapEntry {
+                glob: name.clone(),
+                target: r.to_string(),
+            })
+        })
+        .collect())
+}
+
 /// `START..END` in seconds.
 fn parse_span(s: &str) -> Result<(f64, f64)> {
     let (a, b) = s
@@ -138,11 +170,20 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         );
     }
     let rec = Recording::load_with(&a.take, a.bvh_scale)?;
+    let is_bvh = a
+        .take
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bvh"));
+    let mut map = map;
+    if is_bvh {
+        map.extend(bvh_roles(&a.take, a.bvh_scale)?);
+    }
     let opts = CalibrationOptions {
         frames: a.frames,
         span_s,
         marker_set,
         map,
+        markers_on_skin: !is_bvh,
         ..CalibrationOptions::default()
     };
     if !a.json {
