@@ -464,3 +464,59 @@ fn joint_centres_calibrate_onto_their_joints() {
     }
     assert!((cal.scale - 1.0).abs() < 1e-3, "scale {}", cal.scale);
 }
+
+mod hostile {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A coordinate: ordinary, huge, or not a number.
+    fn coordinate() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            8 => -3.0f64..3.0,
+            1 => prop_oneof![Just(f64::NAN), Just(f64::INFINITY), Just(1e300), Just(-1e300)],
+        ]
+    }
+
+    proptest! {
+        // Each case is a whole calibration (a second or so): few cases, small takes.
+        #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+
+        /// Any take, labels known or not, points anywhere or missing, frames ragged:
+        /// the calibration returns a result or an error, never panics, and a result
+        /// has a finite scale.
+        #[test]
+        fn any_take_gives_a_result_or_an_error(
+            known in proptest::collection::vec(0usize..36, 0..12),
+            extra in 0usize..4,
+            frames in 1usize..40,
+            rate_hz in prop_oneof![Just(120.0), Just(f64::NAN), 0.1f64..1e5],
+            values in proptest::collection::vec(coordinate(), 0..3000),
+            ragged in proptest::bool::ANY,
+        ) {
+            let names: Vec<String> = demo_body().markers.iter().map(|m| m.name.clone()).collect();
+            let mut labels: Vec<String> = known.iter().map(|&k| names[k].clone()).collect();
+            labels.extend((0..extra).map(|i| format!("X{i}")));
+            let mut it = values.iter().cycle();
+            let mut next = || it.next().copied().unwrap_or(0.0);
+            let mut take_frames: Vec<Vec<DVec3>> = (0..frames)
+                .map(|_| (0..labels.len()).map(|_| DVec3::new(next(), next(), next())).collect())
+                .collect();
+            if ragged {
+                take_frames[0].push(DVec3::ZERO);
+            }
+            let (bare, _) = bodies();
+            let roles = recognise(&bare.skeleton.joints, &[]);
+            let take = rigless::calibrate::Take {
+                name: "hostile",
+                rate_hz,
+                labels: &labels,
+                frames: &take_frames,
+            };
+            let opts = CalibrationOptions { frames: 5, ..CalibrationOptions::default() };
+            match calibrate(&bare, &roles, take, &opts) {
+                Ok(cal) => prop_assert!(cal.scale.is_finite() && !ragged),
+                Err(e) => prop_assert!(!e.to_string().is_empty()),
+            }
+        }
+    }
+}

@@ -35,6 +35,9 @@ use solve::{OffsetSolve, SolveParams, SolveReport};
 /// Frames a calibration uses unless told otherwise (MoSh uses 12; more cover more of
 /// the range of motion at a linear cost).
 pub const DEFAULT_FRAMES: usize = 20;
+/// Largest coordinate of a point a calibration uses, metres (capture volumes are tens of
+/// metres across; farther points count as missing).
+pub const MAX_COORDINATE_M: f64 = 1e4;
 /// Fewest labels with a known bone (layout, map or table) that align take and character.
 pub const MIN_KNOWN_LABELS: usize = 4;
 
@@ -158,6 +161,15 @@ pub enum CalibrationError {
     NoFrames { take: String },
     #[error("the character has no skeleton joint with children")]
     NoJoints,
+    #[error("{take}: the fit found no scale (too few distinct points in view)")]
+    Degenerate { take: String },
+    #[error("{take}: frame {frame} has {points} points for {labels} labels")]
+    Ragged {
+        take: String,
+        frame: usize,
+        points: usize,
+        labels: usize,
+    },
 }
 
 /// A take as the calibration reads it: labelled marker trajectories, `frames[f][k]` in
@@ -179,6 +191,30 @@ pub fn calibrate(
     rec: Take,
     opts: &CalibrationOptions,
 ) -> Result<Calibration, CalibrationError> {
+    if let Some(f) = rec.frames.iter().position(|f| f.len() != rec.labels.len()) {
+        return Err(CalibrationError::Ragged {
+            take: rec.name.to_owned(),
+            frame: f,
+            points: rec.frames[f].len(),
+            labels: rec.labels.len(),
+        });
+    }
+    // A point farther than this from the origin is no marker of a capture volume: it
+    // counts as missing (a take's coordinates are not trusted).
+    let sane = |p: &DVec3| p.is_finite() && p.abs().max_element() <= MAX_COORDINATE_M;
+    let cleaned: Vec<Vec<DVec3>> = rec
+        .frames
+        .iter()
+        .map(|f| {
+            f.iter()
+                .map(|p| if sane(p) { *p } else { DVec3::NAN })
+                .collect()
+        })
+        .collect();
+    let rec = Take {
+        frames: &cleaned,
+        ..rec
+    };
     let present: Vec<usize> = (0..rec.labels.len())
         .map(|k| rec.frames.iter().filter(|f| f[k].is_finite()).count())
         .collect();
@@ -273,6 +309,11 @@ pub fn calibrate(
     fit.choose_candidates(&solve, &mut placed);
     let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
     let report = solve.run();
+    if !(solve.scale.is_finite() && solve.scale > 0.0) {
+        return Err(CalibrationError::Degenerate {
+            take: rec.name.to_owned(),
+        });
+    }
     Ok(finish(
         ch,
         &solve,
