@@ -339,8 +339,13 @@ fn read_words(w: &[String], zero_based_fingers: bool) -> Said {
         return Said::Limb { leg: has("leg") };
     }
     if any(&["hip", "hips", "pelvis"]) {
-        // `LeftHip` is a thigh in some schemes; CMU's `LHipJoint` and MakeHuman's
-        // `pelvis.L` sit between the hips and the thigh: a weak claim.
+        // CMU's `LHipJoint` is the bone from the root to the hip joint, parent of the
+        // thigh (`LeftUpLeg`, or `LeftHip` in some of its BVH conversions): no part.
+        if sided && has("joint") {
+            return Said::Nothing;
+        }
+        // `LeftHip` is a thigh in some schemes; MakeHuman's `pelvis.L` sits between the
+        // hips and the thigh: a weak claim.
         return if sided {
             part(Part::UpperLeg, 1)
         } else {
@@ -1281,6 +1286,22 @@ mod tests {
                 ("LeftFingerBase", "leftIndexMetacarpal"),
                 ("LeftHandIndex1", "leftIndexProximal"),
                 ("LThumb", "leftThumbMetacarpal"),
+            ],
+        );
+        // The CMU conversion of the shared data's 131_01.bvh: `LeftHip` is the thigh.
+        check(
+            &[
+                ("Hips", None),
+                ("LHipJoint", Some("Hips")),
+                ("LeftHip", Some("LHipJoint")),
+                ("LeftKnee", Some("LeftHip")),
+                ("LeftAnkle", Some("LeftKnee")),
+                ("LeftToe", Some("LeftAnkle")),
+            ],
+            &[
+                ("LHipJoint", "-"),
+                ("LeftHip", "leftUpperLeg"),
+                ("LeftKnee", "leftLowerLeg"),
             ],
         );
         // Limb words alone, numbered along the limb (Khronos CesiumMan).
