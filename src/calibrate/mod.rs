@@ -474,16 +474,15 @@ fn refine_on_skin(
         for l in known.iter().filter(|l| frame[l.take_index].is_finite()) {
             let m = frame[l.take_index];
             let x = heading.q.inverse() * (m * scale - heading.t);
-            match (l.rest, surface.closest(x)) {
+            match (l.rest, surface.signed_closest(x)) {
                 (Some(r), _) => {
                     good.push((r, m));
                     on_skin.push(l.take_index);
                 }
-                (None, Some((c, d)))
-                    if d < reach && on_candidate(sk, c, &l.candidates).is_some() =>
+                (None, Some((c, d, out)))
+                    if d.abs() < reach && on_candidate(sk, c, &l.candidates).is_some() =>
                 {
-                    let out = if surface.at(x) > 0.5 { c - x } else { x - c };
-                    good.push((c + out.normalize_or_zero() * 0.008, m));
+                    good.push((c + out * 0.008, m));
                     on_skin.push(l.take_index);
                 }
                 // Nearest the skin of another bone: that part of the actor is posed
@@ -581,8 +580,7 @@ impl<'a> Fit<'a> {
                 .map(|(j, _)| (j, x)),
             // Seen on the skin of a candidate (a marker's centre lies a few millimetres
             // to two centimetres out): that candidate.
-            (None, Some(x)) => self.surface.closest(x).and_then(|(c, d)| {
-                let d = if self.surface.at(x) > 0.5 { -d } else { d };
+            (None, Some(x)) => self.surface.signed_closest(x).and_then(|(c, d, _)| {
                 let on_skin = (-0.005..0.03).contains(&d);
                 on_skin
                     .then(|| on_candidate(sk, c, &l.candidates))

@@ -237,21 +237,13 @@ impl<'a> OffsetSolve<'a> {
             p.skin_pull_weight * n_frames.sqrt(),
         );
         let x = self.model.rest[self.model.marker_joint[k]] + self.model.marker_offset[k];
-        let Some((c, dist)) = self.surface.closest(x) else {
+        let Some((_, d, normal)) = self.surface.signed_closest(x) else {
             return SkinTerm {
                 residual: [0.0; 2],
                 normal: DVec3::ZERO,
                 slope: [0.0; 2],
             };
         };
-        let inside = self.surface.at(x) > 0.5;
-        let d = if inside { -dist } else { dist };
-        let away = if dist > 1e-12 {
-            (x - c) / dist
-        } else {
-            DVec3::ZERO
-        };
-        let normal = if inside { -away } else { away };
         let excess = d - d.clamp(p.skin_min_m, p.skin_max_m);
         SkinTerm {
             residual: [wb * excess, wp * (d - p.skin_usual_m)],
@@ -289,16 +281,14 @@ impl<'a> OffsetSolve<'a> {
             if let Some(mean) = self.mean_in_joint_frame(&samples, self.model.marker_joint[k]) {
                 self.model.marker_offset[k] = mean.0;
             }
-            let t = self.skin_term(k);
-            let p = &self.params;
-            let x = self.model.rest[self.model.marker_joint[k]] + self.model.marker_offset[k];
-            if t.slope[0] != 0.0 {
-                if let Some((c, _)) = self.surface.closest(x) {
-                    let inside = self.surface.at(x) > 0.5;
-                    let out = if inside { c - x } else { x - c }.normalize_or_zero();
-                    let target = c + out * p.skin_usual_m;
-                    self.model.marker_offset[k] =
-                        target - self.model.rest[self.model.marker_joint[k]];
+            // Out of the skin band: onto the usual distance from the nearest skin.
+            if self.skin_term(k).slope[0] != 0.0 {
+                let rest = self.model.rest[self.model.marker_joint[k]];
+                if let Some((c, _, out)) = self
+                    .surface
+                    .signed_closest(rest + self.model.marker_offset[k])
+                {
+                    self.model.marker_offset[k] = c + out * self.params.skin_usual_m - rest;
                 }
             }
         }
@@ -335,8 +325,7 @@ impl<'a> OffsetSolve<'a> {
 
     /// Signed distance of a rest position from the skin, metres (positive outside).
     pub fn surface_distance(&self, x: DVec3) -> Option<f64> {
-        let (_, d) = self.surface.closest(x)?;
-        Some(if self.surface.at(x) > 0.5 { -d } else { d })
+        self.surface.signed_closest(x).map(|(_, d, _)| d)
     }
 
     /// Frames where marker `k` misses its fitted position by more than `threshold_m`
@@ -446,20 +435,18 @@ impl<'a> OffsetSolve<'a> {
         // Per frame: active posture unknowns, their block and coupling.
         let mut active_of = vec![usize::MAX; np];
         let mut active: Vec<usize> = Vec::with_capacity(np);
-        for f in 0..self.frames.len() {
-            let mut st = std::mem::replace(&mut self.states[f], self.model.new_state());
-            self.model.update_omega(&mut st);
+        let (model, scale) = (&self.model, self.scale);
+        for (st, frame) in self.states.iter_mut().zip(&self.frames) {
+            model.update_omega(st);
             active.clear();
             active_of.fill(usize::MAX);
-            let frame = &self.frames[f];
             for (k, m) in frame.iter().enumerate() {
                 if !m.is_finite() {
                     continue;
                 }
-                self.model.marker_columns(&st, k, &mut cols);
+                model.marker_columns(st, k, &mut cols);
                 for &(i, _) in &cols {
-                    let on_bound =
-                        st.angles[i] <= self.model.lo[i] || st.angles[i] >= self.model.hi[i];
+                    let on_bound = st.angles[i] <= model.lo[i] || st.angles[i] >= model.hi[i];
                     if active_of[i] == usize::MAX && !on_bound {
                         active_of[i] = active.len();
                         active.push(i);
@@ -476,10 +463,10 @@ impl<'a> OffsetSolve<'a> {
                     continue;
                 }
                 // Rows in take units: r = p / s − m.
-                let inv = 1.0 / self.scale;
+                let inv = 1.0 / scale;
                 let p = st.predicted[k];
                 let r = p * inv - *m;
-                let q = st.world_rot[self.model.marker_joint[k]];
+                let q = st.world_rot[model.marker_joint[k]];
                 let gcols = [
                     (3 * k, q * DVec3::X * inv),
                     (3 * k + 1, q * DVec3::Y * inv),
@@ -492,7 +479,7 @@ impl<'a> OffsetSolve<'a> {
                         h[x * ng + y] += cx.dot(cy);
                     }
                 }
-                self.model.marker_columns(&st, k, &mut cols);
+                model.marker_columns(st, k, &mut cols);
                 for c in cols.iter_mut() {
                     c.1 *= inv;
                 }
@@ -514,13 +501,12 @@ impl<'a> OffsetSolve<'a> {
                 }
             }
             for (ai, &i) in active.iter().enumerate() {
-                if is_angle(&self.model, i) {
+                if is_angle(model, i) {
                     let w = rest_w * st.rest_scale[i];
                     haa[ai * na + ai] += w;
                     ga[ai] += w * st.angles[i];
                 }
             }
-            self.states[f] = st;
             if na == 0 || !cholesky(&mut haa, na) {
                 continue;
             }

@@ -169,6 +169,17 @@ impl WindingNumber {
     }
 }
 
+impl WindingNumber {
+    /// The surface point nearest to `q`, the signed distance to it (negative inside,
+    /// where the winding number exceeds 1/2) and the outward unit direction from it
+    /// towards `q`'s side (zero when `q` is on the surface); `None` for no triangles.
+    pub fn signed_closest(&self, q: DVec3) -> Option<(DVec3, f64, DVec3)> {
+        let (c, d) = self.closest(q)?;
+        let sign = if self.at(q) > 0.5 { -1.0 } else { 1.0 };
+        Some((c, sign * d, (q - c).normalize_or_zero() * sign))
+    }
+}
+
 /// The point of triangle `t` nearest to `p` (Ericson, "Real-Time Collision Detection",
 /// Section 5.1.5: the Voronoi region of `p` among the corners, edges and face).
 pub fn closest_on_triangle(p: DVec3, t: &[DVec3; 3]) -> DVec3 {
@@ -400,6 +411,15 @@ mod tests {
             assert!(((c - q).length() - d).abs() < 1e-12);
         }
         assert!(WindingNumber::new(&v, &[]).closest(DVec3::ZERO).is_none());
+        // Signed: inside the sphere negative, the direction outward either way (radial
+        // within the facets' angle: 12 rings and 24 segments leave the nearest facet
+        // point up to about 11° off the radius; measured 10.6° from inside).
+        let centre = DVec3::new(0.1, 0.2, -0.3);
+        for q in [centre + DVec3::X * 0.3, centre + DVec3::X * 0.8] {
+            let (_, d, out) = wn.signed_closest(q).expect("a surface");
+            assert_eq!(d < 0.0, q == centre + DVec3::X * 0.3, "{q}: {d}");
+            assert!(out.dot(DVec3::X) > 0.97, "{q}: {out}");
+        }
     }
 
     #[test]
