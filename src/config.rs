@@ -20,6 +20,7 @@
 //! tcp = "127.0.0.1:7878"
 //! ```
 
+use crate::calibrate::config::LiveCalibrationConfig;
 use crate::character::config::{motions_of, CharacterConfig};
 use crate::input::config::InputConfig;
 use crate::markers::buffer::BufferConfig;
@@ -44,6 +45,8 @@ pub struct StageConfig {
     pub outputs: OutputsConfig,
     /// `[recorder]`.
     pub recorder: RecorderConfig,
+    /// `[calibration]`: the marker layout from the first seconds of live input.
+    pub calibration: LiveCalibrationConfig,
 }
 
 /// Why a stage config was refused: every problem, each with its line when known.
@@ -59,13 +62,14 @@ pub enum ConfigError {
 }
 
 /// The sections a stage config may have.
-const SECTIONS: [&str; 6] = [
+const SECTIONS: [&str; 7] = [
     "character",
     "solver",
     "buffer",
     "inputs",
     "outputs",
     "recorder",
+    "calibration",
 ];
 
 fn section<T: serde::de::DeserializeOwned + Default>(
@@ -144,6 +148,12 @@ fn cross_section_problems(c: &StageConfig, lines: &Lines, problems: &mut Vec<Str
     if c.inputs.is_empty() {
         problems.push(lines.at("inputs", "no inputs: add at least one [[inputs]] table"));
     }
+    if c.calibration.write && c.character.path.is_none() {
+        problems.push(lines.at(
+            "calibration.write",
+            "writing the layout needs a character file (character.path); a procedural character has none",
+        ));
+    }
 }
 
 /// Parses and validates a stage config's text; `path` names it in errors. Relative
@@ -170,6 +180,7 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
         inputs: inputs_of(&table, &lines, &mut problems),
         outputs: section(&table, "outputs", &lines, &mut problems),
         recorder: section(&table, "recorder", &lines, &mut problems),
+        calibration: section(&table, "calibration", &lines, &mut problems),
     };
     add_problems(
         "character",
@@ -183,6 +194,12 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     add_problems(
         "recorder",
         config.recorder.problems(),
+        &lines,
+        &mut problems,
+    );
+    add_problems(
+        "calibration",
+        config.calibration.problems(),
         &lines,
         &mut problems,
     );
@@ -415,5 +432,42 @@ on = true
         let s = err.to_string();
         assert!(s.contains("character: missing"), "{s}");
         assert!(s.contains("needs a procedural character"), "{s}");
+    }
+
+    /// Every problem of the section at once, each at its line, with the rule across
+    /// sections (writing needs a character file).
+    #[test]
+    fn bad_calibration_keys_are_reported_together() {
+        let text = r#"
+[character]
+procedural = "body"
+
+[[inputs]]
+type = "replay"
+session = "body_rom"
+
+[calibration]
+first_secs = -2
+frames = 0
+marker_set = "vicon-blue"
+write = true
+"#;
+        let err = parse_stage(text, "s.toml").unwrap_err().to_string();
+        for want in [
+            "line 10: calibration.first_secs: must be more than 0",
+            "line 11: calibration.frames: must be 1 to 1000",
+            "line 12: calibration.marker_set: no such table \"vicon-blue\"",
+            "line 13: calibration.write: writing the layout needs a character file",
+        ] {
+            assert!(err.contains(want), "{want:?} not in:\n{err}");
+        }
+        let ok = text
+            .replace("first_secs = -2", "first_secs = 5")
+            .replace("frames = 0", "frames = 12")
+            .replace("\"vicon-blue\"", "\"plug-in-gait\"")
+            .replace("write = true", "always = true");
+        let c = parse_stage(&ok, "s.toml").unwrap();
+        assert_eq!(c.calibration.first_secs, Some(5.0));
+        assert!(c.calibration.always);
     }
 }

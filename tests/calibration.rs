@@ -412,6 +412,78 @@ fn real_takes_calibrate_onto_the_procedural_characters() {
     assert!(cal.residual_mm_rms < 2.0, "{}", cal.residual_mm_rms);
 }
 
+/// A real full-body take drives a real asset: the Qualisys take calibrated onto the
+/// MakeHuman body (OBJ, its own skeleton) and onto CesiumMan (glTF), and the DFKI hand
+/// recording onto the WebXR hand, each then replayed through the live pipeline at
+/// 120 Hz with the layout and scale found. The targets for such a take: every
+/// label the bind takes fed, under 5 % of the samples held, misfit at most 15 mm RMS, no
+/// inverted tet; the limits held within the posture fit's 0.5° clamp tolerance. (The
+/// frame times are the calibration benchmark's.)
+#[test]
+fn real_takes_drive_real_assets_through_the_live_pipeline() {
+    use rigless::bench::assets::{gltf_file, makehuman_file, webxr_hand_file};
+    use rigless::character::file::load_character;
+    use rigless::daemon::offline::{replay_offline, OfflineOptions};
+    let Some(qualisys) = shared_take("c3d/Qualisys.c3d") else {
+        return;
+    };
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let dir = tempfile::tempdir().unwrap();
+    let mut cases = Vec::new();
+    if let Some(f) = makehuman_file(&data, &["body"], dir.path()).unwrap() {
+        cases.push((f, qualisys.clone()));
+    }
+    let cesium = data.join("meshes/gltf-samples/CesiumMan.glb");
+    if cesium.is_file() {
+        cases.push((gltf_file(&cesium, dir.path()).unwrap(), qualisys.clone()));
+    }
+    if let (Some(f), Some(dfki)) = (
+        webxr_hand_file(&data, dir.path(), true).unwrap(),
+        shared_take("hand/dfki_hand_recording.tsv"),
+    ) {
+        cases.push((f, dfki));
+    }
+    for (file, rec) in cases {
+        let loaded = load_character(&file).unwrap_or_else(|e| panic!("{e}"));
+        let mut ch = loaded.character;
+        ch.markers.clear();
+        let opts = CalibrationOptions {
+            max_marker_distance_m: loaded.bind.max_marker_distance_m,
+            ..CalibrationOptions::default()
+        };
+        let mut cal = calibrate(&ch, &loaded.joint_roles, rec.as_take(), &opts)
+            .unwrap_or_else(|e| panic!("{}: {e}", ch.name));
+        let rig = Arc::new(cal.bind(&ch, &loaded.bind, &mut |_, _| {}).unwrap());
+        let r = replay_offline(
+            rig,
+            SolverParams::default(),
+            &rec,
+            OfflineOptions {
+                marker_scale: cal.scale,
+                ..OfflineOptions::default()
+            },
+        )
+        .unwrap()
+        .expect("labels fed");
+        let left: Vec<String> = cal
+            .left_out
+            .iter()
+            .map(|(l, why)| format!("{l}: {why}"))
+            .collect();
+        println!(
+            "{} onto {}: {} placed, left out {left:?}; {r:?}",
+            rec.name,
+            ch.name,
+            cal.placed.len(),
+        );
+        assert_eq!(r.labels_fed, cal.placed.len(), "{}", ch.name);
+        assert!(r.held_share < 0.05, "{}: {r:?}", ch.name);
+        assert!(r.residual_mm_rms <= 15.0, "{}: {r:?}", ch.name);
+        assert_eq!(r.inverted_tets_max, 0, "{}: {r:?}", ch.name);
+        assert!(r.joint_limit_violation_deg_max <= 0.5, "{}: {r:?}", ch.name);
+    }
+}
+
 /// Joint centres instead of skin markers (what a BVH take holds): the body's joints
 /// through its range of motion, each label mapped to its own joint, calibrate with the
 /// skin prior off to offsets of zero and a scale of one. Measured: the worst offset

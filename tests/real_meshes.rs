@@ -5,6 +5,7 @@
 //! inverted tets.
 
 use glam::DVec3;
+use rigless::bench::assets::webxr_hand_file;
 use rigless::bench::exercise::{exercise, ExerciseOptions};
 use rigless::character::file::load_character;
 use rigless::character::procedural::{flex_pose, skin_pose};
@@ -139,76 +140,12 @@ fn assert_tracked(t: &Tracked, residual_limit_mm: f64) {
     assert_eq!(t.unmoved_vertices, 0, "{t:?}");
 }
 
-/// The WebXR right hand's character file, written in `dir`: the skin's joints chained
-/// per finger, a marker on each nail and three on the back of the hand, and (with
-/// `limits`) hand-written limits; `None` when the shared data is absent.
+/// The WebXR right hand's character file (`bench::assets::webxr_hand_file`), written in
+/// `dir`; `None` (skipped, with the reason printed) when the shared data is absent.
 fn webxr_file(dir: &Path, limits: bool) -> Option<PathBuf> {
     let glb = shared("meshes/webxr-generic-hand/right.glb")?;
-    let mut t = format!(
-        "name = \"webxr_right_hand\"\n[mesh]\npath = {:?}\n\n[skeleton.parents]\n",
-        glb
-    );
-    let fingers = [
-        "thumb",
-        "index-finger",
-        "middle-finger",
-        "ring-finger",
-        "pinky-finger",
-    ];
-    for f in fingers {
-        let segs: &[&str] = if f == "thumb" {
-            &["metacarpal", "phalanx-proximal", "phalanx-distal", "tip"]
-        } else {
-            &[
-                "metacarpal",
-                "phalanx-proximal",
-                "phalanx-intermediate",
-                "phalanx-distal",
-                "tip",
-            ]
-        };
-        let mut prev = "wrist".to_string();
-        for s in segs {
-            let _ = writeln!(t, "{f}-{s} = {prev:?}");
-            prev = format!("{f}-{s}");
-        }
-    }
-    for f in fingers.into_iter().filter(|_| limits) {
-        let segs: &[&str] = if f == "thumb" {
-            &["phalanx-proximal", "phalanx-distal"]
-        } else {
-            &["phalanx-proximal", "phalanx-intermediate", "phalanx-distal"]
-        };
-        for (k, s) in segs.iter().enumerate() {
-            let side = if k == 0 { 20 } else { 5 };
-            let _ = writeln!(
-                t,
-                "\n[skeleton.limits.{f}-{s}]\ntwist_deg = [-10, 10]\nbend_deg = [-10, 90]\nside_deg = [-{side}, {side}]"
-            );
-        }
-        // The metacarpals barely move in a real hand (the thumb's a little more).
-        let m = if f == "thumb" { 15 } else { 3 };
-        let _ = writeln!(
-            t,
-            "\n[skeleton.limits.{f}-metacarpal]\ntwist_deg = [-{m}, {m}]\nbend_deg = [-{m}, {m}]\nside_deg = [-{m}, {m}]"
-        );
-    }
-    for f in fingers {
-        let _ = writeln!(
-            t,
-            "\n[[markers]]\nname = \"{f}_nail\"\nbone = \"{f}-phalanx-distal\""
-        );
-    }
-    for b in [
-        "index-finger-metacarpal",
-        "pinky-finger-metacarpal",
-        "wrist",
-    ] {
-        let _ = writeln!(t, "\n[[markers]]\nname = \"back_{b}\"\nbone = {b:?}");
-    }
-    let path = dir.join("hand.toml");
-    std::fs::write(&path, t).unwrap();
-    Some(path)
+    let data = glb.ancestors().nth(3).expect("data folder");
+    webxr_hand_file(data, dir, limits).expect("WebXR hand file")
 }
 
 #[test]

@@ -10,6 +10,12 @@ use crate::geom::shapes::subdivide_midpoint;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+/// `p` from the root (the character file is written elsewhere and reads its mesh path
+/// from its own folder).
+fn absolute(p: &Path) -> PathBuf {
+    std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf())
+}
+
 /// Why an asset could not be prepared.
 #[derive(Debug, thiserror::Error)]
 pub enum AssetError {
@@ -103,7 +109,8 @@ pub fn makehuman_file(
     }
     let groups: Vec<String> = groups.iter().map(|g| format!("{g:?}")).collect();
     let mut t = format!(
-        "name = \"makehuman\"\n[mesh]\npath = {obj:?}\nunits = \"dm\"\ngroups = [{}]\n",
+        "name = \"makehuman\"\n[mesh]\npath = {:?}\nunits = \"dm\"\ngroups = [{}]\n",
+        absolute(&obj),
         groups.join(", ")
     );
     for (name, parent, key) in &joints {
@@ -136,6 +143,81 @@ pub fn makehuman_file(
     Ok(Some(path))
 }
 
+/// The WebXR right hand's character file, written in `dir`: the skin's joints chained
+/// per finger, a marker on each nail and three on the back of the hand, and (with
+/// `limits`) hand-written limits; `None` when the data folder has no WebXR hand.
+pub fn webxr_hand_file(
+    data: &Path,
+    dir: &Path,
+    limits: bool,
+) -> Result<Option<PathBuf>, AssetError> {
+    let glb = data.join("meshes/webxr-generic-hand/right.glb");
+    if !glb.is_file() {
+        return Ok(None);
+    }
+    let mut t = format!(
+        "name = \"webxr_right_hand\"\n[mesh]\npath = {:?}\n\n[skeleton.parents]\n",
+        absolute(&glb)
+    );
+    let fingers = [
+        "thumb",
+        "index-finger",
+        "middle-finger",
+        "ring-finger",
+        "pinky-finger",
+    ];
+    for f in fingers {
+        let segs: &[&str] = if f == "thumb" {
+            &["metacarpal", "phalanx-proximal", "phalanx-distal", "tip"]
+        } else {
+            &[
+                "metacarpal",
+                "phalanx-proximal",
+                "phalanx-intermediate",
+                "phalanx-distal",
+                "tip",
+            ]
+        };
+        let mut prev = "wrist".to_string();
+        for s in segs {
+            t += &format!("{f}-{s} = {prev:?}\n");
+            prev = format!("{f}-{s}");
+        }
+    }
+    for f in fingers.into_iter().filter(|_| limits) {
+        let segs: &[&str] = if f == "thumb" {
+            &["phalanx-proximal", "phalanx-distal"]
+        } else {
+            &["phalanx-proximal", "phalanx-intermediate", "phalanx-distal"]
+        };
+        for (k, s) in segs.iter().enumerate() {
+            let side = if k == 0 { 20 } else { 5 };
+            t += &format!("\n[skeleton.limits.{f}-{s}]\ntwist_deg = [-10, 10]\nbend_deg = [-10, 90]\nside_deg = [-{side}, {side}]\n"
+            );
+        }
+        // The metacarpals barely move in a real hand (the thumb's a little more).
+        let m = if f == "thumb" { 15 } else { 3 };
+        t += &format!("\n[skeleton.limits.{f}-metacarpal]\ntwist_deg = [-{m}, {m}]\nbend_deg = [-{m}, {m}]\nside_deg = [-{m}, {m}]\n"
+        );
+    }
+    for f in fingers {
+        t += &format!("\n[[markers]]\nname = \"{f}_nail\"\nbone = \"{f}-phalanx-distal\"\n");
+    }
+    for b in [
+        "index-finger-metacarpal",
+        "pinky-finger-metacarpal",
+        "wrist",
+    ] {
+        t += &format!("\n[[markers]]\nname = \"back_{b}\"\nbone = {b:?}\n");
+    }
+    let path = dir.join("webxr_right_hand.toml");
+    std::fs::write(&path, t).map_err(|source| AssetError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    Ok(Some(path))
+}
+
 /// A character file with only the mesh (skeleton and roles from its skin), written in
 /// `dir` for the glTF file `glb`.
 pub fn gltf_file(glb: &Path, dir: &Path) -> Result<PathBuf, AssetError> {
@@ -144,7 +226,7 @@ pub fn gltf_file(glb: &Path, dir: &Path) -> Result<PathBuf, AssetError> {
         glb.file_stem()
             .map_or("asset".into(), |s| s.to_string_lossy())
     ));
-    std::fs::write(&path, format!("[mesh]\npath = {glb:?}\n")).map_err(|source| {
+    std::fs::write(&path, format!("[mesh]\npath = {:?}\n", absolute(glb))).map_err(|source| {
         AssetError::Io {
             path: path.display().to_string(),
             source,

@@ -5,17 +5,21 @@
 //! data folder onto the body and the hand, and the body's range of motion onto the
 //! folder's real assets: labels placed, misfit, flags.
 
-use super::assets::{gltf_file, makehuman_file};
+use super::assets::{gltf_file, makehuman_file, webxr_hand_file};
 use super::{json_line, BenchError};
 use crate::calibrate::{calibrate, Calibration, CalibrationOptions};
-use crate::character::demo::{demo_body, demo_hand};
+use crate::character::bind_params::BindParams;
+use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use crate::character::file::load_character;
 use crate::character::roles::{recognise, Role};
 use crate::character::Character;
+use crate::daemon::offline::{replay_offline, OfflineOptions, OfflineReport};
 use crate::replay::bundled::bundled;
 use crate::replay::recording::Recording;
+use crate::solve::frame::SolverParams;
 use std::io::Write;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Runs per case (the time's median and range).
@@ -45,6 +49,9 @@ pub struct CalibrationRecord {
     pub seconds_median: f64,
     pub seconds_min: f64,
     pub seconds_max: f64,
+    /// The take replayed through the live pipeline at 120 Hz with the calibrated layout
+    /// and scale (each frame given its live budget).
+    pub replay: Option<OfflineReport>,
 }
 
 /// A bundled take, its positions times `factor` (the actor that much the character's
@@ -70,18 +77,23 @@ fn case(
     roles: &[Option<Role>],
     rec: &Recording,
     truth: Option<(&Character, f64)>,
+    bind: &BindParams,
 ) -> Result<CalibrationRecord, BenchError> {
     let mut times = Vec::with_capacity(RUNS);
     let mut cal: Option<Calibration> = None;
+    let opts = CalibrationOptions {
+        max_marker_distance_m: bind.max_marker_distance_m,
+        ..CalibrationOptions::default()
+    };
     for _ in 0..RUNS {
         let t0 = Instant::now();
         cal = Some(
-            calibrate(ch, roles, rec.as_take(), &CalibrationOptions::default())
+            calibrate(ch, roles, rec.as_take(), &opts)
                 .map_err(|e| BenchError::case(format!("{} onto {}", rec.name, ch.name), e))?,
         );
         times.push(t0.elapsed().as_secs_f64());
     }
-    let Some(cal) = cal else {
+    let Some(mut cal) = cal else {
         return Err(BenchError::case(&rec.name, std::io::Error::other("no run")));
     };
     times.sort_by(f64::total_cmp);
@@ -103,6 +115,7 @@ fn case(
             errs.iter().filter(|e| !e.0).count(),
         )
     });
+    let replay = replay_check(ch, bind, rec, &mut cal)?;
     Ok(CalibrationRecord {
         suite: "calibration",
         character: ch.name.clone(),
@@ -122,7 +135,28 @@ fn case(
         seconds_median: times[RUNS / 2],
         seconds_min: times[0],
         seconds_max: times[RUNS - 1],
+        replay,
     })
+}
+
+/// `rec` replayed onto `ch` with the layout and scale of `cal` (labels the bind refuses
+/// moved to the left-out ones).
+fn replay_check(
+    ch: &Character,
+    bind: &BindParams,
+    rec: &Recording,
+    cal: &mut Calibration,
+) -> Result<Option<OfflineReport>, BenchError> {
+    let what = || format!("{} replayed onto {}", rec.name, ch.name);
+    let rig = Arc::new(
+        cal.bind(ch, bind, &mut |_, _| {})
+            .map_err(|e| BenchError::case(what(), e))?,
+    );
+    let opts = OfflineOptions {
+        marker_scale: cal.scale,
+        ..OfflineOptions::default()
+    };
+    replay_offline(rig, SolverParams::default(), rec, opts).map_err(|e| BenchError::case(what(), e))
 }
 
 fn print(r: &CalibrationRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchError> {
@@ -143,6 +177,15 @@ fn print(r: &CalibrationRecord, json: bool, out: &mut dyn Write) -> Result<(), B
         r.character, r.take, r.take_s, r.placed, r.labels, r.flagged, r.scale,
         r.residual_mm_rms, r.residual_mm_max, r.seconds_median, r.seconds_min, r.seconds_max
     )?;
+    if let Some(p) = &r.replay {
+        writeln!(
+            out,
+            "{:<10} replayed at 120 Hz: {} labels fed, {:.1} % held, misfit {:.1} rms {:.1} max mm, bone length {:.2} %, limits +{:.2}°, inverted tets {}, frame p50 {:.2} p99 {:.2} max {:.2} ms, {} deadline stops in {}",
+            "", p.labels_fed, 100.0 * p.held_share, p.residual_mm_rms, p.residual_mm_max,
+            100.0 * p.bone_length_error_max, p.joint_limit_violation_deg_max, p.inverted_tets_max,
+            p.frame_ms_p50, p.frame_ms_p99, p.frame_ms_max, p.deadline_stops, p.frames
+        )?;
+    }
     Ok(())
 }
 
@@ -162,7 +205,13 @@ pub fn suite(data: &Path, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
     ] {
         let rec = bundled_take(take, factor, times)?;
         print(
-            &case(&bare, &roles, &rec, Some((&truth, factor)))?,
+            &case(
+                &bare,
+                &roles,
+                &rec,
+                Some((&truth, factor)),
+                &body_bind_params(),
+            )?,
             json,
             out,
         )?;
@@ -173,16 +222,23 @@ pub fn suite(data: &Path, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
     let hand_roles = recognise(&hand.skeleton.joints, &[]);
     let rec = bundled_take("hand_finger_play", 1.0, 1)?;
     print(
-        &case(&bare_hand, &hand_roles, &rec, Some((&hand, 1.0)))?,
+        &case(
+            &bare_hand,
+            &hand_roles,
+            &rec,
+            Some((&hand, 1.0)),
+            &hand_bind_params(),
+        )?,
         json,
         out,
     )?;
     // Real takes onto the procedural characters.
-    for (file, onto) in [
-        ("c3d/Qualisys.c3d", &bare),
-        ("c3d/BTS.c3d", &bare),
-        ("c3d/FP_Type1.c3d", &bare),
-        ("hand/dfki_hand_recording.tsv", &bare_hand),
+    let (body_bind, hand_bind) = (body_bind_params(), hand_bind_params());
+    for (file, onto, bind) in [
+        ("c3d/Qualisys.c3d", &bare, &body_bind),
+        ("c3d/BTS.c3d", &bare, &body_bind),
+        ("c3d/FP_Type1.c3d", &bare, &body_bind),
+        ("hand/dfki_hand_recording.tsv", &bare_hand, &hand_bind),
     ] {
         let path = data.join(file);
         if !path.is_file() {
@@ -190,7 +246,7 @@ pub fn suite(data: &Path, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
         }
         let rec = Recording::load(&path).map_err(|e| BenchError::case(file, e))?;
         let roles = recognise(&onto.skeleton.joints, &[]);
-        print(&case(onto, &roles, &rec, None)?, json, out)?;
+        print(&case(onto, &roles, &rec, None, bind)?, json, out)?;
     }
     // The body's range of motion and a real take onto real assets.
     let dir = std::env::temp_dir().join(format!("rigless-calibration-{}", std::process::id()));
@@ -206,13 +262,27 @@ pub fn suite(data: &Path, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
     }
     let rom = bundled_take("body_rom", 1.0, 1)?;
     let qualisys = Recording::load(&data.join("c3d/Qualisys.c3d")).ok();
-    for f in files {
+    let takes: Vec<&Recording> = std::iter::once(&rom).chain(qualisys.as_ref()).collect();
+    let mut cases: Vec<(std::path::PathBuf, Vec<&Recording>)> =
+        files.into_iter().map(|f| (f, takes.clone())).collect();
+    let dfki = Recording::load(&data.join("hand/dfki_hand_recording.tsv")).ok();
+    if let (Some(f), Some(rec)) = (
+        webxr_hand_file(data, &dir, true).map_err(asset)?,
+        dfki.as_ref(),
+    ) {
+        cases.push((f, vec![rec]));
+    }
+    for (f, takes) in cases {
         let loaded =
             load_character(&f).map_err(|e| BenchError::case(f.display().to_string(), e))?;
         let mut ch = loaded.character;
         ch.markers.clear();
-        for rec in std::iter::once(&rom).chain(qualisys.as_ref()) {
-            print(&case(&ch, &loaded.joint_roles, rec, None)?, json, out)?;
+        for rec in takes {
+            print(
+                &case(&ch, &loaded.joint_roles, rec, None, &loaded.bind)?,
+                json,
+                out,
+            )?;
         }
     }
     std::fs::remove_dir_all(&dir)?;

@@ -58,6 +58,12 @@ pub enum LeftOut {
     MapNamesNoJoint { target: String },
     /// The character has no joint with a bone to carry it.
     NoBones,
+    /// Fitted farther outside the skin than a bind takes a marker (a marker on another
+    /// person or a prop, or a take whose actor this character does not fit).
+    TooFarOff { distance_mm: f64, limit_mm: f64 },
+    /// Fitted farther from its bone's part of the control mesh than the bind takes (a
+    /// take whose actor this character does not fit, or a label on the wrong bone).
+    TooFarFromBone { distance_mm: f64, limit_mm: f64 },
 }
 
 impl std::fmt::Display for LeftOut {
@@ -75,8 +81,32 @@ impl std::fmt::Display for LeftOut {
                 )
             }
             LeftOut::NoBones => f.write_str("the character has no bone to carry it"),
+            LeftOut::TooFarOff {
+                distance_mm,
+                limit_mm,
+            } => write!(
+                f,
+                "fitted {distance_mm:.0} mm off the skin, past the bind's {limit_mm:.0} mm"
+            ),
+            LeftOut::TooFarFromBone {
+                distance_mm,
+                limit_mm,
+            } => write!(
+                f,
+                "fitted {distance_mm:.0} mm from its bone's part of the character, past the bind's {limit_mm:.0} mm"
+            ),
         }
     }
+}
+
+/// A character file's `[calibration.bones]` (glob to joint or role) as map entries.
+pub fn map_entries(map: &std::collections::BTreeMap<String, String>) -> Vec<MapEntry> {
+    map.iter()
+        .map(|(glob, target)| MapEntry {
+            glob: glob.clone(),
+            target: target.clone(),
+        })
+        .collect()
 }
 
 /// A user map entry: a glob over labels (`*` any run, `?` one character; compared

@@ -63,20 +63,29 @@ const PLUG_IN_GAIT_COMMON: &[(&str, Carrier)] = &[
     ("{S}TOE", Body(Foot)),
 ];
 
+/// Plug-in Gait's markers beside the common ones: the back, the pelvis and the shins.
+const PLUG_IN_GAIT_PELVIS: &[(&str, Carrier)] = &[
+    ("RBAK", Body(Spine)),
+    ("{S}ASI", Body(Hips)),
+    ("{S}PSI", Body(Hips)),
+    ("SACR", Body(Hips)),
+    ("{S}TIB", Body(LowerLeg)),
+];
+
 /// Vicon Plug-in Gait, full body (39 markers).
 pub const PLUG_IN_GAIT: MarkerSet = MarkerSet {
     name: "plug-in-gait",
     about: "Vicon Plug-in Gait full body",
-    entries: &[
-        PLUG_IN_GAIT_COMMON,
-        &[
-            ("RBAK", Body(Spine)),
-            ("{S}ASI", Body(Hips)),
-            ("{S}PSI", Body(Hips)),
-            ("SACR", Body(Hips)),
-            ("{S}TIB", Body(LowerLeg)),
-        ],
-    ],
+    entries: &[PLUG_IN_GAIT_COMMON, PLUG_IN_GAIT_PELVIS],
+};
+
+/// OptiTrack Motive's Conventional full-body set (39 markers): Plug-in Gait's layout and
+/// labels, as Motive names them (OptiTrack documentation, "Markersets: Conventional
+/// (39)"), with the skeleton's `Name:` prefix Motive streams and exports.
+pub const MOTIVE_CONVENTIONAL: MarkerSet = MarkerSet {
+    name: "motive-conventional",
+    about: "OptiTrack Motive Conventional full body (39 markers, Plug-in Gait labels)",
+    entries: &[PLUG_IN_GAIT_COMMON, PLUG_IN_GAIT_PELVIS],
 };
 
 /// The CMU motion-capture database's 41-marker variant of Plug-in Gait (waist markers
@@ -268,12 +277,13 @@ pub const RIGLESS_HAND: MarkerSet = MarkerSet {
 
 /// Every built-in table, in the order `--marker-set auto` prefers on a tie (the
 /// procedural characters' own last).
-pub const MARKER_SETS: [&MarkerSet; 8] = [
+pub const MARKER_SETS: [&MarkerSet; 9] = [
     &PLUG_IN_GAIT,
     &CMU_41,
     &ISB,
     &DAVIS,
     &MOTIVE_BASELINE,
+    &MOTIVE_CONVENTIONAL,
     &DFKI_HAND,
     &RIGLESS_BODY,
     &RIGLESS_HAND,
@@ -352,7 +362,8 @@ pub fn best_set(labels: &[String]) -> Option<(&'static MarkerSet, usize)> {
 }
 
 /// The table named `name` (`plug-in-gait`, `cmu-41`, `isb`, `davis`,
-/// `motive-baseline`, `dfki-hand`, `rigless-body`, `rigless-hand`).
+/// `motive-baseline`, `motive-conventional`, `dfki-hand`, `rigless-body`,
+/// `rigless-hand`).
 pub fn by_name(name: &str) -> Option<&'static MarkerSet> {
     MARKER_SETS.into_iter().find(|s| s.name == name)
 }
@@ -458,6 +469,11 @@ mod tests {
         assert_eq!(DAVIS.place("sacrum"), role(Hips, None));
         assert_eq!(MOTIVE_BASELINE.place("WaistLFront"), role(Hips, l));
         assert_eq!(MOTIVE_BASELINE.place("RShin"), role(LowerLeg, r));
+        assert_eq!(
+            MOTIVE_CONVENTIONAL.place("Skeleton_001:LPSI"),
+            role(Hips, l)
+        );
+        assert_eq!(MOTIVE_CONVENTIONAL.place("RTIB"), role(LowerLeg, r));
         assert_eq!(
             DFKI_HAND.place("index_middle"),
             role(Finger(Digit::Index, Segment::Intermediate), None)

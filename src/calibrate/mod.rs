@@ -8,23 +8,27 @@
 //! - [`frames`]: the frames used and the first guess of scale and headings;
 //! - [`solve`]: the offsets and scale over those frames (MoSh's first stage on this
 //!   skeleton);
-//! - [`layout`]: the result written into a character file.
+//! - [`layout`]: the result written into a character file;
+//! - [`config`]: a stage's `[calibration]` (from the first seconds of live input).
 //!
 //! [`calibrate`] runs them in order: plan, choose frames, align, fit the labels whose
 //! bone is known (several candidates: the one the marker moves most rigidly with), place
 //! the others on the joint they move rigidly with, fit everything, and report each
 //! label's misfit with a flag where it fits badly.
 
+pub mod config;
 pub mod frames;
 pub mod labels;
 pub mod layout;
 pub mod marker_sets;
 pub mod solve;
 
+use crate::character::bind_params::BindParams;
 use crate::character::mesh::welded_outward;
 use crate::character::roles::Role;
-use crate::character::Character;
+use crate::character::{Character, MarkerDef};
 use crate::geom::winding::WindingNumber;
+use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::rig::ik_model::IkModel;
 use frames::{choose_frames, fit_heading, Heading};
 use glam::{DQuat, DVec3};
@@ -56,6 +60,10 @@ pub struct CalibrationOptions {
     /// centres inside the body (a BVH's joints): then each labelled point starts at its
     /// joint and the skin prior is off.
     pub markers_on_skin: bool,
+    /// Labels fitted farther outside the skin than this are left out (the bind refuses
+    /// a marker this far from the character: pass its `max_marker_distance_m`), metres;
+    /// default: no limit.
+    pub max_marker_distance_m: f64,
     pub solve: SolveParams,
 }
 
@@ -67,6 +75,7 @@ impl Default for CalibrationOptions {
             marker_set: None,
             map: Vec::new(),
             markers_on_skin: true,
+            max_marker_distance_m: f64::INFINITY,
             solve: SolveParams::default(),
         }
     }
@@ -137,6 +146,62 @@ pub struct Calibration {
     pub residual_mm_rms: f64,
     pub residual_mm_max: f64,
     pub report: SolveReport,
+}
+
+impl Calibration {
+    /// Binds `ch` with this layout. A label the bind refuses as too far from its bone's
+    /// part of the control mesh is moved to the left-out labels (with the distance) and
+    /// the bind tried again without it, so the rig returned carries every label it can.
+    pub fn bind(
+        &mut self,
+        ch: &Character,
+        params: &BindParams,
+        progress: &mut dyn FnMut(BindStage, f64),
+    ) -> Result<Rig, BindError> {
+        loop {
+            let laid = Character {
+                markers: self.layout(ch),
+                ..ch.clone()
+            };
+            match Rig::bind_with_progress(&laid, params, progress) {
+                Err(BindError::MarkerTooFar {
+                    name,
+                    distance_m,
+                    limit_m,
+                }) if self.placed.len() > 1 => {
+                    let Some(k) = self.placed.iter().position(|p| p.label == name) else {
+                        return Err(BindError::MarkerTooFar {
+                            name,
+                            distance_m,
+                            limit_m,
+                        });
+                    };
+                    self.placed.remove(k);
+                    self.left_out.push((
+                        name,
+                        LeftOut::TooFarFromBone {
+                            distance_mm: distance_m * 1e3,
+                            limit_mm: limit_m * 1e3,
+                        },
+                    ));
+                }
+                result => return result,
+            }
+        }
+    }
+
+    /// The placed labels as `ch`'s marker layout (rest positions in `ch`'s metres, each
+    /// carried by its joint), in the placing order.
+    pub fn layout(&self, ch: &Character) -> Vec<MarkerDef> {
+        self.placed
+            .iter()
+            .map(|p| MarkerDef {
+                name: p.label.clone(),
+                rest: ch.skeleton.joints[p.joint].rest + p.offset_m,
+                joint: Some(p.joint),
+            })
+            .collect()
+    }
 }
 
 /// Why a take cannot be calibrated onto a character.
@@ -314,15 +379,7 @@ pub fn calibrate(
             take: rec.name.to_owned(),
         });
     }
-    Ok(finish(
-        ch,
-        &solve,
-        &placed,
-        plan,
-        chosen,
-        report,
-        opts.markers_on_skin,
-    ))
+    Ok(finish(ch, &solve, &placed, plan, chosen, report, opts))
 }
 
 /// The frame indices of `span_s` (seconds from the take's start), or all.
@@ -798,8 +855,10 @@ fn finish(
     plan: labels::Plan,
     frames: Vec<usize>,
     report: SolveReport,
-    on_skin: bool,
+    opts: &CalibrationOptions,
 ) -> Calibration {
+    let on_skin = opts.markers_on_skin;
+    let mut left_out = plan.left_out;
     let residuals = solve.residuals();
     let mut rms: Vec<f64> = residuals.iter().map(|r| r.0).collect();
     rms.sort_by(f64::total_cmp);
@@ -808,12 +867,22 @@ fn finish(
     let mut out = Vec::with_capacity(placed.len());
     for (k, p) in placed.iter().enumerate() {
         let (r_rms, r_max, count) = residuals[k];
-        sum += r_rms * r_rms * count as f64;
-        n += count;
-        max = max.max(r_max);
         let offset = solve.model.marker_offset[k];
         let x = ch.skeleton.joints[p.joint].rest + offset;
         let skin = solve.surface_distance(x).unwrap_or(f64::NAN);
+        if skin > opts.max_marker_distance_m {
+            left_out.push((
+                p.plan.label.clone(),
+                LeftOut::TooFarOff {
+                    distance_mm: skin * 1e3,
+                    limit_mm: opts.max_marker_distance_m * 1e3,
+                },
+            ));
+            continue;
+        }
+        sum += r_rms * r_rms * count as f64;
+        n += count;
+        max = max.max(r_max);
         let frames_off = solve.frames_off(k, (4.0 * median).max(0.03));
         let flag = if r_rms > 3.0 * median && r_rms > 0.01 {
             Some(Flag::FitsBadly {
@@ -844,7 +913,7 @@ fn finish(
     Calibration {
         scale: solve.scale,
         placed: out,
-        left_out: plan.left_out,
+        left_out,
         marker_set: plan.set.map(|(s, n)| (s.name, n)),
         frames,
         residual_mm_rms: (sum / n.max(1) as f64).sqrt() * 1e3,

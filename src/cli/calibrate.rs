@@ -4,27 +4,46 @@
 
 use anyhow::{bail, Context, Result};
 use glam::DVec3;
-use rigless::calibrate::labels::MapEntry;
-use rigless::calibrate::layout::write_into;
+use rigless::calibrate::labels::{map_entries, MapEntry};
 use rigless::calibrate::marker_sets::{by_name, MARKER_SETS};
 use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, DEFAULT_FRAMES};
-use rigless::character::demo::{demo_body, demo_hand};
+use rigless::character::bind_params::BindParams;
+use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use rigless::character::file::load_character;
 use rigless::character::roles::{recognise, Role};
 use rigless::character::skeleton::Joint;
 use rigless::character::Character;
+use rigless::daemon::capture::capture;
+use rigless::daemon::live_calibration::write_layout;
+use rigless::daemon::offline::{replay_offline, OfflineOptions, OfflineReport};
+use rigless::input::config::InputConfig;
 use rigless::replay::bvh::parse_bvh;
 use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
+use rigless::runtime::clock::{Clock, SystemClock};
+use rigless::solve::frame::SolverParams;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
     /// The character: `hand`, `body` (the procedural ones) or a character file (TOML).
     character: String,
-    /// The take: C3D, Qualisys TSV, BVH or session file. A BVH's joints are taken as
-    /// points at the character's joints of the same roles (from their names), not as
-    /// markers on the skin.
-    take: PathBuf,
+    /// The take: C3D, Qualisys TSV, BVH or session file, or a live input URL
+    /// (osc://, vmc://, natnet://, vrpn://) captured for `--seconds`. A BVH's joints are
+    /// taken as points at the character's joints of the same roles (from their names),
+    /// not as markers on the skin.
+    take: String,
+    /// With a live input URL: seconds to capture (the actor stands in the character's
+    /// rest pose, then moves every joint).
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Metres per sender unit of a live input (0.001 for a millimetre sender; osc://
+    /// only).
+    #[arg(long, default_value_t = 1.0)]
+    scale: f64,
+    /// The live sender's up axis is Z (osc:// only).
+    #[arg(long)]
+    z_up: bool,
     /// How many frames to fit, chosen over the take to cover its range of motion (and
     /// the one where the actor stands most like the character's rest pose).
     #[arg(long, default_value_t = DEFAULT_FRAMES)]
@@ -33,8 +52,8 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "START..END")]
     span: Option<String>,
     /// The marker-set table: `auto` (the one that knows most labels) or a name
-    /// (plug-in-gait, cmu-41, isb, davis, motive-baseline, dfki-hand, rigless-body,
-    /// rigless-hand).
+    /// (plug-in-gait, cmu-41, isb, davis, motive-baseline, motive-conventional,
+    /// dfki-hand, rigless-body, rigless-hand).
     #[arg(long, default_value = "auto")]
     marker_set: String,
     /// Write the layout (`[[markers]]`, replacing the file's) and the scale
@@ -45,6 +64,11 @@ pub struct CalibrateArgs {
     /// Metres per BVH unit.
     #[arg(long, default_value_t = DEFAULT_BVH_METRES_PER_UNIT)]
     bvh_scale: f64,
+    /// Then replay the take through the live pipeline at 120 Hz with the layout and
+    /// scale found, and report what a stage would see: labels fed, samples held,
+    /// misfit, bone lengths, limits, inverted tets and frame times.
+    #[arg(long)]
+    check: bool,
     /// Print the result as one JSON object.
     #[arg(long)]
     json: bool,
@@ -53,6 +77,7 @@ pub struct CalibrateArgs {
 /// What a calibration needs of a character.
 struct Target {
     character: Character,
+    bind: BindParams,
     roles: Vec<Option<Role>>,
     map: Vec<MapEntry>,
     /// Its file (none for a procedural one).
@@ -62,14 +87,15 @@ struct Target {
 /// The character named on the command line.
 fn load(spec: &str) -> Result<Target> {
     if spec == "hand" || spec == "body" {
-        let character = if spec == "hand" {
-            demo_hand()
+        let (character, bind) = if spec == "hand" {
+            (demo_hand(), hand_bind_params())
         } else {
-            demo_body()
+            (demo_body(), body_bind_params())
         };
         let roles = recognise(&character.skeleton.joints, &[]);
         return Ok(Target {
             character,
+            bind,
             roles,
             map: Vec::new(),
             file: None,
@@ -77,16 +103,10 @@ fn load(spec: &str) -> Result<Target> {
     }
     let path = PathBuf::from(spec);
     let loaded = load_character(&path)?;
-    let map = loaded
-        .calibration_map
-        .iter()
-        .map(|(glob, target)| MapEntry {
-            glob: glob.clone(),
-            target: target.clone(),
-        })
-        .collect();
+    let map = map_entries(&loaded.calibration_map);
     Ok(Target {
         character: loaded.character,
+        bind: loaded.bind,
         roles: loaded.joint_roles,
         map,
         file: Some(path),
@@ -159,6 +179,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     let span_s = a.span.as_deref().map(parse_span).transpose()?;
     let Target {
         character: ch,
+        bind,
         roles,
         map,
         file,
@@ -169,14 +190,10 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
             a.character
         );
     }
-    let rec = Recording::load_with(&a.take, a.bvh_scale)?;
-    let is_bvh = a
-        .take
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("bvh"));
+    let (rec, is_bvh) = take(&a)?;
     let mut map = map;
     if is_bvh {
-        map.extend(bvh_roles(&a.take, a.bvh_scale)?);
+        map.extend(bvh_roles(Path::new(&a.take), a.bvh_scale)?);
     }
     let opts = CalibrationOptions {
         frames: a.frames,
@@ -184,12 +201,13 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         marker_set,
         map,
         markers_on_skin: !is_bvh,
+        max_marker_distance_m: bind.max_marker_distance_m,
         ..CalibrationOptions::default()
     };
     if !a.json {
         eprintln!(
-            "calibrating {} ({} labels, {} frames at {} Hz) onto {} ...",
-            a.take.display(),
+            "calibrating {} ({} labels, {} frames at {:.1} Hz) onto {} ...",
+            a.take,
             rec.labels.len(),
             rec.frames.len(),
             rec.rate_hz,
@@ -197,15 +215,38 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         );
     }
     let t0 = std::time::Instant::now();
-    let cal = calibrate(&ch, &roles, rec.as_take(), &opts)?;
+    let mut cal = calibrate(&ch, &roles, rec.as_take(), &opts)?;
     let seconds = t0.elapsed().as_secs_f64();
-    if a.json {
-        println!("{}", serde_json::to_string(&json(&cal, &rec, seconds))?);
+    // What is written or checked binds: labels the bind refuses are left out first.
+    let rig = if a.check || a.write {
+        Some(Arc::new(
+            cal.bind(&ch, &bind, &mut |_, _| {})
+                .context("binding the calibrated layout")?,
+        ))
     } else {
+        None
+    };
+    if !a.json {
         print_table(&cal, &rec, seconds);
     }
+    let checked = match rig.filter(|_| a.check) {
+        Some(rig) => {
+            if !a.json {
+                eprintln!("replaying the take with this layout at 120 Hz ...");
+            }
+            Some(check(rig, &rec, &cal)?)
+        }
+        None => None,
+    };
+    if a.json {
+        let mut v = json(&cal, &rec, seconds);
+        v["check"] = serde_json::to_value(&checked)?;
+        println!("{}", serde_json::to_string(&v)?);
+    } else if let Some(r) = &checked {
+        print_check(r);
+    }
     if let (true, Some(path)) = (a.write, &file) {
-        write(path, &cal)?;
+        write_layout(path, &cal)?;
         if !a.json {
             println!(
                 "wrote {} markers and marker_scale {:.5} into {} (the old file is {})",
@@ -219,22 +260,59 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     Ok(())
 }
 
+/// The take: a file, or what a live input URL sent in `--seconds`; and whether it is a
+/// BVH (joint centres, not markers).
+fn take(a: &CalibrateArgs) -> Result<(Recording, bool)> {
+    if !a.take.contains("://") {
+        let path = Path::new(&a.take);
+        let is_bvh = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("bvh"));
+        return Ok((Recording::load_with(path, a.bvh_scale)?, is_bvh));
+    }
+    if !(a.scale.is_finite() && a.scale > 0.0) {
+        bail!(
+            "--scale must be a positive number of metres per unit, got {:?}",
+            a.scale
+        );
+    }
+    let cfg = InputConfig::from_url(&a.take)?.with_sender_units(a.scale, a.z_up);
+    if !a.json {
+        eprintln!(
+            "capturing {} s from {}: stand in the character's rest pose, then move every joint ...",
+            a.seconds, a.take
+        );
+    }
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let (rec, lines) = capture(&[cfg], Path::new("."), &clock, a.seconds, &a.take)?;
+    if !a.json {
+        for l in lines.iter().chain(&rec.warnings) {
+            eprintln!("  {l}");
+        }
+    }
+    Ok((rec, false))
+}
+
+/// `rec` replayed through the live pipeline onto `rig` (bound with the layout of `cal`)
+/// with the scale of `cal`.
+fn check(
+    rig: Arc<rigless::rig::bind::Rig>,
+    rec: &Recording,
+    cal: &Calibration,
+) -> Result<OfflineReport> {
+    let opts = OfflineOptions {
+        marker_scale: cal.scale,
+        ..OfflineOptions::default()
+    };
+    replay_offline(rig, SolverParams::default(), rec, opts)?
+        .context("no label of the take feeds a placed marker")
+}
+
 /// `FILE.bak` beside `path`.
 fn backup_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
     name.push(".bak");
     path.with_file_name(name)
-}
-
-/// Writes the calibration into the character file, the old one kept as `FILE.bak`.
-fn write(path: &Path, cal: &Calibration) -> Result<()> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let new = write_into(&text, &path.display().to_string(), cal)?;
-    let backup = backup_path(path);
-    std::fs::write(&backup, &text).with_context(|| format!("writing {}", backup.display()))?;
-    std::fs::write(path, new).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
 }
 
 /// The calibration as one JSON object.
@@ -261,6 +339,31 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
         })).collect::<Vec<_>>(),
         "left_out": cal.left_out.iter().map(|(l, why)| serde_json::json!({"label": l, "why": why.to_string()})).collect::<Vec<_>>(),
     })
+}
+
+/// What the replay with the calibrated layout did.
+fn print_check(r: &OfflineReport) {
+    println!();
+    println!(
+        "replayed     {} frames at 120 Hz: {} labels fed, {:.1} % of their samples held",
+        r.frames,
+        r.labels_fed,
+        100.0 * r.held_share
+    );
+    println!(
+        "misfit       {:.1} mm RMS, {:.1} mm max (character millimetres)",
+        r.residual_mm_rms, r.residual_mm_max
+    );
+    println!(
+        "character    bone length error {:.2} % at worst, joint limits exceeded by {:.2}° at worst, {} inverted tets at worst",
+        100.0 * r.bone_length_error_max,
+        r.joint_limit_violation_deg_max,
+        r.inverted_tets_max
+    );
+    println!(
+        "frame time   p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms; {} frames stopped by their deadline",
+        r.frame_ms_p50, r.frame_ms_p99, r.frame_ms_max, r.deadline_stops
+    );
 }
 
 /// The calibration as a table.

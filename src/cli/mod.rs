@@ -123,6 +123,11 @@ pub fn run_stage(cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Resul
             bar(stage, f);
         }
     };
+    if let (Some(s), false) = (cfg.calibration.first_secs, opts.json) {
+        eprintln!(
+            "listening {s} s to calibrate the markers: stand in the character's rest pose, then move every joint ..."
+        );
+    }
     let stage = Stage::start_with(
         &cfg,
         base_dir,
@@ -182,6 +187,9 @@ fn print_started(stage: &Stage, json: bool) {
         );
         if let Some(source) = &i.rig_source {
             println!("{source}");
+        }
+        if let Some(c) = &i.calibration {
+            println!("{}", c.describe());
         }
         for input in &i.inputs {
             for w in &input.warnings {

@@ -200,6 +200,14 @@ impl Pipeline {
         &self.markers
     }
 
+    /// The deformed control mesh of the newest frame (`None` with the harmonic method,
+    /// which has none), metres.
+    pub fn control_positions(&self) -> Option<&[DVec3]> {
+        self.solver
+            .has_control_mesh()
+            .then(|| self.solver.control_positions())
+    }
+
     /// The newest full-resolution vertices, metres.
     pub fn vertices(&self) -> &[DVec3] {
         &self.vertices

@@ -11,10 +11,13 @@
 //! computes and deterministically: inputs that pace themselves and the loop take turns
 //! in time order.
 
+use super::live_calibration::{calibrate_live, LiveCalibration, LiveCalibrationError, Target};
 use super::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
+use crate::calibrate::labels::map_entries;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use crate::character::file::{load_character, CharacterError};
 use crate::character::procedural::Character;
+use crate::character::roles::recognise;
 use crate::config::StageConfig;
 use crate::input::{ChannelSink, Input, InputError, OpenContext, PinTarget, SourceCounters};
 use crate::markers::buffer::MarkerBuffer;
@@ -102,6 +105,8 @@ pub enum StageError {
     },
     #[error("the {thread} thread panicked")]
     Panicked { thread: &'static str },
+    #[error(transparent)]
+    LiveCalibration(#[from] LiveCalibrationError),
 }
 
 /// What a started stage is, for the user (the CLI prints it).
@@ -130,6 +135,9 @@ pub struct StageInfo {
     /// When paced inputs start and when the loop first ticks, seconds on the clock.
     pub start_s: f64,
     pub loop_start_s: f64,
+    /// What the calibration from the first seconds of live input did, when the config
+    /// asked for one.
+    pub calibration: Option<LiveCalibration>,
 }
 
 /// One input of a started stage.
@@ -263,27 +271,84 @@ struct Bound {
 fn bind_character(
     cfg: &StageConfig,
     base_dir: &Path,
+    clock: &Arc<dyn Clock>,
     progress: &mut dyn FnMut(BindStage, f64),
-) -> Result<Bound, StageError> {
+) -> Result<(Bound, Option<LiveCalibration>), StageError> {
+    // The live calibration, when the config asks for one, and its rig.
+    let live = |target: Target<'_>, progress: &mut dyn FnMut(BindStage, f64)| {
+        calibrate_live(
+            &cfg.calibration,
+            &cfg.inputs,
+            base_dir,
+            clock,
+            target,
+            progress,
+        )
+        .map(|found| found.map_or((None, None), |(l, r)| (Some(l), r)))
+    };
+    // The stage's marker_scale, else the live calibration's, else the file's.
+    let scale = |live: &Option<LiveCalibration>, file: f64| {
+        let found = live
+            .as_ref()
+            .and_then(|l| l.calibration.as_ref())
+            .map(|c| c.scale);
+        cfg.character.marker_scale.or(found).unwrap_or(file)
+    };
     if let Some(p) = &cfg.character.procedural {
-        let (ch, bind) = match p.as_str() {
+        let (mut ch, bind) = match p.as_str() {
             "body" => (demo_body(), body_bind_params()),
             _ => (demo_hand(), hand_bind_params()),
         };
-        let rig = Rig::bind(&ch, &bind).map_err(|source| StageError::Procedural {
-            name: p.clone(),
-            source,
-        })?;
-        return Ok(Bound {
+        let roles = recognise(&ch.skeleton.joints, &[]);
+        let (calibrated, rig) = live(
+            Target {
+                character: &ch,
+                bind: &bind,
+                roles: &roles,
+                map: Vec::new(),
+                file: None,
+            },
+            progress,
+        )?;
+        if let Some(c) = calibrated.as_ref().and_then(|l| l.calibration.as_ref()) {
+            ch.markers = c.layout(&ch);
+        }
+        let rig = match rig {
+            Some(rig) => rig,
+            None => Rig::bind(&ch, &bind).map_err(|source| StageError::Procedural {
+                name: p.clone(),
+                source,
+            })?,
+        };
+        let marker_scale = scale(&calibrated, 1.0);
+        let bound = Bound {
             rig: Arc::new(rig),
             name: ch.name.clone(),
             procedural: Some(Arc::new(ch)),
             rig_source: None,
-            marker_scale: cfg.character.marker_scale.unwrap_or(1.0),
-        });
+            marker_scale,
+        };
+        return Ok((bound, calibrated));
     }
     let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
-    let loaded = load_character(&path)?;
+    let mut loaded = load_character(&path)?;
+    let (calibrated, live_rig) = live(
+        Target {
+            character: &loaded.character,
+            bind: &loaded.bind,
+            roles: &loaded.joint_roles,
+            map: map_entries(&loaded.calibration_map),
+            file: Some(&path),
+        },
+        progress,
+    )?;
+    let written = calibrated.as_ref().is_some_and(|l| l.written.is_some());
+    if written {
+        // The file now holds the layout: bind (and cache) it as any file.
+        loaded = load_character(&path)?;
+    } else if let Some(c) = calibrated.as_ref().and_then(|l| l.calibration.as_ref()) {
+        loaded.character.markers = c.layout(&loaded.character);
+    }
     if loaded.character.markers.is_empty() {
         return Err(StageError::NoMarkers {
             path: path.display().to_string(),
@@ -292,14 +357,23 @@ fn bind_character(
     for w in &loaded.warnings {
         tracing::warn!("{}: {w} (bound anyway)", path.display());
     }
-    let (rig, source) = load_or_bind(&path, &loaded, false, progress)?;
-    Ok(Bound {
+    let (rig, source) = match live_rig.filter(|_| !written) {
+        // A layout the file does not hold: bound with it, not cached under the file.
+        Some(rig) => (rig, "bound with the live calibration's layout".to_string()),
+        None => {
+            let (rig, source) = load_or_bind(&path, &loaded, false, progress)?;
+            (rig, source.to_string())
+        }
+    };
+    let marker_scale = scale(&calibrated, loaded.marker_scale);
+    let bound = Bound {
         rig: Arc::new(rig),
         name: loaded.character.name.clone(),
         procedural: None,
         rig_source: Some(format!("{}: {source}", path.display())),
-        marker_scale: cfg.character.marker_scale.unwrap_or(loaded.marker_scale),
-    })
+        marker_scale,
+    };
+    Ok((bound, calibrated))
 }
 
 /// A Rerun target that can be honoured here: `spawn` needs the `rerun` viewer on PATH;
@@ -381,9 +455,10 @@ impl Stage {
         mut opts: StartOptions<'_>,
     ) -> Result<Self, StageError> {
         let t0 = std::time::Instant::now();
-        let bound = bind_character(
+        let (bound, calibration) = bind_character(
             cfg,
             base_dir,
+            &clock,
             opts.progress.as_deref_mut().unwrap_or(&mut |_, _| {}),
         )?;
         let bind_s = t0.elapsed().as_secs_f64();
@@ -483,6 +558,7 @@ impl Stage {
             rerun_note: sinks.rerun_note,
             start_s,
             loop_start_s,
+            calibration,
         };
         Ok(Self {
             info,
