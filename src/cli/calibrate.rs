@@ -44,13 +44,15 @@ pub struct CalibrateArgs {
     /// The live sender's up axis is Z (osc:// only).
     #[arg(long)]
     z_up: bool,
-    /// How many frames to fit, chosen over the take to cover its range of motion (and
-    /// the one where the actor stands most like the character's rest pose).
-    #[arg(long, default_value_t = DEFAULT_FRAMES)]
-    frames: usize,
-    /// Only frames in this span of the take, seconds: `START..END`.
-    #[arg(long, value_name = "START..END")]
-    span: Option<String>,
+    /// Which frames to fit: `auto` (20, chosen over the take to cover its range of
+    /// motion, with the one where the actor stands most like the character's rest
+    /// pose), a count (`30`), or a span of the take in seconds to choose them from
+    /// (`0..8`).
+    #[arg(long, default_value = "auto", value_name = "auto|N|START..END")]
+    frames: String,
+    /// How many frames to fit (with `--frames START..END`, or instead of a count there).
+    #[arg(long, value_name = "N")]
+    count: Option<usize>,
     /// The marker-set table: `auto` (the one that knows most labels) or a name
     /// (plug-in-gait, cmu-41, isb, davis, motive-baseline, motive-conventional,
     /// dfki-hand, rigless-body, rigless-hand).
@@ -140,29 +142,48 @@ fn bvh_roles(path: &Path, metres_per_unit: f64) -> Result<Vec<MapEntry>> {
         .collect())
 }
 
+/// `--frames` (and `--count`): how many frames, and the span to choose them from.
+fn parse_frames(spec: &str, count: Option<usize>) -> Result<(usize, Option<(f64, f64)>)> {
+    let (n, span) = match spec.trim() {
+        "auto" => (count.unwrap_or(DEFAULT_FRAMES), None),
+        s if s.contains("..") => (count.unwrap_or(DEFAULT_FRAMES), Some(parse_span(s)?)),
+        s => {
+            let n: usize = s.parse().with_context(|| {
+                format!("--frames {s:?}: expected auto, a count or START..END in seconds")
+            })?;
+            if count.is_some_and(|c| c != n) {
+                bail!("--frames {n} and --count {count:?} disagree");
+            }
+            (n, None)
+        }
+    };
+    if !(1..=1000).contains(&n) {
+        bail!("the frames to fit must be 1 to 1000, got {n}");
+    }
+    Ok((n, span))
+}
+
 /// `START..END` in seconds.
 fn parse_span(s: &str) -> Result<(f64, f64)> {
     let (a, b) = s
         .split_once("..")
-        .with_context(|| format!("--span {s:?}: expected START..END in seconds"))?;
+        .with_context(|| format!("--frames {s:?}: expected START..END in seconds"))?;
     let (a, b): (f64, f64) = (
         a.trim()
             .parse()
-            .with_context(|| format!("--span start {a:?}"))?,
+            .with_context(|| format!("--frames: the start {a:?} is not a number"))?,
         b.trim()
             .parse()
-            .with_context(|| format!("--span end {b:?}"))?,
+            .with_context(|| format!("--frames: the end {b:?} is not a number"))?,
     );
     if !(a.is_finite() && b.is_finite() && 0.0 <= a && a < b) {
-        bail!("--span {s:?}: the start must be zero or more and before the end");
+        bail!("--frames {s:?}: the start must be zero or more and before the end");
     }
     Ok((a, b))
 }
 
 pub fn run(a: CalibrateArgs) -> Result<()> {
-    if !(1..=1000).contains(&a.frames) {
-        bail!("--frames must be 1 to 1000, got {}", a.frames);
-    }
+    let (frames, span_s) = parse_frames(&a.frames, a.count)?;
     if !(a.bvh_scale.is_finite() && a.bvh_scale > 0.0) {
         bail!("--bvh-scale must be positive, got {}", a.bvh_scale);
     }
@@ -176,7 +197,6 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
             )
         })?),
     };
-    let span_s = a.span.as_deref().map(parse_span).transpose()?;
     let Target {
         character: ch,
         bind,
@@ -196,7 +216,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         map.extend(bvh_roles(Path::new(&a.take), a.bvh_scale)?);
     }
     let opts = CalibrationOptions {
-        frames: a.frames,
+        frames,
         span_s,
         marker_set,
         map,
@@ -416,5 +436,24 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
     }
     for (label, why) in &cal.left_out {
         println!("{label:<12} left out: {why}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_are_auto_a_count_or_a_span() {
+        assert_eq!(parse_frames("auto", None).unwrap(), (DEFAULT_FRAMES, None));
+        assert_eq!(parse_frames("30", None).unwrap(), (30, None));
+        assert_eq!(
+            parse_frames("0..8.5", Some(12)).unwrap(),
+            (12, Some((0.0, 8.5)))
+        );
+        for bad in ["8..2", "0", "1001", "many", "-1..3", "1..x"] {
+            assert!(parse_frames(bad, None).is_err(), "{bad}");
+        }
+        assert!(parse_frames("30", Some(12)).is_err(), "a count twice");
     }
 }

@@ -113,7 +113,7 @@ impl Default for SolverParams {
 /// character standing still, whose criterion is ten times smaller (sensor noise alone),
 /// iterates towards the deadline for changes of micrometres per metre (the body's
 /// range-of-motion replay: 6 deadline stops in its 1.5 s of rest and a frame p99 of
-/// 6.3 ms with a floor of 1e-9; none and 3.6 ms with this one).
+/// 6.3 ms with a floor of 1e-9; none and 2.7 to 3.6 ms with this one).
 pub const FRAME_CONVERGENCE_ABS_FLOOR: f64 = 2e-5;
 
 /// Iterations whose convergence criterion a report keeps.
