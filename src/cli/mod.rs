@@ -180,6 +180,24 @@ fn print_started(stage: &Stage, json: bool) {
     for input in i.inputs.iter().filter(|input| !json || network(input.kind)) {
         println!("{}", input.opened);
     }
+    if let (true, Some(c)) = (json, &i.calibration) {
+        let cal = c.calibration.as_ref();
+        println!(
+            "{}",
+            serde_json::json!({ "calibration": {
+                "seconds": c.seconds,
+                "frames": c.frames,
+                "labels": c.labels,
+                "calibrated": cal.is_some(),
+                "placed": cal.map(|c| c.placed.len()),
+                "left_out": cal.map(|c| c.left_out.iter().map(|(l, why)| serde_json::json!({"label": l, "why": why.to_string()})).collect::<Vec<_>>()),
+                "scale": cal.map(|c| c.scale),
+                "residual_mm_rms": cal.map(|c| c.residual_mm_rms),
+                "residual_mm_max": cal.map(|c| c.residual_mm_max),
+                "written": c.written.as_ref().map(|p| p.display().to_string()),
+            }})
+        );
+    }
     if !json {
         println!(
             "{}: {} mesh vertices, {} markers, {} control vertices; ready in {:.2} s",
