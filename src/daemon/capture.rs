@@ -463,4 +463,57 @@ mod tests {
         b.push(&packet(0.0, Some(0), &[sample(0, 1.0)], &[]));
         assert!(b.finish("empty").is_none());
     }
+
+    mod hostile {
+        use super::*;
+        use proptest::prelude::*;
+
+        fn coordinate() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                -10.0..10.0f64,
+                Just(f64::NAN),
+                Just(f64::INFINITY),
+                Just(-1e300),
+            ]
+        }
+
+        proptest! {
+            /// Any packets (frame numbers or none, any times, indices past the names,
+            /// positions that are not numbers) give a take whose rows all have one
+            /// position per label, within the bounds, and a rate a recording may have.
+            #[test]
+            fn any_packets_give_a_well_formed_take(
+                packets in prop::collection::vec(
+                    (
+                        prop::option::of(-3i64..3),
+                        prop_oneof![0.0..1.0f64, Just(f64::NAN), Just(-5.0), Just(1e12)],
+                        prop::collection::vec((0u32..12, coordinate(), any::<bool>()), 0..8),
+                    ),
+                    0..60,
+                ),
+                n_names in 0usize..10,
+            ) {
+                let names: Vec<String> = (0..n_names).map(|i| format!("m{i}")).collect();
+                let mut b = TakeBuilder::new();
+                for (frame, t, samples) in &packets {
+                    let samples: Vec<MarkerSample> = samples
+                        .iter()
+                        .map(|&(k, x, occluded)| MarkerSample {
+                            occluded,
+                            ..sample(k, x)
+                        })
+                        .collect();
+                    b.push(&packet(*t, *frame, &samples, &names));
+                }
+                prop_assert_eq!(b.packets, packets.len() as u64);
+                if let Some(r) = b.finish("any") {
+                    prop_assert!(!r.labels.is_empty() && r.labels.len() <= n_names);
+                    prop_assert!(r.frames.len() <= MAX_CAPTURE_FRAMES);
+                    prop_assert!(r.frames.iter().all(|f| f.len() == r.labels.len()));
+                    prop_assert!(r.frames.iter().flatten().all(|p| p.is_finite() || p.is_nan()));
+                    prop_assert!(crate::replay::recording::rate_in_range(r.rate_hz), "{}", r.rate_hz);
+                }
+            }
+        }
+    }
 }
