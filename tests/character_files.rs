@@ -560,3 +560,41 @@ fn markers_can_come_after_the_bake() {
         "{source}"
     );
 }
+
+/// A layout found for a file that sets no cell size binds with the cell `bake` would
+/// choose for it once written: `bind_for` chooses the default cell again for the new
+/// markers (it follows the shortest bone that carries one; without markers the file
+/// gets another).
+#[test]
+fn a_new_layout_gets_the_cell_its_file_would_choose() {
+    let dir = tempfile::tempdir().unwrap();
+    let hand = demo_hand();
+    // No bind settings: the default cell, chosen for the file's markers.
+    let with = write_character_files(&hand, None, &dir.path().join("with")).unwrap();
+    let bare = {
+        let mut h = hand.clone();
+        h.markers.clear();
+        write_character_files(&h, None, &dir.path().join("bare")).unwrap()
+    };
+    let with = load_character(&with).unwrap_or_else(|e| panic!("{e}"));
+    let bare = load_character(&bare).unwrap_or_else(|e| panic!("{e}"));
+    assert!(bare.cell_choice.is_some() && with.cell_choice.is_some());
+    let again = bare.bind_for(&with.character.markers);
+    // The same computation on the same mesh, skeleton and markers: equal to round-off.
+    assert!(
+        (again.cell_size_m - with.bind.cell_size_m).abs() <= 1e-12,
+        "{again:?} against {:?}",
+        with.bind
+    );
+    assert!(
+        (again.skeleton_step_m - with.bind.skeleton_step_m).abs() <= 1e-12,
+        "{again:?}"
+    );
+    // Measured: 15.1 mm for the hand's layout, 9.5 mm without markers.
+    assert!(
+        (again.cell_size_m - bare.bind.cell_size_m).abs() > 1e-3,
+        "the layout changes the cell: {} against {}",
+        again.cell_size_m,
+        bare.bind.cell_size_m
+    );
+}

@@ -491,6 +491,34 @@ pub struct LoadedCharacter {
     pub mesh_path: PathBuf,
 }
 
+impl LoadedCharacter {
+    /// The bind settings for the layout `markers` in place of the file's: when the file
+    /// sets no cell size, the default is chosen again for them (as `bake` chooses it once
+    /// `calibrate --write` has stored them: it follows the shortest bone that carries a
+    /// marker), with the skeleton step that follows it unless the file sets one; every
+    /// other setting is the file's.
+    pub fn bind_for(&self, markers: &[MarkerDef]) -> BindParams {
+        let mut b = self.bind.clone();
+        if self.cell_choice.is_some() {
+            let ch = &self.character;
+            let step_follows =
+                (b.skeleton_step_m - 0.9 * b.cell_size_m).abs() <= 1e-9 * b.cell_size_m;
+            let c = default_cell_size(
+                &ch.vertices,
+                &ch.triangles,
+                &ch.skeleton,
+                markers,
+                extent(&ch.vertices).max_element(),
+            );
+            b.cell_size_m = c.cell_size_m;
+            if step_follows {
+                b.skeleton_step_m = 0.9 * c.cell_size_m;
+            }
+        }
+        b
+    }
+}
+
 /// FNV-1a, 64 bits: a stable hash (unlike std's) for cache keys.
 pub fn fnv1a(data: &[&[u8]]) -> u64 {
     let mut h = 0xcbf2_9ce4_8422_2325u64;

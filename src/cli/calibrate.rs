@@ -9,7 +9,7 @@ use rigless::calibrate::marker_sets::{by_name, MARKER_SETS};
 use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, DEFAULT_FRAMES};
 use rigless::character::bind_params::BindParams;
 use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
-use rigless::character::file::load_character;
+use rigless::character::file::{load_character, LoadedCharacter};
 use rigless::character::roles::{recognise, Role};
 use rigless::character::skeleton::Joint;
 use rigless::character::Character;
@@ -84,6 +84,8 @@ struct Target {
     map: Vec<MapEntry>,
     /// Its file (none for a procedural one).
     file: Option<PathBuf>,
+    /// The file as loaded (for the bind settings of a new layout).
+    loaded: Option<LoadedCharacter>,
 }
 
 /// The character named on the command line.
@@ -96,6 +98,7 @@ fn load(spec: &str) -> Result<Target> {
         };
         let roles = recognise(&character.skeleton.joints, &[]);
         return Ok(Target {
+            loaded: None,
             character,
             bind,
             roles,
@@ -105,13 +108,13 @@ fn load(spec: &str) -> Result<Target> {
     }
     let path = PathBuf::from(spec);
     let loaded = load_character(&path)?;
-    let map = map_entries(&loaded.calibration_map);
     Ok(Target {
-        character: loaded.character,
-        bind: loaded.bind,
-        roles: loaded.joint_roles,
-        map,
+        character: loaded.character.clone(),
+        bind: loaded.bind.clone(),
+        roles: loaded.joint_roles.clone(),
+        map: map_entries(&loaded.calibration_map),
         file: Some(path),
+        loaded: Some(loaded),
     })
 }
 
@@ -200,6 +203,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     let Target {
         character: ch,
         bind,
+        loaded,
         roles,
         map,
         file,
@@ -238,6 +242,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     let mut cal = calibrate(&ch, &roles, rec.as_take(), &opts)?;
     let seconds = t0.elapsed().as_secs_f64();
     // What is written or checked binds: labels the bind refuses are left out first.
+    let bind = loaded.map_or(bind, |l| l.bind_for(&cal.layout(&ch)));
     let rig = if a.check || a.write {
         Some(Arc::new(
             cal.bind(&ch, &bind, &mut |_, _| {})

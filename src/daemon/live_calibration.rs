@@ -13,7 +13,7 @@ use crate::calibrate::marker_sets::by_name;
 use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions};
 use crate::character::bind_params::BindParams;
 use crate::character::roles::Role;
-use crate::character::Character;
+use crate::character::{Character, MarkerDef};
 use crate::input::config::InputConfig;
 use crate::markers::index::MarkerIndex;
 use crate::rig::bind::{BindError, BindStage, Rig};
@@ -93,6 +93,9 @@ impl LiveCalibration {
 pub struct Target<'a> {
     pub character: &'a Character,
     pub bind: &'a BindParams,
+    /// The bind settings for a new layout (a character file chooses its default cell
+    /// size for the markers: [`crate::character::file::LoadedCharacter::bind_for`]).
+    pub bind_for: &'a dyn Fn(&[MarkerDef]) -> BindParams,
     pub roles: &'a [Option<Role>],
     /// The character file's `[calibration.bones]`.
     pub map: Vec<MapEntry>,
@@ -146,8 +149,9 @@ pub fn calibrate_live(
             source: Box::new(source),
         }
     })?;
+    let params = (target.bind_for)(&cal.layout(ch));
     let rig = cal
-        .bind(ch, target.bind, progress)
+        .bind(ch, &params, progress)
         .map_err(|source| LiveCalibrationError::Bind {
             character: ch.name.clone(),
             source,

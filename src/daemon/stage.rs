@@ -304,6 +304,7 @@ fn bind_character(
             Target {
                 character: &ch,
                 bind: &bind,
+                bind_for: &|_| bind.clone(),
                 roles: &roles,
                 map: Vec::new(),
                 file: None,
@@ -336,6 +337,7 @@ fn bind_character(
         Target {
             character: &loaded.character,
             bind: &loaded.bind,
+            bind_for: &|m| loaded.bind_for(m),
             roles: &loaded.joint_roles,
             map: map_entries(&loaded.calibration_map),
             file: Some(&path),
