@@ -17,7 +17,7 @@ use crate::input::glove::HandMap;
 use crate::input::{Input, InputError, InputFrame, InputSink, OpenContext};
 use crate::protocol::glove::GloveReading;
 use crate::replay::recording::{Recording, MAX_RATE_HZ, MIN_RATE_HZ};
-use crate::runtime::clock::Clock;
+use crate::runtime::clock::{Attached, Clock};
 use glam::DVec3;
 use std::collections::HashMap;
 use std::path::Path;
@@ -225,22 +225,6 @@ impl TakeBuilder {
     }
 }
 
-/// A thread's place among those pacing themselves on a clock, given back when dropped.
-struct OnClock(Arc<dyn Clock>);
-
-impl OnClock {
-    fn take(clock: &Arc<dyn Clock>) -> Self {
-        clock.attach();
-        Self(Arc::clone(clock))
-    }
-}
-
-impl Drop for OnClock {
-    fn drop(&mut self) {
-        self.0.detach();
-    }
-}
-
 /// One input's packets into a shared builder, until the capture's end time.
 struct CaptureSink {
     take: Arc<Mutex<TakeBuilder>>,
@@ -309,10 +293,10 @@ pub fn capture(
     let end_s = start_s + seconds;
     // Places on the clock (this thread and each paced input) are taken before any input
     // starts, so that a manual clock moves only when all of them wait.
-    let here = OnClock::take(clock);
-    let places: Vec<Option<OnClock>> = opened
+    let here = Attached::new(clock);
+    let places: Vec<Option<Attached>> = opened
         .iter()
-        .map(|i| i.is_paced().then(|| OnClock::take(clock)))
+        .map(|i| i.is_paced().then(|| Attached::new(clock)))
         .collect();
     let mut threads = Vec::new();
     for (input, place) in opened.into_iter().zip(places) {

@@ -28,7 +28,7 @@ use crate::output::stream::{StreamServer, StreamStats};
 use crate::replay::session::{run_recorder, SessionHeader, SessionWriter};
 use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::rig::cache::{load_or_bind, LoadOrBindError};
-use crate::runtime::clock::Clock;
+use crate::runtime::clock::{Attached, Clock};
 use crate::runtime::slot::{LatestSlot, PinSlot};
 use crate::solve::frame::Solver;
 use std::net::SocketAddr;
@@ -392,24 +392,6 @@ fn usable_rerun_target(t: RerunTarget, fallback: PathBuf) -> (RerunTarget, Optio
             (RerunTarget::Save(fallback), Some(note))
         }
         t => (t, None),
-    }
-}
-
-/// A thread's place among those that pace themselves on a clock: taken before any of
-/// them starts (so that a manual clock waits for all of them), given back when the thread
-/// ends, even by a panic.
-struct Attached(Arc<dyn Clock>);
-
-impl Attached {
-    fn new(clock: &Arc<dyn Clock>) -> Self {
-        clock.attach();
-        Self(Arc::clone(clock))
-    }
-}
-
-impl Drop for Attached {
-    fn drop(&mut self) {
-        self.0.detach();
     }
 }
 

@@ -195,6 +195,24 @@ impl Clock for ManualClock {
     }
 }
 
+/// A thread's place among those that pace themselves on a clock: taken before any of
+/// them starts (so that a manual clock waits for all of them), given back when the thread
+/// ends, even by a panic.
+pub struct Attached(Arc<dyn Clock>);
+
+impl Attached {
+    pub fn new(clock: &Arc<dyn Clock>) -> Self {
+        clock.attach();
+        Self(Arc::clone(clock))
+    }
+}
+
+impl Drop for Attached {
+    fn drop(&mut self) {
+        self.0.detach();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
