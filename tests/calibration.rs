@@ -383,7 +383,7 @@ fn shared_take(rel: &str) -> Option<Recording> {
 /// Real takes onto the procedural characters: every label the character can carry is
 /// placed, and the misfit stays within the 15 mm RMS for a real full-body take.
 /// Measured: the Qualisys ISB take onto the body 7.6 mm RMS (its 8 wands placed by their
-/// motion); the DFKI hand onto the hand 0.96 mm (elbow, shoulder and back have no bones
+/// motion); the DFKI hand onto the hand 1.6 mm (elbow, shoulder and back have no bones
 /// on a hand, the pillow is a prop).
 #[test]
 fn real_takes_calibrate_onto_the_procedural_characters() {
@@ -416,7 +416,8 @@ fn real_takes_calibrate_onto_the_procedural_characters() {
 /// MakeHuman body (OBJ, its own skeleton) and onto CesiumMan (glTF), and the DFKI hand
 /// recording onto the WebXR hand, each then replayed through the live pipeline at
 /// 120 Hz with the layout and scale found. The targets for such a take: every
-/// label the bind takes fed, under 5 % of the samples held, misfit at most 15 mm RMS, no
+/// label placed and fed (the Qualisys take's 55; the DFKI take's 13 on the hand, its
+/// arm, back and pillow markers have no bone on a hand), under 5 % of the samples held, misfit at most 15 mm RMS, no
 /// inverted tet; the limits held within the posture fit's 0.5° clamp tolerance. (The
 /// frame times are the calibration benchmark's.)
 #[test]
@@ -431,19 +432,23 @@ fn real_takes_drive_real_assets_through_the_live_pipeline() {
     let dir = tempfile::tempdir().unwrap();
     let mut cases = Vec::new();
     if let Some(f) = makehuman_file(&data, &["body"], dir.path()).unwrap() {
-        cases.push((f, qualisys.clone()));
+        cases.push((f, qualisys.clone(), 55));
     }
     let cesium = data.join("meshes/gltf-samples/CesiumMan.glb");
     if cesium.is_file() {
-        cases.push((gltf_file(&cesium, dir.path()).unwrap(), qualisys.clone()));
+        cases.push((
+            gltf_file(&cesium, dir.path()).unwrap(),
+            qualisys.clone(),
+            55,
+        ));
     }
     if let (Some(f), Some(dfki)) = (
         webxr_hand_file(&data, dir.path(), true).unwrap(),
         shared_take("hand/dfki_hand_recording.tsv"),
     ) {
-        cases.push((f, dfki));
+        cases.push((f, dfki, 13));
     }
-    for (file, rec) in cases {
+    for (file, rec, labels) in cases {
         let loaded = load_character(&file).unwrap_or_else(|e| panic!("{e}"));
         let mut ch = loaded.character;
         ch.markers.clear();
@@ -476,6 +481,7 @@ fn real_takes_drive_real_assets_through_the_live_pipeline() {
             ch.name,
             cal.placed.len(),
         );
+        assert_eq!(cal.placed.len(), labels, "{}: {left:?}", ch.name);
         assert_eq!(r.labels_fed, cal.placed.len(), "{}", ch.name);
         assert!(r.held_share < 0.05, "{}: {r:?}", ch.name);
         assert!(r.residual_mm_rms <= 15.0, "{}: {r:?}", ch.name);

@@ -3,7 +3,8 @@
 //! scale and of each frame's heading and position from a similarity fit between
 //! labelled markers and the bones that carry them.
 
-use glam::{DQuat, DVec3};
+use crate::geom::polar::extract_rotation;
+use glam::{DMat3, DQuat, DVec3};
 
 /// Most frames the sampling compares (evenly spaced over the take).
 const MAX_CANDIDATES: usize = 600;
@@ -85,22 +86,36 @@ pub fn choose_frames(
     out
 }
 
-/// A similarity with a vertical axis: `x ↦ q x + t` with `q` a turn about Y, taking
-/// character points to scaled take coordinates `s m`.
+/// A similarity `x ↦ q x + t` taking character points to scaled take coordinates `s m`:
+/// `q` a turn about Y for a character that stands ([`Turn::Yaw`]), any rotation for one
+/// that does not ([`Turn::Any`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Heading {
     pub q: DQuat,
     pub t: DVec3,
 }
 
+/// Which rotations take the character into the take.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Turn {
+    /// A turn about Y: a body stands upright in its take and at rest.
+    Yaw,
+    /// Any rotation: a hand (or any character without legs) is held every way in its
+    /// take, and its rest pose need not match the take's up.
+    Any,
+}
+
 /// The fit of `s m ≈ q a + t` over pairs `(a, m)` (character anchor, take position; both
-/// Y up), `q` a turn about Y, with robust (Cauchy, width `c_m` in take metres) weights;
+/// Y up), `q` as `turn` allows (the best turn about Y in closed form; any rotation by
+/// Kabsch's fit, Kabsch 1976, as the polar rotation of the weighted cross-covariance
+/// `Σ w (m − m̄)(a − ā)ᵀ`), with robust (Cauchy, width `c_m` in take metres) weights;
 /// `scale` fixes `s` when given. Returns the heading, the scale and the weighted RMS
 /// misfit in take metres; `None` with fewer than three pairs.
 pub fn fit_heading(
     pairs: &[(DVec3, DVec3)],
     scale: Option<f64>,
     c_m: f64,
+    turn: Turn,
 ) -> Option<(Heading, f64, f64)> {
     if pairs.len() < 3 {
         return None;
@@ -122,14 +137,18 @@ pub fn fit_heading(
             .sum::<DVec3>()
             / sw;
         let (mut s1, mut s2, mut mm) = (0.0, 0.0, 0.0);
+        let mut cross = DMat3::ZERO;
         for ((a, m), w) in pairs.iter().zip(&w) {
             let (a, m) = (*a - abar, *m - mbar);
             s1 += w * (a.x * m.x + a.z * m.z);
             s2 += w * (a.z * m.x - a.x * m.z);
             mm += w * m.length_squared();
+            cross += DMat3::from_cols(m * (w * a.x), m * (w * a.y), m * (w * a.z));
         }
-        let phi = s2.atan2(s1);
-        let q = DQuat::from_rotation_y(phi);
+        let q = match turn {
+            Turn::Yaw => DQuat::from_rotation_y(s2.atan2(s1)),
+            Turn::Any => best_rotation(&cross),
+        };
         let s = match scale {
             Some(s) => s,
             None => {
@@ -157,9 +176,32 @@ pub fn fit_heading(
     result
 }
 
+/// The rotation `R` maximising `tr(Rᵀ a)`: the polar iteration from identity and from
+/// the three half turns, keeping the best (a cold start may stall near a half turn away).
+fn best_rotation(a: &DMat3) -> DQuat {
+    let score = |q: DQuat| {
+        let r = DMat3::from_quat(q);
+        r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis)
+    };
+    [
+        DQuat::IDENTITY,
+        DQuat::from_xyzw(1.0, 0.0, 0.0, 0.0),
+        DQuat::from_xyzw(0.0, 1.0, 0.0, 0.0),
+        DQuat::from_xyzw(0.0, 0.0, 1.0, 0.0),
+    ]
+    .into_iter()
+    .map(|mut q| {
+        extract_rotation(a, &mut q);
+        q.normalize()
+    })
+    .max_by(|p, q| score(*p).total_cmp(&score(*q)))
+    .unwrap_or(DQuat::IDENTITY)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::polar::rotation_angle_between;
 
     #[test]
     fn a_turned_scaled_copy_is_found_exactly() {
@@ -172,12 +214,46 @@ mod tests {
         let (q, t, s) = (DQuat::from_rotation_y(2.0), DVec3::new(3.0, 0.1, -2.0), 1.2);
         // s m = q a + t.
         let pairs: Vec<(DVec3, DVec3)> = a.iter().map(|&a| (a, (q * a + t) / s)).collect();
-        let (h, s_fit, rms) = fit_heading(&pairs, None, 0.1).expect("a fit");
-        assert!((s_fit - s).abs() < 1e-12, "{s_fit}");
-        assert!(h.q.angle_between(q) < 1e-12);
-        assert!((h.t - t).length() < 1e-12);
-        assert!(rms < 1e-12);
-        assert!(fit_heading(&pairs[..2], None, 0.1).is_none());
+        for turn in [Turn::Yaw, Turn::Any] {
+            let (h, s_fit, rms) = fit_heading(&pairs, None, 0.1, turn).expect("a fit");
+            assert!((s_fit - s).abs() < 1e-12, "{turn:?}: {s_fit}");
+            assert!(rotation_angle_between(h.q, q) < 1e-9, "{turn:?}");
+            assert!((h.t - t).length() < 1e-9, "{turn:?}");
+            assert!(rms < 1e-9, "{turn:?}");
+            assert!(fit_heading(&pairs[..2], None, 0.1, turn).is_none());
+        }
+    }
+
+    #[test]
+    fn any_turn_is_found_where_a_yaw_cannot_fit() {
+        let a = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(0.1, 0.02, 0.0),
+            DVec3::new(0.0, -0.18, 0.01),
+            DVec3::new(0.03, -0.1, 0.05),
+            DVec3::new(-0.04, -0.15, -0.02),
+        ];
+        // Fingers down at rest, forward and palm down in the take (a half turn among
+        // the rotations tried: the start must not matter).
+        for q in [
+            DQuat::from_rotation_x(1.3) * DQuat::from_rotation_z(0.4),
+            DQuat::from_axis_angle(DVec3::new(1.0, 1.0, 0.2).normalize(), 3.1),
+            DQuat::from_rotation_z(std::f64::consts::PI),
+        ] {
+            let (t, s) = (DVec3::new(0.2, 0.9, -0.3), 0.9);
+            let pairs: Vec<(DVec3, DVec3)> = a.iter().map(|&a| (a, (q * a + t) / s)).collect();
+            let (h, s_fit, rms) = fit_heading(&pairs, None, 0.1, Turn::Any).expect("a fit");
+            assert!((s_fit - s).abs() < 1e-9, "{s_fit}");
+            assert!(rotation_angle_between(h.q, q) < 1e-9);
+            assert!(rms < 1e-9, "{rms}");
+            // A yaw fits it badly, or not at all (the best turn about Y has a negative
+            // scale).
+            let yaw = fit_heading(&pairs, None, 0.1, Turn::Yaw);
+            assert!(
+                yaw.is_none_or(|(_, _, rms)| rms > 0.01),
+                "a yaw alone fits a tilted hand: {yaw:?}"
+            );
+        }
     }
 
     #[test]

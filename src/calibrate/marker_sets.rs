@@ -205,7 +205,10 @@ pub const MOTIVE_BASELINE: MarkerSet = MarkerSet {
 
 /// The hand layout of the DFKI Qualisys recording in the shared data (`hand_top`,
 /// `index_tip`, `index_middle`, ..., with elbow, shoulder and back markers of the right
-/// arm, and a pillow).
+/// arm, and a pillow). A finger's `middle` marker is on its proximal phalanx: in the
+/// recording it stays 60 to 66 mm from the tip marker on the index, middle and ring
+/// fingers, farther than the intermediate and distal phalanges reach (about 45 mm on
+/// an adult hand), and 38 mm on the little finger, at its middle joint.
 pub const DFKI_HAND: MarkerSet = MarkerSet {
     name: "dfki-hand",
     about: "DFKI hand recording: back of the hand, tip and middle of each finger",
@@ -216,13 +219,13 @@ pub const DFKI_HAND: MarkerSet = MarkerSet {
         ("THUMBTIP", finger(Digit::Thumb, Segment::Distal)),
         ("THUMBMIDDLE", finger(Digit::Thumb, Segment::Proximal)),
         ("INDEXTIP", finger(Digit::Index, Segment::Distal)),
-        ("INDEXMIDDLE", finger(Digit::Index, Segment::Intermediate)),
+        ("INDEXMIDDLE", finger(Digit::Index, Segment::Proximal)),
         ("MIDDLETIP", finger(Digit::Middle, Segment::Distal)),
-        ("MIDDLEMIDDLE", finger(Digit::Middle, Segment::Intermediate)),
+        ("MIDDLEMIDDLE", finger(Digit::Middle, Segment::Proximal)),
         ("RINGTIP", finger(Digit::Ring, Segment::Distal)),
-        ("RINGMIDDLE", finger(Digit::Ring, Segment::Intermediate)),
+        ("RINGMIDDLE", finger(Digit::Ring, Segment::Proximal)),
         ("LITTLETIP", finger(Digit::Little, Segment::Distal)),
-        ("LITTLEMIDDLE", finger(Digit::Little, Segment::Intermediate)),
+        ("LITTLEMIDDLE", finger(Digit::Little, Segment::Proximal)),
         ("RIGHTELBOW", Body(UpperArm)),
         ("RIGHTSHOULDER", Body(Shoulder)),
         ("BACKTOP", Body(Spine)),
@@ -476,7 +479,7 @@ mod tests {
         assert_eq!(MOTIVE_CONVENTIONAL.place("RTIB"), role(LowerLeg, r));
         assert_eq!(
             DFKI_HAND.place("index_middle"),
-            role(Finger(Digit::Index, Segment::Intermediate), None)
+            role(Finger(Digit::Index, Segment::Proximal), None)
         );
         assert_eq!(DFKI_HAND.place("pillow_top"), Some(Placed::Prop));
         assert_eq!(normalise("Daphnee:CLAV_SC"), "CLAVSC");

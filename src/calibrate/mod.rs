@@ -30,11 +30,11 @@ use crate::character::{Character, MarkerDef};
 use crate::geom::winding::WindingNumber;
 use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::rig::ik_model::IkModel;
-use frames::{choose_frames, fit_heading, Heading};
+use frames::{choose_frames, fit_heading, Heading, Turn};
 use glam::{DQuat, DVec3};
 use labels::{plan, LabelPlan, LeftOut, MapEntry, MapError, Source};
 use marker_sets::MarkerSet;
-use solve::{OffsetSolve, SolveParams, SolveReport};
+use solve::{OffsetSolve, Parts, Skin, SolveParams, SolveReport};
 
 /// Frames a calibration uses unless told otherwise (MoSh uses 12; more cover more of
 /// the range of motion at a linear cost).
@@ -316,70 +316,132 @@ pub fn calibrate(
         return Err(CalibrationError::NoJoints);
     }
     let span = frame_span(rec, opts.span_s);
-    let height = height_of(ch);
+    let stance = stance_of(ch, roles);
     let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
     let surface = WindingNumber::new(&unique, &oriented);
-    let guess =
-        first_guess(ch, &known, rec.frames, span.clone(), height, &surface).ok_or_else(|| {
-            CalibrationError::NoFrames {
-                take: rec.name.to_owned(),
-            }
-        })?;
-    let used: Vec<usize> = plan.labels.iter().map(|l| l.take_index).collect();
-    let chosen = choose_frames(
-        rec.frames,
-        &used,
-        span,
-        opts.frames.max(1),
-        Some(guess.frame),
-    );
-    let frames: Vec<Vec<DVec3>> = chosen.iter().map(|&f| rec.frames[f].clone()).collect();
-    let first = FirstGuess {
-        frame: chosen.iter().position(|&f| f == guess.frame).unwrap_or(0),
-        ..guess
-    };
-    let hold = (first.frame, held_joints(ch, &plan.labels, &first.on_skin));
-    let fit = Fit {
-        ch,
-        height,
-        frames: &frames,
-        surface: &surface,
-        params,
-        hold,
-    };
-    // Every label where the rest-like frame puts it, on the nearest candidate bone.
-    let (mut placed, mut moving): (Vec<Placing>, Vec<Placing>) = plan
-        .labels
-        .iter()
-        .map(|l| fit.initial_placing(l, &first))
-        .partition(|p| p.plan.source != Source::Motion);
-    let start = headings(ch, &placed, &frames, first.scale, height);
-    let mut solve = fit.problem(&placed, &start, first.scale, None);
-    for _ in 0..3 {
-        solve.alternate();
-    }
-    fit.choose_candidates(&solve, &mut placed);
-    // Then the labels no one places, on the joint they move with; markers that keep
-    // their distances ride one segment, so each such group goes where most of it went.
-    if !moving.is_empty() {
-        fit.choose_candidates(&solve, &mut moving);
-        fit.agree_within_rigid_groups(&solve, &mut moving);
-        placed.extend(moving);
-    }
-    placed.sort_by_key(|p| p.plan.take_index);
-    let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
-    for _ in 0..2 {
-        solve.alternate();
-    }
-    fit.choose_candidates(&solve, &mut placed);
-    let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
-    let report = solve.run();
-    if !(solve.scale.is_finite() && solve.scale > 0.0) {
-        return Err(CalibrationError::Degenerate {
+    let parts = Parts::new(&ch.skeleton, &unique, &oriented);
+    let guesses = first_guesses(ch, &known, rec.frames, span.clone(), stance, &surface);
+    if guesses.is_empty() {
+        return Err(CalibrationError::NoFrames {
             take: rec.name.to_owned(),
         });
     }
-    Ok(finish(ch, &solve, &placed, plan, chosen, report, opts))
+    let problem = Problem {
+        ch,
+        plan: &plan,
+        rec,
+        span,
+        opts,
+        params,
+        stance,
+        surface: &surface,
+        parts: &parts,
+    };
+    // From each guess to the end (one for a standing character, one per kind of turn
+    // for a hand). The guess with more labels on their skin in its rest-like frame wins
+    // (fewer means that frame was not matched: a hand shrunk into the character's palm
+    // fits its markers as well, with the fingers bent into them), then the lower
+    // objective.
+    let mut best: Option<(Calibration, (usize, f64))> = None;
+    for guess in guesses {
+        let on_skin = guess.on_skin.len();
+        tracing::debug!(
+            frame = guess.frame,
+            scale = guess.scale,
+            on_skin = guess.on_skin.len(),
+            known = known.len(),
+            "first guess"
+        );
+        let (cal, cost) = problem.solve_from(guess)?;
+        tracing::debug!(scale = cal.scale, cost, "solved from it");
+        let better = |b: &(Calibration, (usize, f64))| {
+            on_skin > b.1 .0 || (on_skin == b.1 .0 && cost < b.1 .1)
+        };
+        if best.as_ref().is_none_or(better) {
+            best = Some((cal, (on_skin, cost)));
+        }
+    }
+    best.map(|b| b.0).ok_or_else(|| CalibrationError::NoFrames {
+        take: rec.name.to_owned(),
+    })
+}
+
+/// Everything a solve from one first guess needs.
+struct Problem<'a> {
+    ch: &'a Character,
+    plan: &'a labels::Plan,
+    rec: Take<'a>,
+    span: std::ops::Range<usize>,
+    opts: &'a CalibrationOptions,
+    params: SolveParams,
+    stance: Stance,
+    surface: &'a WindingNumber,
+    parts: &'a Parts<'a>,
+}
+
+impl Problem<'_> {
+    /// The calibration from `guess`, with the solve's final objective.
+    fn solve_from(&self, guess: FirstGuess) -> Result<(Calibration, f64), CalibrationError> {
+        let (ch, plan, rec) = (self.ch, self.plan, self.rec);
+        let used: Vec<usize> = plan.labels.iter().map(|l| l.take_index).collect();
+        let chosen = choose_frames(
+            rec.frames,
+            &used,
+            self.span.clone(),
+            self.opts.frames.max(1),
+            Some(guess.frame),
+        );
+        let frames: Vec<Vec<DVec3>> = chosen.iter().map(|&f| rec.frames[f].clone()).collect();
+        let first = FirstGuess {
+            frame: chosen.iter().position(|&f| f == guess.frame).unwrap_or(0),
+            ..guess
+        };
+        let hold = (first.frame, held_joints(ch, &plan.labels, &first.on_skin));
+        let fit = Fit {
+            ch,
+            height: self.stance.height,
+            frames: &frames,
+            surface: self.surface,
+            parts: self.parts,
+            params: self.params,
+            hold,
+        };
+        // Every label where the rest-like frame puts it, on the nearest candidate bone.
+        let (mut placed, mut moving): (Vec<Placing>, Vec<Placing>) = plan
+            .labels
+            .iter()
+            .map(|l| fit.initial_placing(l, &first))
+            .partition(|p| p.plan.source != Source::Motion);
+        let start = headings(ch, &placed, &frames, first.scale, self.stance);
+        let mut solve = fit.problem(&placed, &start, first.scale, None);
+        for _ in 0..3 {
+            solve.alternate();
+        }
+        fit.choose_candidates(&solve, &mut placed);
+        // Then the labels no one places, on the joint they move with; markers that keep
+        // their distances ride one segment, so each such group goes where most of it
+        // went.
+        if !moving.is_empty() {
+            fit.choose_candidates(&solve, &mut moving);
+            fit.agree_within_rigid_groups(&solve, &mut moving);
+            placed.extend(moving);
+        }
+        placed.sort_by_key(|p| p.plan.take_index);
+        let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
+        for _ in 0..2 {
+            solve.alternate();
+        }
+        fit.choose_candidates(&solve, &mut placed);
+        let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
+        let report = solve.run();
+        if !(solve.scale.is_finite() && solve.scale > 0.0) {
+            return Err(CalibrationError::Degenerate {
+                take: rec.name.to_owned(),
+            });
+        }
+        let cal = finish(ch, &solve, &placed, plan.clone(), chosen, report, self.opts);
+        Ok((cal, report.cost_end))
+    }
 }
 
 /// The frame indices of `span_s` (seconds from the take's start), or all.
@@ -393,10 +455,34 @@ fn frame_span(rec: Take, span_s: Option<(f64, f64)>) -> std::ops::Range<usize> {
     }
 }
 
-/// The character's height: its rest mesh's vertical extent, metres.
-fn height_of(ch: &Character) -> f64 {
+/// How the character meets its take: its size and the turns that align it.
+#[derive(Clone, Copy, Debug)]
+struct Stance {
+    /// The rest mesh's vertical extent when it stands, its largest extent when not,
+    /// metres: the length tolerances of the first guess are fractions of it.
+    height: f64,
+    turn: Turn,
+}
+
+/// A character with legs stands in its take as at rest (upright, turned about Y); any
+/// other (a hand) may be held any way.
+fn stance_of(ch: &Character, roles: &[Option<Role>]) -> Stance {
+    use crate::character::roles::Part;
     let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
-    (hi.y - lo.y).max(1e-3)
+    let stands = roles
+        .iter()
+        .flatten()
+        .any(|r| matches!(r.part, Part::UpperLeg | Part::LowerLeg | Part::Foot));
+    let extent = hi - lo;
+    let (height, turn) = if stands {
+        (extent.y, Turn::Yaw)
+    } else {
+        (extent.max_element(), Turn::Any)
+    };
+    Stance {
+        height: height.max(1e-3),
+        turn,
+    }
 }
 
 /// A point on joint `j`'s segments standing for a marker it carries before the fit: the
@@ -450,56 +536,78 @@ fn anchor_pairs(ch: &Character, known: &[&LabelPlan], frame: &[DVec3]) -> Vec<(D
         .collect()
 }
 
+/// What the first guess charges for all labels off their skin, as misfit in metres.
+const OFF_SKIN_COST_M: f64 = 0.02;
+
 /// Frames of the span the first guess compares (evenly spaced).
 const GUESS_CANDIDATES: usize = 60;
 /// Of those, how many (the best after a few rounds) are refined to the end.
 const GUESS_REFINED: usize = 3;
 
-/// See [`FirstGuess`] (`frame` is a take frame index here); `None` when no frame of
-/// `span` has [`MIN_KNOWN_LABELS`] known labels. Each candidate frame is fitted to the
-/// anchors, then to the skin (an iterative closest point with each label kept near its
-/// bone, which removes the anchors' bias: they lie inside the body, the markers outside,
-/// and the scale would come out small); the best few are refined further and the best of
-/// those wins.
-fn first_guess(
+/// See [`FirstGuess`] (`frame` is a take frame index here): one per kind of turn
+/// ([`Turn::Yaw`] for a standing character; for one held any way, by turns about Y and
+/// by any rotation: a hand's markers lie near a plane, the back of the hand, and with
+/// its fingers bent a tilted or mirrored hand at another scale fits them about as well,
+/// while a take in the character's own frame is fitted best by turns about Y alone);
+/// none when no frame of `span` has [`MIN_KNOWN_LABELS`] known labels.
+/// Each candidate frame is fitted to the anchors, then to the skin (an iterative closest
+/// point with each label kept near its bone, which removes the anchors' bias: they lie
+/// inside the body, the markers outside, and the scale would come out small); the best
+/// few are refined further and the best of those wins.
+fn first_guesses(
     ch: &Character,
     known: &[&LabelPlan],
     frames: &[Vec<DVec3>],
     span: std::ops::Range<usize>,
-    height: f64,
+    stance: Stance,
     surface: &WindingNumber,
-) -> Option<FirstGuess> {
+) -> Vec<FirstGuess> {
+    let height = stance.height;
     let step = span.len().div_ceil(GUESS_CANDIDATES).max(1);
-    let mut ranked: Vec<(usize, Heading, f64, f64)> = Vec::new();
-    for f in span.step_by(step) {
-        let p = anchor_pairs(ch, known, &frames[f]);
-        if p.len() < MIN_KNOWN_LABELS {
-            continue;
-        }
-        let Some((heading, scale, _)) = fit_heading(&p, None, 0.1 * height) else {
-            continue;
+    let seeds: &[Turn] = match stance.turn {
+        Turn::Yaw => &[Turn::Yaw],
+        Turn::Any => &[Turn::Yaw, Turn::Any],
+    };
+    let mut guesses = Vec::new();
+    for &seed in seeds {
+        let stance = Stance {
+            turn: seed,
+            ..stance
         };
-        if let Some((h, s, r, _)) =
-            refine_on_skin(ch, known, &frames[f], (heading, scale), 30, height, surface)
-        {
-            ranked.push((f, h, s, r));
+        let mut ranked: Vec<(usize, Heading, f64, f64)> = Vec::new();
+        for f in span.clone().step_by(step) {
+            let p = anchor_pairs(ch, known, &frames[f]);
+            if p.len() < MIN_KNOWN_LABELS {
+                continue;
+            }
+            let Some((heading, scale, _)) = fit_heading(&p, None, 0.1 * height, seed) else {
+                continue;
+            };
+            if let Some((h, s, r, _)) =
+                refine_on_skin(ch, known, &frames[f], (heading, scale), 30, stance, surface)
+            {
+                ranked.push((f, h, s, r));
+            }
+        }
+        ranked.sort_by(|a, b| a.3.total_cmp(&b.3));
+        let best = ranked
+            .into_iter()
+            .take(GUESS_REFINED)
+            .filter_map(|(f, heading, scale, _)| {
+                refine_on_skin(ch, known, &frames[f], (heading, scale), 60, stance, surface)
+                    .map(|(h, s, r, on)| (f, h, s, r, on))
+            })
+            .min_by(|a, b| a.3.total_cmp(&b.3));
+        if let Some((frame, heading, scale, _, on_skin)) = best {
+            guesses.push(FirstGuess {
+                frame,
+                heading,
+                scale,
+                on_skin,
+            });
         }
     }
-    ranked.sort_by(|a, b| a.3.total_cmp(&b.3));
-    ranked
-        .into_iter()
-        .take(GUESS_REFINED)
-        .filter_map(|(f, heading, scale, _)| {
-            refine_on_skin(ch, known, &frames[f], (heading, scale), 60, height, surface)
-                .map(|(h, s, r, on)| (f, h, s, r, on))
-        })
-        .min_by(|a, b| a.3.total_cmp(&b.3))
-        .map(|(frame, heading, scale, _, on_skin)| FirstGuess {
-            frame,
-            heading,
-            scale,
-            on_skin,
-        })
+    guesses
 }
 
 /// Iterative closest point of one frame's known labels onto the skin, from a heading and
@@ -516,9 +624,10 @@ fn refine_on_skin(
     frame: &[DVec3],
     (mut heading, mut scale): (Heading, f64),
     rounds: usize,
-    height: f64,
+    stance: Stance,
     surface: &WindingNumber,
 ) -> Option<(Heading, f64, f64, Vec<usize>)> {
+    let height = stance.height;
     let sk = &ch.skeleton;
     let mut rms = f64::INFINITY;
     let mut on_skin = Vec::new();
@@ -554,13 +663,14 @@ fn refine_on_skin(
         } else {
             good.iter().chain(&rough).copied().collect()
         };
-        let (h, s, r) = fit_heading(&pairs, None, 0.05 * height)?;
+        let (h, s, r) = fit_heading(&pairs, None, 0.05 * height, stance.turn)?;
         let settled = (s - scale).abs() < 1e-5 * scale && reach <= 0.03;
         reach = (reach * 0.85).max(0.03);
         // Labels off their skin or out of view count against the frame: all of them as
-        // much as a misfit of 1 % of the height.
+        // much as a misfit of 2 cm (the farthest a marker sits off its skin; 1 % of a
+        // body's height, a tenth of a hand's).
         let off = 1.0 - good.len() as f64 / known.len().max(1) as f64;
-        (heading, scale, rms) = (h, s, r * s / height + 0.01 * off);
+        (heading, scale, rms) = (h, s, (r * s + OFF_SKIN_COST_M * off) / height);
         if settled {
             break;
         }
@@ -574,7 +684,7 @@ fn headings(
     placed: &[Placing],
     frames: &[Vec<DVec3>],
     scale: f64,
-    height: f64,
+    stance: Stance,
 ) -> Vec<(DQuat, DVec3)> {
     frames
         .iter()
@@ -589,7 +699,7 @@ fn headings(
                     )
                 })
                 .collect();
-            fit_heading(&pairs, Some(scale), 0.1 * height)
+            fit_heading(&pairs, Some(scale), 0.1 * stance.height, stance.turn)
                 .map_or((DQuat::IDENTITY, DVec3::ZERO), |(h, _, _)| (h.q, h.t))
         })
         .collect()
@@ -612,6 +722,8 @@ struct Fit<'a> {
     height: f64,
     frames: &'a [Vec<DVec3>],
     surface: &'a WindingNumber,
+    /// The skin's parts.
+    parts: &'a Parts<'a>,
     params: SolveParams,
     /// The rest-like frame (index into `frames`) and the joints it holds near rest.
     hold: (usize, Vec<bool>),
@@ -687,7 +799,11 @@ impl<'a> Fit<'a> {
             .iter()
             .map(|f| placed.iter().map(|p| f[p.plan.take_index]).collect())
             .collect();
-        let mut solve = OffsetSolve::new(model, frames, start, scale, self.surface, self.params);
+        let skin = Skin {
+            surface: self.surface,
+            parts: self.parts,
+        };
+        let mut solve = OffsetSolve::new(model, frames, start, scale, skin, self.params);
         if let Some(from) = from {
             for (to, st) in solve.states.iter_mut().zip(&from.states) {
                 solve.model.copy_posture(to, st);

@@ -9,7 +9,8 @@
 //!
 //! ```text
 //! E = Σ_f Σ_k ‖(P_J(θ_f) + Q_J(θ_f) o_k) / s − m_fk‖² + (ε_rest h)² Σ_f ‖θ_f‖²
-//!   + Σ_k w_band² band(d_k)² + w_pull² (d_k − d_0)² + w_s² (s / s⁰ − 1)²
+//!   + Σ_k w_band² band(d_k)² + w_pull² (d_k − d_0)² + w_band² own(e_k)²
+//!   + w_s² (s / s⁰ − 1)²
 //! ```
 //!
 //! The misfit is measured in the take's units: measured in the character's, shrinking
@@ -24,6 +25,10 @@
 //! run starts from (the first guess's): a hand's eight markers fit a smaller or larger
 //! hand equally well by bending its fingers, and without the prior the scale would
 //! drift; a change of 5 % costs as much as 1 mm of misfit on every marker in every frame.
+//! `e_k` is the distance of the rest position from the skin of the marker's own part
+//! or its neighbours' ([`Parts`]) and `own(e)` its excess over the farthest a marker may
+//! sit there: a finger's marker fits as well near the palm's skin, with the finger bent
+//! into it and the scale off, and the bind refuses it there.
 //!
 //! One frame may be held near the rest pose: in a frame where the actor stands as the
 //! character does at rest (a T or A pose at the start of a take), the joints whose
@@ -43,6 +48,7 @@
 //! points but crawls along the valleys where an offset and an unobserved joint angle
 //! trade off; the Schur complement sees that trade.
 
+use crate::character::skeleton::Skeleton;
 use crate::geom::winding::WindingNumber;
 use crate::rig::ik_model::{Dofs, IkModel};
 use crate::solve::ik::{IkParams, IkState};
@@ -57,6 +63,11 @@ pub struct SolveParams {
     pub skin_max_m: f64,
     /// The usual distance, metres (a 14 mm marker on the skin: 7 mm, plus a millimetre).
     pub skin_usual_m: f64,
+    /// Farthest a marker may sit from the skin of its own bone's part or its
+    /// neighbours' ([`Parts`]), metres; past it the band's weight applies. 3 cm: the
+    /// procedural hand's bind takes a marker that far from its part (a character file's,
+    /// a tenth of the character's size).
+    pub own_part_max_m: f64,
     /// Weight of the band, per frame used (a marker 1 cm outside the band costs as much
     /// as `skin_band_weight` cm of misfit in every frame).
     pub skin_band_weight: f64,
@@ -85,6 +96,7 @@ impl Default for SolveParams {
             skin_min_m: 0.003,
             skin_max_m: 0.02,
             skin_usual_m: 0.008,
+            own_part_max_m: 0.03,
             skin_band_weight: 2.0,
             skin_pull_weight: 0.3,
             rest_hold_prior: 0.05,
@@ -119,7 +131,7 @@ pub struct OffsetSolve<'a> {
     pub states: Vec<IkState>,
     /// Character metres per take metre.
     pub scale: f64,
-    surface: &'a WindingNumber,
+    skin: Skin<'a>,
     params: SolveParams,
     /// `s⁰`: the scale [`Self::run`] started from.
     start_scale: f64,
@@ -138,14 +150,99 @@ pub struct SolveReport {
     pub converged: bool,
 }
 
-/// The skin prior of one marker: residuals and their gradient direction.
+/// The character's rest skin divided into parts as the bind divides it: each vertex
+/// belongs to the joint whose bone segment is nearest ([`crate::rig::bind::nearest_owner`]).
+pub struct Parts<'a> {
+    skeleton: &'a Skeleton,
+    segments: Vec<(usize, usize)>,
+    /// Per joint, the triangles with a vertex in its part (empty for a joint without
+    /// children).
+    triangles: Vec<Vec<[DVec3; 3]>>,
+}
+
+impl<'a> Parts<'a> {
+    /// The parts of the skin `vertices`, `triangles` (welded) over `skeleton` at rest.
+    pub fn new(skeleton: &'a Skeleton, vertices: &[DVec3], triangles: &[[u32; 3]]) -> Self {
+        let segments = crate::rig::bind::segments(skeleton);
+        let owner: Vec<u32> = vertices
+            .iter()
+            .map(|&v| crate::rig::bind::nearest_owner(skeleton, &segments, v))
+            .collect();
+        let mut parts = vec![Vec::new(); skeleton.len()];
+        for t in triangles {
+            let mut owners = t.map(|i| owner[i as usize]);
+            owners.sort_unstable();
+            for (n, &o) in owners.iter().enumerate() {
+                if n == 0 || owners[n - 1] != o {
+                    parts[o as usize].push(t.map(|i| vertices[i as usize]));
+                }
+            }
+        }
+        Self {
+            skeleton,
+            segments,
+            triangles: parts,
+        }
+    }
+
+    /// Whether a point of joint `o`'s part counts as on joint `j`'s: the same joint, its
+    /// parent or a child (the parts meet at the joints, where the bind's division is not
+    /// the anatomy's: a heel lies nearer the shin's segment than the foot's).
+    fn near(&self, j: usize, o: usize) -> bool {
+        let parent = |x: usize| self.skeleton.joints.get(x).and_then(|jj| jj.parent);
+        o == j || parent(j) == Some(o) || parent(o) == Some(j)
+    }
+}
+
+/// The character's rest skin as the skin prior sees it.
+#[derive(Clone, Copy)]
+pub struct Skin<'a> {
+    /// The whole skin: signed distances and nearest points.
+    pub surface: &'a WindingNumber,
+    pub parts: &'a Parts<'a>,
+}
+
+impl Skin<'_> {
+    /// The point of the skin of joint `j`'s part or its neighbours' ([`Parts`]) nearest to
+    /// `x`, and its distance; `None` when they have no skin.
+    pub fn nearest_on_part(&self, j: usize, x: DVec3) -> Option<(DVec3, f64)> {
+        let parts = self.parts;
+        // Most often the nearest skin of all is on the part: one tree search.
+        let (c, d) = self.surface.closest(x)?;
+        let o = crate::rig::bind::nearest_owner(parts.skeleton, &parts.segments, c) as usize;
+        if parts.near(j, o) {
+            return Some((c, d));
+        }
+        (0..parts.triangles.len())
+            .filter(|&o| parts.near(j, o))
+            .flat_map(|o| &parts.triangles[o])
+            .fold(None, |best, t| {
+                let c = crate::geom::winding::closest_on_triangle(x, t);
+                let d = (c - x).length();
+                match best {
+                    Some((_, bd)) if bd <= d => best,
+                    _ => Some((c, d)),
+                }
+            })
+    }
+}
+
+/// The skin prior of one marker: three residuals, each with its gradient `∂r/∂o`:
+/// `w_band band(d)`, `w_pull (d − d_0)` (both along the outward direction from the
+/// nearest skin point) and `w_band` times the excess of the distance to its own part
+/// over [`SolveParams::own_part_max_m`] (away from that part's nearest point).
 struct SkinTerm {
-    /// `(w_band band(d), w_pull (d − d_0))`.
-    residual: [f64; 2],
-    /// `∂d/∂o`: the outward direction from the nearest surface point.
-    normal: DVec3,
-    /// `(w_band or 0, w_pull)`: the rows' scales (the band's is 0 inside the band).
-    slope: [f64; 2],
+    rows: [(f64, DVec3); 3],
+}
+
+impl SkinTerm {
+    const NONE: Self = Self {
+        rows: [(0.0, DVec3::ZERO); 3],
+    };
+
+    fn cost(&self) -> f64 {
+        self.rows.iter().map(|(r, _)| r * r).sum()
+    }
 }
 
 impl<'a> OffsetSolve<'a> {
@@ -157,7 +254,7 @@ impl<'a> OffsetSolve<'a> {
         frames: Vec<Vec<DVec3>>,
         start: &[(DQuat, DVec3)],
         scale: f64,
-        surface: &'a WindingNumber,
+        skin: Skin<'a>,
         params: SolveParams,
     ) -> Self {
         let states = start
@@ -174,7 +271,7 @@ impl<'a> OffsetSolve<'a> {
             frames,
             states,
             scale,
-            surface,
+            skin,
             params,
             start_scale: scale,
             targets,
@@ -236,19 +333,31 @@ impl<'a> OffsetSolve<'a> {
             p.skin_band_weight * n_frames.sqrt(),
             p.skin_pull_weight * n_frames.sqrt(),
         );
-        let x = self.model.rest[self.model.marker_joint[k]] + self.model.marker_offset[k];
-        let Some((_, d, normal)) = self.surface.signed_closest(x) else {
-            return SkinTerm {
-                residual: [0.0; 2],
-                normal: DVec3::ZERO,
-                slope: [0.0; 2],
-            };
+        let j = self.model.marker_joint[k];
+        let x = self.model.rest[j] + self.model.marker_offset[k];
+        let Some((_, d, normal)) = self.skin.surface.signed_closest(x) else {
+            return SkinTerm::NONE;
         };
         let excess = d - d.clamp(p.skin_min_m, p.skin_max_m);
+        let own = match self.skin.nearest_on_part(j, x) {
+            Some((c, d_own)) if d_own > p.own_part_max_m => {
+                (wb * (d_own - p.own_part_max_m), wb * (x - c) / d_own)
+            }
+            _ => (0.0, DVec3::ZERO),
+        };
         SkinTerm {
-            residual: [wb * excess, wp * (d - p.skin_usual_m)],
-            normal,
-            slope: [if excess != 0.0 { wb } else { 0.0 }, wp],
+            rows: [
+                (
+                    wb * excess,
+                    if excess != 0.0 {
+                        wb * normal
+                    } else {
+                        DVec3::ZERO
+                    },
+                ),
+                (wp * (d - p.skin_usual_m), wp * normal),
+                own,
+            ],
         }
     }
 
@@ -266,8 +375,7 @@ impl<'a> OffsetSolve<'a> {
         }
         e += (self.scale_weight() * (self.scale / self.start_scale - 1.0)).powi(2);
         for k in 0..self.markers() {
-            let t = self.skin_term(k);
-            e += t.residual[0].powi(2) + t.residual[1].powi(2);
+            e += self.skin_term(k).cost();
         }
         e
     }
@@ -281,14 +389,20 @@ impl<'a> OffsetSolve<'a> {
             if let Some(mean) = self.mean_in_joint_frame(&samples, self.model.marker_joint[k]) {
                 self.model.marker_offset[k] = mean.0;
             }
-            // Out of the skin band: onto the usual distance from the nearest skin.
-            if self.skin_term(k).slope[0] != 0.0 {
-                let rest = self.model.rest[self.model.marker_joint[k]];
-                if let Some((c, _, out)) = self
-                    .surface
-                    .signed_closest(rest + self.model.marker_offset[k])
-                {
-                    self.model.marker_offset[k] = c + out * self.params.skin_usual_m - rest;
+            // Out of the skin band or off its own part: onto the usual distance from the
+            // nearest skin of its part (of any part when its own is empty).
+            let [band, _, own] = self.skin_term(k).rows;
+            if band.0 != 0.0 || own.0 != 0.0 {
+                let j = self.model.marker_joint[k];
+                let x = self.model.rest[j] + self.model.marker_offset[k];
+                if let Some((c, d, out)) = self.skin.surface.signed_closest(x) {
+                    // Outward from the part's nearest point: away from it on `x`'s side.
+                    let (c, out) = match self.skin.nearest_on_part(j, x) {
+                        Some((p, _)) => (p, (x - p).normalize_or_zero() * d.signum()),
+                        None => (c, out),
+                    };
+                    self.model.marker_offset[k] =
+                        c + out * self.params.skin_usual_m - self.model.rest[j];
                 }
             }
         }
@@ -325,7 +439,7 @@ impl<'a> OffsetSolve<'a> {
 
     /// Signed distance of a rest position from the skin, metres (positive outside).
     pub fn surface_distance(&self, x: DVec3) -> Option<f64> {
-        self.surface.signed_closest(x).map(|(_, d, _)| d)
+        self.skin.surface.signed_closest(x).map(|(_, d, _)| d)
     }
 
     /// Frames where marker `k` misses its fitted position by more than `threshold_m`
@@ -545,9 +659,7 @@ impl<'a> OffsetSolve<'a> {
         g[ng - 1] += ws * ws * (self.scale - self.start_scale);
         h[ng * ng - 1] += ws * ws;
         for k in 0..self.markers() {
-            let t = self.skin_term(k);
-            for (res, slope) in t.residual.iter().zip(t.slope) {
-                let jrow = t.normal * slope;
+            for (res, jrow) in self.skin_term(k).rows {
                 for i in 0..3 {
                     g[3 * k + i] += jrow[i] * res;
                     for j in 0..3 {

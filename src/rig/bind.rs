@@ -188,7 +188,9 @@ pub fn segments(sk: &Skeleton) -> Vec<(usize, usize)> {
     s
 }
 
-fn nearest_owner(sk: &Skeleton, segs: &[(usize, usize)], p: DVec3) -> u32 {
+/// The joint whose bone segment (of `segs`, [`segments`]) lies nearest to `p`: the part
+/// of the control mesh `p` belongs to.
+pub(crate) fn nearest_owner(sk: &Skeleton, segs: &[(usize, usize)], p: DVec3) -> u32 {
     let mut best = (f64::INFINITY, 0u32);
     for &(a, b) in segs {
         let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
