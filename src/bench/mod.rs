@@ -9,6 +9,7 @@ pub mod capsules;
 pub mod characters;
 pub mod codecs;
 pub mod exercise;
+pub mod export;
 pub mod gapfill;
 pub mod live;
 pub mod replay;
@@ -35,6 +36,8 @@ pub enum Suite {
     Replay,
     /// `rigless calibrate`'s time and accuracy, on known truth and real takes.
     Calibration,
+    /// `rigless replay --export`'s speed: takes solved off line into a point cache.
+    Export,
 }
 
 /// How the suites run.
@@ -89,6 +92,7 @@ pub fn run_suite(suite: Suite, opts: &BenchOptions, out: &mut dyn Write) -> Resu
         Suite::Codecs => codecs::suite(opts.json, out),
         Suite::Replay => replay::suite(opts.seconds, opts.json, out),
         Suite::Calibration => calibration::suite(&opts.data, opts.json, out),
+        Suite::Export => export::suite(opts.json, out),
     }
 }
 

@@ -97,6 +97,34 @@ pub fn end_bind_progress(drawn: bool) {
     }
 }
 
+/// The rig of a character named on the command line (`hand`, `body` or a character
+/// file, bound or read from its bake cache) and its file's `marker_scale` (1 for a
+/// procedural one).
+pub fn bound_character(spec: &str) -> Result<(Arc<rigless::rig::bind::Rig>, f64)> {
+    use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
+    use rigless::rig::bind::Rig;
+    let procedural = match spec {
+        "hand" => Some((demo_hand(), hand_bind_params())),
+        "body" => Some((demo_body(), body_bind_params())),
+        _ => None,
+    };
+    if let Some((ch, params)) = procedural {
+        let rig =
+            Rig::bind(&ch, &params).with_context(|| format!("binding the procedural {spec}"))?;
+        return Ok((Arc::new(rig), 1.0));
+    }
+    let path = Path::new(spec);
+    let loaded = rigless::character::file::load_character(path)?;
+    let mut progress = bind_progress();
+    let mut drawn = false;
+    let (rig, _) = rigless::rig::cache::load_or_bind(path, &loaded, false, &mut |s, f| {
+        drawn = true;
+        progress(s, f)
+    })?;
+    end_bind_progress(drawn);
+    Ok((Arc::new(rig), loaded.marker_scale))
+}
+
 /// How `run`, `demo` and `replay --solve` run their stage.
 pub struct LiveOptions {
     /// Stop after this many seconds.

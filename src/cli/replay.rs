@@ -3,6 +3,7 @@
 
 use super::{ctrl_c_flag, run_stage, LiveOptions};
 use anyhow::{bail, Context, Result};
+use rigless::daemon::offline::export_pc2;
 use rigless::output::rerun_sink::RerunTarget;
 use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
 use rigless::replay::sender::{replay, ReplayOptions, Target};
@@ -74,6 +75,17 @@ pub struct ReplayArgs {
     /// --write` sets; else 1).
     #[arg(long, requires = "solve")]
     marker_scale: Option<f64>,
+    /// With --solve: solve every frame off line, as fast as the machine goes (no
+    /// deadline, no stream), and write the full mesh's vertices frame by frame to this
+    /// file, at the take's rate: `.pc2` (point cache: Blender's Mesh Cache modifier, 3ds
+    /// Max, Houdini, on the character's own mesh).
+    #[arg(
+        long,
+        value_name = "OUT.pc2",
+        requires = "solve",
+        conflicts_with_all = ["end", "looping", "rerun"]
+    )]
+    export: Option<PathBuf>,
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
@@ -123,6 +135,9 @@ pub fn run(a: ReplayArgs) -> Result<()> {
     if let Some(character) = &a.solve {
         if !problems.is_empty() {
             bail!("{}", problems.join("\n"));
+        }
+        if let Some(out) = &a.export {
+            return export(&a, character, out);
         }
         let cfg = solve_stage(&a, character)?;
         return run_stage(
@@ -206,6 +221,79 @@ fn send(a: &ReplayArgs, to: &str, target: Target) -> Result<()> {
             stats.jitter_ms_p50, stats.jitter_ms_p99, stats.jitter_ms_max
         );
     }
+    Ok(())
+}
+
+/// `--export OUT`: the take solved off line at its own rate, every frame's mesh
+/// written to `out`, with a progress bar and a summary.
+fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
+    use std::io::IsTerminal;
+    let ext = out.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if !ext.eq_ignore_ascii_case("pc2") {
+        bail!(
+            "--export {}: the format follows the extension, and rigless writes .pc2 (a point cache of the full mesh)",
+            out.display()
+        );
+    }
+    let rec = Recording::load_with(&a.file, a.bvh_scale)?;
+    let (rig, file_scale) = super::bound_character(character)?;
+    let params = rigless::solve::frame::SolverParams {
+        method: a.method,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let bar = !a.json && std::io::stderr().is_terminal();
+    let mut shown = -1i64;
+    let mut progress = |done: usize, of: usize| {
+        let pct = (done * 100 / of.max(1)) as i64;
+        if bar && pct != shown {
+            shown = pct;
+            let fps = done as f64 / t0.elapsed().as_secs_f64().max(1e-9);
+            let cells: String = (0..20)
+                .map(|k| if k < pct / 5 { '#' } else { '.' })
+                .collect();
+            eprint!("\r  solving [{cells}] {pct:>3}%  {done} of {of} frames, {fps:.0} frames/s");
+        }
+    };
+    let summary = export_pc2(
+        rig,
+        params,
+        &rec,
+        a.marker_scale.unwrap_or(file_scale),
+        out,
+        &mut progress,
+    );
+    if bar && shown >= 0 {
+        eprintln!();
+    }
+    let summary = summary?;
+    let secs = t0.elapsed().as_secs_f64();
+    let fps = summary.frames as f64 / secs.max(1e-9);
+    if a.json {
+        let mut v = serde_json::to_value(&summary)?;
+        v["path"] = out.display().to_string().into();
+        v["seconds"] = secs.into();
+        v["frames_per_second"] = fps.into();
+        println!("{v}");
+        return Ok(());
+    }
+    let r = &summary.replay;
+    println!(
+        "wrote {}: {} frames of {} vertices at {} Hz in {secs:.2} s ({fps:.0} frames/s, {:.1} times real time)",
+        out.display(),
+        summary.frames,
+        summary.points,
+        summary.rate_hz,
+        fps / summary.rate_hz
+    );
+    println!(
+        "labels fed {}, samples held {:.1} %, misfit {:.1} mm RMS ({:.1} max), inverted tets {} at worst",
+        r.labels_fed,
+        r.held_share * 100.0,
+        r.residual_mm_rms,
+        r.residual_mm_max,
+        r.inverted_tets_max
+    );
     Ok(())
 }
 

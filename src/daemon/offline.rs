@@ -4,7 +4,8 @@
 //! a user how well a marker layout carries a take (labels fed, samples held, misfit)
 //! and what the character does (inverted tets, limits, bone lengths, frame time),
 //! without waiting the take's length; `rigless calibrate --check` and the calibration
-//! benchmark use it.
+//! benchmark use it. Without deadlines it exports a take: every frame's full mesh to a
+//! point cache ([`export_pc2`], `rigless replay --export`).
 
 use super::pipeline::Pipeline;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
@@ -14,6 +15,8 @@ use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
 use crate::solve::arap::StopReason;
 use crate::solve::frame::{SolveReport, Solver, SolverParams};
+use glam::DVec3;
+use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -24,6 +27,10 @@ pub struct OfflineOptions {
     pub rate_hz: f64,
     /// Character metres per recording metre (a calibration's scale).
     pub marker_scale: f64,
+    /// Whether each tick's solve stops at its live deadline (`1 / rate_hz` after it
+    /// starts), as live; else it runs until it converges or its iteration cap (an
+    /// export, which has no clock to keep).
+    pub deadline: bool,
 }
 
 impl Default for OfflineOptions {
@@ -31,6 +38,7 @@ impl Default for OfflineOptions {
         Self {
             rate_hz: 120.0,
             marker_scale: 1.0,
+            deadline: true,
         }
     }
 }
@@ -72,6 +80,27 @@ pub fn replay_offline(
     params: SolverParams,
     rec: &Recording,
     opts: OfflineOptions,
+) -> Result<Option<OfflineReport>, crate::solve::harmonic::HarmonicError> {
+    replay_offline_with(rig, params, rec, opts, &mut |_| ControlFlow::Continue(()))
+}
+
+/// One tick of an offline replay, as [`replay_offline_with`] shows it.
+pub struct OfflineTick<'a> {
+    /// The tick (from 0) and the ticks in all.
+    pub index: usize,
+    pub of: usize,
+    /// The full mesh after the tick (metres, the character's frame and vertex order).
+    pub vertices: &'a [DVec3],
+}
+
+/// [`replay_offline`], showing `on_tick` every tick's mesh; a `Break` stops the replay
+/// there (the report then covers the ticks played).
+pub fn replay_offline_with(
+    rig: Arc<Rig>,
+    params: SolverParams,
+    rec: &Recording,
+    opts: OfflineOptions,
+    on_tick: &mut dyn FnMut(OfflineTick<'_>) -> ControlFlow<()>,
 ) -> Result<Option<OfflineReport>, crate::solve::harmonic::HarmonicError> {
     let map = LabelMap::new(&rec.labels, &MarkerIndex::fixed(&rig.marker_names));
     let fed: Vec<(usize, u32)> = map
@@ -130,11 +159,14 @@ pub fn replay_offline(
             }
             next += 1;
         }
-        let r = pipeline.tick(
-            t_s,
-            Instant::now() + Duration::from_secs_f64(period_s),
-            &|| t_s,
-        );
+        // Without a deadline the solve stops on convergence or its iteration cap; the
+        // hour is only an Instant far enough away.
+        let budget = if opts.deadline {
+            Duration::from_secs_f64(period_s)
+        } else {
+            Duration::from_secs(3600)
+        };
+        let r = pipeline.tick(t_s, Instant::now() + budget, &|| t_s);
         times_ms.push(r.frame_ms);
         let states = &pipeline.markers().states;
         held += fed_markers
@@ -153,6 +185,15 @@ pub fn replay_offline(
         if let Some(cp) = pipeline.control_positions() {
             rep.inverted_tets_max = rep.inverted_tets_max.max(rig.control.inverted_tets(cp));
         }
+        let shown = OfflineTick {
+            index: tick,
+            of: ticks,
+            vertices: pipeline.vertices(),
+        };
+        if on_tick(shown).is_break() {
+            rep.frames = tick + 1;
+            break;
+        }
     }
     rep.held_share = held as f64 / fed_samples.max(1) as f64;
     rep.residual_mm_rms = (sq_sum / in_view.max(1) as f64).sqrt();
@@ -169,4 +210,86 @@ fn take(rep: &mut OfflineReport, s: &SolveReport) {
     rep.joint_limit_violation_deg_max = rep
         .joint_limit_violation_deg_max
         .max(s.joint_limit_violation_deg);
+}
+
+/// Why a take could not be exported.
+#[derive(Debug, thiserror::Error)]
+pub enum OfflineExportError {
+    #[error(transparent)]
+    Solver(#[from] crate::solve::harmonic::HarmonicError),
+    #[error(transparent)]
+    Export(#[from] crate::output::export::ExportError),
+    #[error("{take}: none of its labels is a marker of the character (calibrate the take onto it first)")]
+    NoLabels { take: String },
+}
+
+/// What [`export_pc2`] wrote.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ExportSummary {
+    /// Frames written (the take's), at `rate_hz`.
+    pub frames: usize,
+    pub rate_hz: f64,
+    /// Vertices per frame.
+    pub points: usize,
+    /// The replay's figures over the take.
+    pub replay: OfflineReport,
+}
+
+/// Solves every frame of `rec` at its own rate, without deadlines, and writes the full
+/// mesh after each to the PC2 file `path` (one sample per take frame, in the
+/// character's vertex order, metres, Y up); `progress` hears frames done and in all.
+pub fn export_pc2(
+    rig: Arc<Rig>,
+    params: SolverParams,
+    rec: &Recording,
+    marker_scale: f64,
+    path: &std::path::Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ExportSummary, OfflineExportError> {
+    use crate::output::export::Pc2Writer;
+    let frames = rec.frames.len();
+    let points = rig.mesh_rest.len();
+    // Created at the first frame: a take that feeds no marker leaves no file.
+    let mut writer: Option<Pc2Writer> = None;
+    let mut failed = None;
+    let opts = OfflineOptions {
+        rate_hz: rec.rate_hz,
+        marker_scale,
+        deadline: false,
+    };
+    let report = replay_offline_with(rig, params, rec, opts, &mut |t| {
+        let pushed = match writer.as_mut() {
+            Some(w) => w.push(t.vertices),
+            None => Pc2Writer::create(path, points, frames)
+                .and_then(|w| writer.insert(w).push(t.vertices)),
+        };
+        if let Err(e) = pushed {
+            failed = Some(e);
+            return ControlFlow::Break(());
+        }
+        progress(t.index + 1, frames);
+        // The take's frames, not the tick past its last one.
+        if t.index + 1 >= frames {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    })?;
+    if let Some(e) = failed {
+        return Err(e.into());
+    }
+    let Some(replay) = report else {
+        return Err(OfflineExportError::NoLabels {
+            take: rec.name.clone(),
+        });
+    };
+    if let Some(w) = writer {
+        w.finish()?;
+    }
+    Ok(ExportSummary {
+        frames,
+        rate_hz: rec.rate_hz,
+        points,
+        replay,
+    })
 }

@@ -1,8 +1,10 @@
 //! Sinks that read published frames: the in-process frame itself ([`frame`]), what
 //! every sink knows of the character ([`scene`]), the vertex stream server and the Rerun
-//! recording, and their config sections ([`config`]).
+//! recording, files of a solved take ([`export`]), and their config sections
+//! ([`config`]).
 
 pub mod config;
+pub mod export;
 pub mod frame;
 pub mod rerun_sink;
 pub mod scene;

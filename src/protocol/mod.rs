@@ -4,6 +4,7 @@
 pub mod glove;
 pub mod natnet;
 pub mod osc;
+pub mod pc2;
 pub mod url;
 pub mod vertex_stream;
 pub mod vrpn;

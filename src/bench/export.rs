@@ -1,0 +1,82 @@
+//! The `export` suite: how fast `rigless replay --solve --export` turns a take into a
+//! point cache: the bundled hand finger play and body walk, solved off line at the take's
+//! rate without deadlines and written as PC2 (to a temporary file), three runs each.
+
+use super::BenchError;
+use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
+use crate::daemon::offline::export_pc2;
+use crate::replay::bundled::bundled;
+use crate::replay::recording::Recording;
+use crate::rig::bind::Rig;
+use crate::solve::frame::SolverParams;
+use std::sync::Arc;
+
+/// Runs per case.
+const RUNS: usize = 3;
+
+/// The suite.
+pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError> {
+    let cases = [
+        ("hand", "hand_finger_play", demo_hand(), hand_bind_params()),
+        ("body", "body_walk", demo_body(), body_bind_params()),
+    ];
+    let dir = std::env::temp_dir().join(format!("rigless-bench-export-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join("take.pc2");
+    let result = (|| {
+        for (character, take, ch, params) in cases {
+            let bytes = bundled(take)
+                .ok_or_else(|| BenchError::case(take, std::io::Error::other("not bundled")))?;
+            let rec = Recording::from_c3d(take, bytes).map_err(|e| BenchError::case(take, e))?;
+            let rig = Arc::new(Rig::bind(&ch, &params).map_err(|e| BenchError::case(take, e))?);
+            let mut fps = Vec::with_capacity(RUNS);
+            let mut last = None;
+            for _ in 0..RUNS {
+                let t0 = std::time::Instant::now();
+                let s = export_pc2(
+                    Arc::clone(&rig),
+                    SolverParams::default(),
+                    &rec,
+                    1.0,
+                    &path,
+                    &mut |_, _| {},
+                )
+                .map_err(|e| BenchError::case(take, e))?;
+                fps.push(s.frames as f64 / t0.elapsed().as_secs_f64());
+                last = Some(s);
+            }
+            let Some(s) = last else { continue };
+            fps.sort_by(f64::total_cmp);
+            let (lo, median, hi) = (fps[0], fps[RUNS / 2], fps[RUNS - 1]);
+            let bytes = std::fs::metadata(&path)?.len();
+            if json {
+                super::json_line(
+                    out,
+                    &serde_json::json!({
+                        "suite": "export", "character": character, "take": take,
+                        "frames": s.frames, "points": s.points, "rate_hz": s.rate_hz,
+                        "frames_per_second_median": median, "frames_per_second_min": lo,
+                        "frames_per_second_max": hi, "bytes": bytes,
+                        "misfit_mm_rms": s.replay.residual_mm_rms,
+                    }),
+                )?;
+            } else {
+                writeln!(
+                    out,
+                    "{character:<5} {take:<17} {} frames of {} vertices: {median:.0} frames/s ({lo:.0}–{hi:.0}), {:.1} times real time; {:.1} MB; misfit {:.1} mm RMS",
+                    s.frames,
+                    s.points,
+                    median / s.rate_hz,
+                    bytes as f64 / 1e6,
+                    s.replay.residual_mm_rms
+                )?;
+            }
+        }
+        Ok(())
+    })();
+    // The temporary file goes whatever happened; failing to remove it is only logged.
+    if let Err(e) = std::fs::remove_dir_all(&dir) {
+        tracing::debug!("removing {}: {e}", dir.display());
+    }
+    result
+}
