@@ -3,7 +3,7 @@
 
 use rigless::character::demo::{demo_hand, hand_bind_params};
 use rigless::daemon::offline::{
-    export_pc2, replay_offline_with, OfflineExportError, OfflineOptions,
+    export_take, replay_offline_with, OfflineExportError, OfflineOptions,
 };
 use rigless::protocol::pc2::decode;
 use rigless::replay::bundled::bundled;
@@ -26,7 +26,7 @@ fn an_exported_take_reads_back_as_the_solve_made_it() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("finger_play.pc2");
     let mut calls = 0;
-    let summary = export_pc2(
+    let summary = export_take(
         Arc::clone(&rig),
         SolverParams::default(),
         &rec,
@@ -99,7 +99,7 @@ fn a_take_without_the_characters_labels_is_refused() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("none.pc2");
-    let err = export_pc2(
+    let err = export_take(
         rig,
         SolverParams::default(),
         &rec,
@@ -111,4 +111,86 @@ fn a_take_without_the_characters_labels_is_refused() {
     assert!(matches!(err, OfflineExportError::NoLabels { .. }), "{err}");
     assert!(err.to_string().contains("hand_finger_play"), "{err}");
     assert!(!path.exists());
+}
+
+/// The fitted skeleton exported as BVH and read back through the project's BVH reader:
+/// one frame per take frame at the take's rate, every joint where the solve's posture
+/// put it (within 1 µm: the text keeps 1e-6 cm and 1e-6 degrees), so every bone keeps
+/// the character's length.
+#[test]
+fn an_exported_skeleton_reads_back_with_the_characters_bones() {
+    use rigless::replay::bvh::{parse_bvh, WRITTEN_METRES_PER_UNIT};
+    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("finger_play.bvh");
+    let summary = export_take(
+        Arc::clone(&rig),
+        SolverParams::default(),
+        &rec,
+        1.0,
+        &path,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let sk = &rig.skeleton;
+    assert_eq!(summary.points, sk.joints.len());
+
+    let mut postures: Vec<Vec<glam::DVec3>> = Vec::new();
+    let opts = OfflineOptions {
+        rate_hz: rec.rate_hz,
+        deadline: false,
+        ..OfflineOptions::default()
+    };
+    replay_offline_with(
+        Arc::clone(&rig),
+        SolverParams::default(),
+        &rec,
+        opts,
+        &mut |t| {
+            postures.push(t.joint_pos.to_vec());
+            if postures.len() == rec.frames.len() {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )
+    .unwrap();
+
+    let text = std::fs::read_to_string(&path).unwrap();
+    let bvh = parse_bvh(&text, WRITTEN_METRES_PER_UNIT).unwrap();
+    assert_eq!(bvh.positions.len(), rec.frames.len());
+    assert!((1.0 / bvh.frame_time_s - rec.rate_hz).abs() < 1e-6);
+    let index: Vec<usize> = sk
+        .joints
+        .iter()
+        .map(|j| {
+            bvh.joint_names
+                .iter()
+                .position(|n| *n == j.name)
+                .unwrap_or_else(|| panic!("{} not in the file", j.name))
+        })
+        .collect();
+    let mut worst = 0.0f64;
+    for (f, posture) in postures.iter().enumerate() {
+        for (j, joint) in sk.joints.iter().enumerate() {
+            let got = bvh.positions[f][index[j]];
+            worst = worst.max((got - posture[j]).length());
+            if let Some(p) = joint.parent {
+                let length = (got - bvh.positions[f][index[p]]).length();
+                let rest = (joint.rest - sk.joints[p].rest).length();
+                assert!((length - rest).abs() < 1e-6, "frame {f} {}", joint.name);
+            }
+        }
+    }
+    assert!(worst < 1e-6, "a joint {worst} m from the solve's posture");
+    // The fingers move: the posture is not the rest pose throughout.
+    let tip = sk.joints.len() - 1;
+    let travel = postures
+        .iter()
+        .map(|p| (p[tip] - postures[0][tip]).length())
+        .fold(0.0, f64::max);
+    assert!(travel > 0.01, "the last joint moves {travel} m");
 }

@@ -4,7 +4,7 @@
 
 use super::BenchError;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
-use crate::daemon::offline::export_pc2;
+use crate::daemon::offline::export_take;
 use crate::replay::bundled::bundled;
 use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
@@ -33,7 +33,7 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError>
             let mut last = None;
             for _ in 0..RUNS {
                 let t0 = std::time::Instant::now();
-                let s = export_pc2(
+                let s = export_take(
                     Arc::clone(&rig),
                     SolverParams::default(),
                     &rec,

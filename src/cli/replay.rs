@@ -3,7 +3,7 @@
 
 use super::{ctrl_c_flag, run_stage, LiveOptions};
 use anyhow::{bail, Context, Result};
-use rigless::daemon::offline::export_pc2;
+use rigless::daemon::offline::export_take;
 use rigless::output::rerun_sink::RerunTarget;
 use rigless::replay::recording::{Recording, DEFAULT_BVH_METRES_PER_UNIT};
 use rigless::replay::sender::{replay, ReplayOptions, Target};
@@ -76,12 +76,13 @@ pub struct ReplayArgs {
     #[arg(long, requires = "solve")]
     marker_scale: Option<f64>,
     /// With --solve: solve every frame off line, as fast as the machine goes (no
-    /// deadline, no stream), and write the full mesh's vertices frame by frame to this
-    /// file, at the take's rate: `.pc2` (point cache: Blender's Mesh Cache modifier, 3ds
-    /// Max, Houdini, on the character's own mesh).
+    /// deadline, no stream), and write each to this file at the take's rate, in the
+    /// format of its extension: `.pc2` (the full mesh's vertices, a point cache for
+    /// Blender's Mesh Cache modifier, 3ds Max, Houdini, on the character's own mesh) or
+    /// `.bvh` (the fitted skeleton's motion, centimetres).
     #[arg(
         long,
-        value_name = "OUT.pc2",
+        value_name = "OUT.pc2|OUT.bvh",
         requires = "solve",
         conflicts_with_all = ["end", "looping", "rerun"]
     )]
@@ -228,10 +229,9 @@ fn send(a: &ReplayArgs, to: &str, target: Target) -> Result<()> {
 /// written to `out`, with a progress bar and a summary.
 fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
     use std::io::IsTerminal;
-    let ext = out.extension().and_then(|e| e.to_str()).unwrap_or("");
-    if !ext.eq_ignore_ascii_case("pc2") {
+    if rigless::output::export::ExportFormat::of(out).is_none() {
         bail!(
-            "--export {}: the format follows the extension, and rigless writes .pc2 (a point cache of the full mesh)",
+            "--export {}: the format follows the extension: .pc2 (a point cache of the full mesh) or .bvh (the fitted skeleton)",
             out.display()
         );
     }
@@ -255,7 +255,7 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
             eprint!("\r  solving [{cells}] {pct:>3}%  {done} of {of} frames, {fps:.0} frames/s");
         }
     };
-    let summary = export_pc2(
+    let summary = export_take(
         rig,
         params,
         &rec,
@@ -279,7 +279,7 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
     }
     let r = &summary.replay;
     println!(
-        "wrote {}: {} frames of {} vertices at {} Hz in {secs:.2} s ({fps:.0} frames/s, {:.1} times real time)",
+        "wrote {}: {} frames of {} points at {} Hz in {secs:.2} s ({fps:.0} frames/s, {:.1} times real time)",
         out.display(),
         summary.frames,
         summary.points,

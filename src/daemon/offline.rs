@@ -5,12 +5,15 @@
 //! and what the character does (inverted tets, limits, bone lengths, frame time),
 //! without waiting the take's length; `rigless calibrate --check` and the calibration
 //! benchmark use it. Without deadlines it exports a take: every frame's full mesh to a
-//! point cache ([`export_pc2`], `rigless replay --export`).
+//! point cache, or the fitted skeleton to BVH ([`export_take`], `rigless replay
+//! --export`).
 
 use super::pipeline::Pipeline;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::index::{LabelMap, MarkerIndex};
 use crate::markers::{FillState, MarkerSample};
+use crate::output::export::{BvhWriter, ExportFormat, Pc2Writer};
+use crate::replay::bvh::BvhSkeleton;
 use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
 use crate::solve::arap::StopReason;
@@ -91,6 +94,10 @@ pub struct OfflineTick<'a> {
     pub of: usize,
     /// The full mesh after the tick (metres, the character's frame and vertex order).
     pub vertices: &'a [DVec3],
+    /// The fitted posture after the tick: every joint's world rotation from rest and
+    /// world position (metres).
+    pub joint_rot: &'a [glam::DQuat],
+    pub joint_pos: &'a [DVec3],
 }
 
 /// [`replay_offline`], showing `on_tick` every tick's mesh; a `Break` stops the replay
@@ -185,10 +192,13 @@ pub fn replay_offline_with(
         if let Some(cp) = pipeline.control_positions() {
             rep.inverted_tets_max = rep.inverted_tets_max.max(rig.control.inverted_tets(cp));
         }
+        let (joint_rot, joint_pos) = pipeline.joint_world();
         let shown = OfflineTick {
             index: tick,
             of: ticks,
             vertices: pipeline.vertices(),
+            joint_rot,
+            joint_pos,
         };
         if on_tick(shown).is_break() {
             rep.frames = tick + 1;
@@ -221,24 +231,33 @@ pub enum OfflineExportError {
     Export(#[from] crate::output::export::ExportError),
     #[error("{take}: none of its labels is a marker of the character (calibrate the take onto it first)")]
     NoLabels { take: String },
+    #[error("{path}: the format follows the extension: .pc2 (a point cache of the full mesh) or .bvh (the fitted skeleton)")]
+    Format { path: String },
 }
 
-/// What [`export_pc2`] wrote.
+/// What [`export_take`] wrote.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ExportSummary {
     /// Frames written (the take's), at `rate_hz`.
     pub frames: usize,
     pub rate_hz: f64,
-    /// Vertices per frame.
+    /// Vertices (a point cache) or joints (a BVH) per frame.
     pub points: usize,
     /// The replay's figures over the take.
     pub replay: OfflineReport,
 }
 
-/// Solves every frame of `rec` at its own rate, without deadlines, and writes the full
-/// mesh after each to the PC2 file `path` (one sample per take frame, in the
-/// character's vertex order, metres, Y up); `progress` hears frames done and in all.
-pub fn export_pc2(
+/// The file a take is being written to.
+enum TakeFile {
+    Pc2(Pc2Writer),
+    Bvh(BvhWriter),
+}
+
+/// Solves every frame of `rec` at its own rate, without deadlines, and writes each to
+/// `path` in the format of its extension ([`ExportFormat`]): the full mesh (PC2, in the
+/// character's vertex order, metres, Y up) or the fitted skeleton's posture (BVH, in
+/// centimetres); one sample per take frame. `progress` hears frames done and in all.
+pub fn export_take(
     rig: Arc<Rig>,
     params: SolverParams,
     rec: &Recording,
@@ -246,23 +265,53 @@ pub fn export_pc2(
     path: &std::path::Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ExportSummary, OfflineExportError> {
-    use crate::output::export::Pc2Writer;
+    let format = ExportFormat::of(path).ok_or_else(|| OfflineExportError::Format {
+        path: path.display().to_string(),
+    })?;
     let frames = rec.frames.len();
-    let points = rig.mesh_rest.len();
+    let sk = &rig.skeleton;
+    let names: Vec<String> = sk.joints.iter().map(|j| j.name.clone()).collect();
+    let parents: Vec<Option<usize>> = sk.joints.iter().map(|j| j.parent).collect();
+    let rest: Vec<DVec3> = sk.joints.iter().map(|j| j.rest).collect();
+    let points = match format {
+        ExportFormat::Pc2 => rig.mesh_rest.len(),
+        ExportFormat::Bvh => names.len(),
+    };
+    let create = || -> Result<TakeFile, crate::output::export::ExportError> {
+        Ok(match format {
+            ExportFormat::Pc2 => TakeFile::Pc2(Pc2Writer::create(path, points, frames)?),
+            ExportFormat::Bvh => {
+                let skeleton = BvhSkeleton {
+                    names: &names,
+                    parents: &parents,
+                    rest: &rest,
+                };
+                TakeFile::Bvh(BvhWriter::create(
+                    path,
+                    &skeleton,
+                    frames,
+                    1.0 / rec.rate_hz,
+                )?)
+            }
+        })
+    };
     // Created at the first frame: a take that feeds no marker leaves no file.
-    let mut writer: Option<Pc2Writer> = None;
+    let mut file: Option<TakeFile> = None;
     let mut failed = None;
     let opts = OfflineOptions {
         rate_hz: rec.rate_hz,
         marker_scale,
         deadline: false,
     };
-    let report = replay_offline_with(rig, params, rec, opts, &mut |t| {
-        let pushed = match writer.as_mut() {
-            Some(w) => w.push(t.vertices),
-            None => Pc2Writer::create(path, points, frames)
-                .and_then(|w| writer.insert(w).push(t.vertices)),
+    let report = replay_offline_with(Arc::clone(&rig), params, rec, opts, &mut |t| {
+        let f = match file.as_mut() {
+            Some(f) => Ok(f),
+            None => create().map(|f| file.insert(f)),
         };
+        let pushed = f.and_then(|f| match f {
+            TakeFile::Pc2(w) => w.push(t.vertices),
+            TakeFile::Bvh(w) => w.push(t.joint_rot, t.joint_pos),
+        });
         if let Err(e) = pushed {
             failed = Some(e);
             return ControlFlow::Break(());
@@ -283,8 +332,10 @@ pub fn export_pc2(
             take: rec.name.clone(),
         });
     };
-    if let Some(w) = writer {
-        w.finish()?;
+    match file {
+        Some(TakeFile::Pc2(w)) => w.finish()?,
+        Some(TakeFile::Bvh(w)) => w.finish()?,
+        None => {}
     }
     Ok(ExportSummary {
         frames,

@@ -213,6 +213,12 @@ impl Pipeline {
         &self.vertices
     }
 
+    /// The newest fitted posture: every joint's world rotation from rest and world
+    /// position (metres).
+    pub fn joint_world(&self) -> (&[glam::DQuat], &[DVec3]) {
+        self.solver.joint_world()
+    }
+
     /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
     /// `deadline`), publish (stamped with `unix_now()`, read just before publishing).
     pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {

@@ -1,9 +1,12 @@
 //! A solved take written to files: the full mesh's vertices, frame after frame, as a PC2
 //! point cache ([`crate::protocol::pc2`]) that Blender's Mesh Cache modifier, 3ds Max
-//! and Houdini play on the character's own mesh (same vertex order as its file).
+//! and Houdini play on the character's own mesh (same vertex order as its file); or the
+//! fitted skeleton's motion as BVH ([`crate::replay::bvh::encode_header`]), which any
+//! animation tool imports.
 
 use crate::protocol::pc2::{encode_frame, encode_header, Pc2Header};
-use glam::DVec3;
+use crate::replay::bvh::BvhSkeleton;
+use glam::{DQuat, DVec3};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -129,6 +132,114 @@ impl Pc2Writer {
             written,
             samples: self.samples,
         }
+    }
+}
+
+/// The formats a take exports to, by the file's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportFormat {
+    /// `.pc2`: the full mesh, a point cache.
+    Pc2,
+    /// `.bvh`: the fitted skeleton's motion.
+    Bvh,
+}
+
+impl ExportFormat {
+    /// The format of `path`'s extension (either case), if rigless writes it.
+    pub fn of(path: &Path) -> Option<Self> {
+        let ext = path.extension()?.to_str()?;
+        if ext.eq_ignore_ascii_case("pc2") {
+            Some(Self::Pc2)
+        } else if ext.eq_ignore_ascii_case("bvh") {
+            Some(Self::Bvh)
+        } else {
+            None
+        }
+    }
+}
+
+/// Writes a BVH file frame by frame (the frame count is known before the first): the
+/// skeleton at rest as its hierarchy, each frame's posture as a motion line.
+pub struct BvhWriter {
+    out: std::io::BufWriter<std::fs::File>,
+    path: PathBuf,
+    names: Vec<String>,
+    parents: Vec<Option<usize>>,
+    rest: Vec<DVec3>,
+    frames: usize,
+    written: usize,
+    /// One motion line, reused.
+    line: String,
+}
+
+impl BvhWriter {
+    /// A file of `frames` frames `frame_time_s` apart for the skeleton `names`,
+    /// `parents`, `rest` (world, metres) at `path` (replaced if it exists).
+    pub fn create(
+        path: &Path,
+        skeleton: &BvhSkeleton<'_>,
+        frames: usize,
+        frame_time_s: f64,
+    ) -> Result<Self, ExportError> {
+        let io = |source| ExportError::Io {
+            path: path.display().to_string(),
+            source,
+        };
+        let file = std::fs::File::create(path).map_err(io)?;
+        let mut out = std::io::BufWriter::new(file);
+        let header = crate::replay::bvh::encode_header(skeleton, frames, frame_time_s);
+        out.write_all(header.as_bytes()).map_err(io)?;
+        Ok(Self {
+            out,
+            path: path.to_owned(),
+            names: skeleton.names.to_vec(),
+            parents: skeleton.parents.to_vec(),
+            rest: skeleton.rest.to_vec(),
+            frames,
+            written: 0,
+            line: String::new(),
+        })
+    }
+
+    /// Appends a frame: every joint's world rotation from rest and world position.
+    pub fn push(&mut self, world_rot: &[DQuat], world_pos: &[DVec3]) -> Result<(), ExportError> {
+        if self.written >= self.frames {
+            return Err(ExportError::Frames {
+                path: self.path.display().to_string(),
+                written: (self.written + 1) as u32,
+                samples: self.frames as u32,
+            });
+        }
+        self.line.clear();
+        let sk = BvhSkeleton {
+            names: &self.names,
+            parents: &self.parents,
+            rest: &self.rest,
+        };
+        crate::replay::bvh::encode_frame(&sk, world_rot, world_pos, &mut self.line);
+        self.out
+            .write_all(self.line.as_bytes())
+            .map_err(|source| ExportError::Io {
+                path: self.path.display().to_string(),
+                source,
+            })?;
+        self.written += 1;
+        Ok(())
+    }
+
+    /// Flushes the file; an error unless every promised frame was written.
+    pub fn finish(mut self) -> Result<(), ExportError> {
+        if self.written != self.frames {
+            return Err(ExportError::Frames {
+                path: self.path.display().to_string(),
+                written: self.written as u32,
+                samples: self.frames as u32,
+            });
+        }
+        self.out.flush().map_err(|source| ExportError::Io {
+            path: self.path.display().to_string(),
+            source,
+        })
     }
 }
 
