@@ -67,6 +67,13 @@ fn flush(out: &mut dyn Write) {
     }
 }
 
+/// Twenty cells of a progress bar at `pct` per cent (`#` done, `.` to do).
+pub fn bar(pct: i64) -> String {
+    (0..20)
+        .map(|k| if k < pct / 5 { '#' } else { '.' })
+        .collect()
+}
+
 /// A progress bar on stderr for binding a character (every 5 %), ended by
 /// [`end_bind_progress`].
 pub fn bind_progress() -> impl FnMut(BindStage, f64) {
@@ -82,10 +89,7 @@ pub fn bind_progress() -> impl FnMut(BindStage, f64) {
             BindStage::GreenCoordinates => "Green coordinates",
             BindStage::Factorization => "weights and factorization",
         };
-        let bar: String = (0..20)
-            .map(|k| if k < pct / 5 { '#' } else { '.' })
-            .collect();
-        eprint!("\r  binding [{bar}] {name:<26} {pct:>3}%");
+        eprint!("\r  binding [{}] {name:<26} {pct:>3}%", bar(pct));
         flush(&mut std::io::stderr());
     }
 }

@@ -249,10 +249,10 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
         if bar && pct != shown {
             shown = pct;
             let fps = done as f64 / t0.elapsed().as_secs_f64().max(1e-9);
-            let cells: String = (0..20)
-                .map(|k| if k < pct / 5 { '#' } else { '.' })
-                .collect();
-            eprint!("\r  solving [{cells}] {pct:>3}%  {done} of {of} frames, {fps:.0} frames/s");
+            eprint!(
+                "\r  solving [{}] {pct:>3}%  {done} of {of} frames, {fps:.0} frames/s",
+                super::bar(pct)
+            );
         }
     };
     let summary = export_take(
