@@ -194,3 +194,84 @@ fn an_exported_skeleton_reads_back_with_the_characters_bones() {
         .fold(0.0, f64::max);
     assert!(travel > 0.01, "the last joint moves {travel} m");
 }
+
+/// The take as a binary glTF, loaded (and validated) by the `gltf` crate: the mesh with
+/// every vertex, a skin of every joint, one animation whose keys are the take's frames
+/// over its duration, a rotation channel per joint and a translation channel on the
+/// root, and the root's keys where the solve put it (to f32 precision).
+#[test]
+fn an_exported_glb_loads_with_the_skeleton_and_the_take() {
+    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("finger_play.glb");
+    export_take(
+        Arc::clone(&rig),
+        SolverParams::default(),
+        &rec,
+        1.0,
+        &path,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let mut roots: Vec<glam::DVec3> = Vec::new();
+    let opts = OfflineOptions {
+        rate_hz: rec.rate_hz,
+        deadline: false,
+        ..OfflineOptions::default()
+    };
+    replay_offline_with(
+        Arc::clone(&rig),
+        SolverParams::default(),
+        &rec,
+        opts,
+        &mut |t| {
+            roots.push(t.joint_pos[0]);
+            if roots.len() == rec.frames.len() {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )
+    .unwrap();
+
+    let (doc, buffers, _) = gltf::import(&path).unwrap();
+    let joints = rig.skeleton.joints.len();
+    let mesh = doc.meshes().next().expect("a mesh");
+    let prim = mesh.primitives().next().expect("a primitive");
+    let reader = prim.reader(|b| Some(&buffers[b.index()]));
+    assert_eq!(
+        reader.read_positions().unwrap().count(),
+        rig.mesh_rest.len()
+    );
+    assert_eq!(
+        reader.read_indices().unwrap().into_u32().count(),
+        rig.triangles.len() * 3
+    );
+    let skin = doc.skins().next().expect("a skin");
+    assert_eq!(skin.joints().count(), joints);
+    let anim = doc.animations().next().expect("an animation");
+    let channels: Vec<_> = anim.channels().collect();
+    assert_eq!(
+        channels.len(),
+        joints + 1,
+        "a rotation per joint, the root's translation"
+    );
+    let duration = (rec.frames.len() - 1) as f64 / rec.rate_hz;
+    for ch in &channels {
+        let r = ch.reader(|b| Some(&buffers[b.index()]));
+        let times: Vec<f32> = r.read_inputs().unwrap().collect();
+        assert_eq!(times.len(), rec.frames.len());
+        assert!((f64::from(times[times.len() - 1]) - duration).abs() < 1e-4);
+        if let Some(gltf::animation::util::ReadOutputs::Translations(t)) = r.read_outputs() {
+            assert_eq!(ch.target().node().index(), 0);
+            let mut worst = 0.0f64;
+            for (got, want) in t.zip(&roots) {
+                worst = worst.max((glam::Vec3::from(got).as_dvec3() - *want).length());
+            }
+            assert!(worst < 1e-5, "the root {worst} m from the solve");
+        }
+    }
+}

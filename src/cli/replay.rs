@@ -78,11 +78,13 @@ pub struct ReplayArgs {
     /// With --solve: solve every frame off line, as fast as the machine goes (no
     /// deadline, no stream), and write each to this file at the take's rate, in the
     /// format of its extension: `.pc2` (the full mesh's vertices, a point cache for
-    /// Blender's Mesh Cache modifier, 3ds Max, Houdini, on the character's own mesh) or
-    /// `.bvh` (the fitted skeleton's motion, centimetres).
+    /// Blender's Mesh Cache modifier, 3ds Max, Houdini, on the character's own mesh),
+    /// `.bvh` (the fitted skeleton's motion, centimetres) or `.glb` (the mesh at rest
+    /// skinned to the skeleton, each vertex to its nearest bone, and the motion as an
+    /// animation: any engine).
     #[arg(
         long,
-        value_name = "OUT.pc2|OUT.bvh",
+        value_name = "OUT.pc2|OUT.bvh|OUT.glb",
         requires = "solve",
         conflicts_with_all = ["end", "looping", "rerun"]
     )]
@@ -231,7 +233,7 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
     use std::io::IsTerminal;
     if rigless::output::export::ExportFormat::of(out).is_none() {
         bail!(
-            "--export {}: the format follows the extension: .pc2 (a point cache of the full mesh) or .bvh (the fitted skeleton)",
+            "--export {}: the format follows the extension: .pc2 (a point cache of the full mesh), .bvh (the fitted skeleton) or .glb (the mesh skinned to the skeleton, animated)",
             out.display()
         );
     }

@@ -12,7 +12,7 @@ use super::pipeline::Pipeline;
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::index::{LabelMap, MarkerIndex};
 use crate::markers::{FillState, MarkerSample};
-use crate::output::export::{BvhWriter, ExportFormat, Pc2Writer};
+use crate::output::export::{BvhWriter, ExportFormat, GlbWriter, Pc2Writer};
 use crate::replay::bvh::BvhSkeleton;
 use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
@@ -231,7 +231,7 @@ pub enum OfflineExportError {
     Export(#[from] crate::output::export::ExportError),
     #[error("{take}: none of its labels is a marker of the character (calibrate the take onto it first)")]
     NoLabels { take: String },
-    #[error("{path}: the format follows the extension: .pc2 (a point cache of the full mesh) or .bvh (the fitted skeleton)")]
+    #[error("{path}: the format follows the extension: .pc2 (a point cache of the full mesh), .bvh (the fitted skeleton) or .glb (the mesh skinned to it, animated)")]
     Format { path: String },
 }
 
@@ -251,6 +251,7 @@ pub struct ExportSummary {
 enum TakeFile {
     Pc2(Pc2Writer),
     Bvh(BvhWriter),
+    Glb(Box<GlbWriter>),
 }
 
 /// Solves every frame of `rec` at its own rate, without deadlines, and writes each to
@@ -275,7 +276,7 @@ pub fn export_take(
     let rest: Vec<DVec3> = sk.joints.iter().map(|j| j.rest).collect();
     let points = match format {
         ExportFormat::Pc2 => rig.mesh_rest.len(),
-        ExportFormat::Bvh => names.len(),
+        ExportFormat::Bvh | ExportFormat::Glb => names.len(),
     };
     let create = || -> Result<TakeFile, crate::output::export::ExportError> {
         Ok(match format {
@@ -293,6 +294,13 @@ pub fn export_take(
                     1.0 / rec.rate_hz,
                 )?)
             }
+            ExportFormat::Glb => TakeFile::Glb(Box::new(GlbWriter::new(
+                path,
+                &rig.skeleton,
+                &rig.mesh_rest,
+                &rig.triangles,
+                1.0 / rec.rate_hz,
+            ))),
         })
     };
     // Created at the first frame: a take that feeds no marker leaves no file.
@@ -311,6 +319,10 @@ pub fn export_take(
         let pushed = f.and_then(|f| match f {
             TakeFile::Pc2(w) => w.push(t.vertices),
             TakeFile::Bvh(w) => w.push(t.joint_rot, t.joint_pos),
+            TakeFile::Glb(w) => {
+                w.push(t.joint_rot, t.joint_pos);
+                Ok(())
+            }
         });
         if let Err(e) = pushed {
             failed = Some(e);
@@ -335,6 +347,7 @@ pub fn export_take(
     match file {
         Some(TakeFile::Pc2(w)) => w.finish()?,
         Some(TakeFile::Bvh(w)) => w.finish()?,
+        Some(TakeFile::Glb(w)) => w.finish()?,
         None => {}
     }
     Ok(ExportSummary {

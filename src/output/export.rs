@@ -142,6 +142,8 @@ pub enum ExportFormat {
     Pc2,
     /// `.bvh`: the fitted skeleton's motion.
     Bvh,
+    /// `.glb`: the mesh skinned to the skeleton, with the fitted motion as an animation.
+    Glb,
 }
 
 impl ExportFormat {
@@ -152,6 +154,8 @@ impl ExportFormat {
             Some(Self::Pc2)
         } else if ext.eq_ignore_ascii_case("bvh") {
             Some(Self::Bvh)
+        } else if ext.eq_ignore_ascii_case("glb") {
+            Some(Self::Glb)
         } else {
             None
         }
@@ -240,6 +244,287 @@ impl BvhWriter {
             path: self.path.display().to_string(),
             source,
         })
+    }
+}
+
+/// Collects a take's fitted postures and writes them, on [`GlbWriter::finish`], as a
+/// binary glTF: the character's mesh at rest, skinned to its skeleton (each vertex
+/// wholly to the joint whose bone segment is nearest, as the bind divides the mesh), and
+/// one animation of every joint's rotation and the roots' translation, a key per frame.
+/// Any engine or DCC tool that reads glTF plays it.
+pub struct GlbWriter {
+    path: PathBuf,
+    frame_time_s: f64,
+    skeleton: crate::character::skeleton::Skeleton,
+    vertices: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+    /// Per frame, every joint's rotation relative to its parent, then each root's
+    /// position.
+    rotations: Vec<Vec<DQuat>>,
+    roots: Vec<Vec<DVec3>>,
+}
+
+impl GlbWriter {
+    /// A writer for `skeleton` and the mesh `vertices`, `triangles` at rest (metres, Y
+    /// up), frames `frame_time_s` apart; `path` is written on [`Self::finish`].
+    pub fn new(
+        path: &Path,
+        skeleton: &crate::character::skeleton::Skeleton,
+        vertices: &[DVec3],
+        triangles: &[[u32; 3]],
+        frame_time_s: f64,
+    ) -> Self {
+        Self {
+            path: path.to_owned(),
+            frame_time_s,
+            skeleton: skeleton.clone(),
+            vertices: vertices.to_vec(),
+            triangles: triangles.to_vec(),
+            rotations: Vec::new(),
+            roots: Vec::new(),
+        }
+    }
+
+    /// Adds a frame: every joint's world rotation from rest and world position.
+    pub fn push(&mut self, world_rot: &[DQuat], world_pos: &[DVec3]) {
+        let joints = &self.skeleton.joints;
+        let at = |v: &[DQuat], j: usize| v.get(j).copied().unwrap_or(DQuat::IDENTITY);
+        self.rotations.push(
+            joints
+                .iter()
+                .enumerate()
+                .map(|(j, jt)| match jt.parent {
+                    Some(p) => (at(world_rot, p).inverse() * at(world_rot, j)).normalize(),
+                    None => at(world_rot, j).normalize(),
+                })
+                .collect(),
+        );
+        self.roots.push(
+            joints
+                .iter()
+                .enumerate()
+                .filter(|(_, jt)| jt.parent.is_none())
+                .map(|(j, jt)| world_pos.get(j).copied().unwrap_or(jt.rest))
+                .collect(),
+        );
+    }
+
+    /// Writes the file.
+    pub fn finish(self) -> Result<(), ExportError> {
+        let bytes = self.encode();
+        std::fs::write(&self.path, bytes).map_err(|source| ExportError::Io {
+            path: self.path.display().to_string(),
+            source,
+        })
+    }
+
+    /// The GLB bytes (glTF 2.0: a JSON chunk, then a BIN chunk).
+    fn encode(&self) -> Vec<u8> {
+        use serde_json::json;
+        let joints = &self.skeleton.joints;
+        let mut b = GlbBuffers::default();
+        let mesh = self.encode_mesh(&mut b);
+        let ibm = b.add(
+            joints
+                .iter()
+                .flat_map(|j| glam::Mat4::from_translation(-j.rest.as_vec3()).to_cols_array())
+                .flat_map(f32::to_le_bytes)
+                .collect(),
+            json!({"componentType": FLOAT, "count": joints.len(), "type": "MAT4"}),
+        );
+        let (samplers, channels) = self.encode_animation(&mut b);
+        // Nodes: the joints (at rest: translations from their parents), then the mesh.
+        let mut nodes: Vec<serde_json::Value> = joints
+            .iter()
+            .map(|j| {
+                let t = j.parent.map_or(j.rest, |p| j.rest - joints[p].rest);
+                json!({"name": j.name, "translation": t.as_vec3().to_array()})
+            })
+            .collect();
+        for (j, jt) in joints.iter().enumerate() {
+            if let Some(p) = jt.parent {
+                let children = nodes[p]
+                    .as_object_mut()
+                    .map(|o| o.entry("children").or_insert_with(|| json!([])));
+                if let Some(serde_json::Value::Array(c)) = children {
+                    c.push(json!(j));
+                }
+            }
+        }
+        nodes.push(json!({"name": "mesh", "mesh": 0, "skin": 0}));
+        let mut scene: Vec<usize> = (0..joints.len())
+            .filter(|&j| joints[j].parent.is_none())
+            .collect();
+        scene.push(joints.len());
+        b.pad();
+        let doc = json!({
+            "asset": {"version": "2.0", "generator": concat!("rigless ", env!("CARGO_PKG_VERSION"))},
+            "scene": 0,
+            "scenes": [{"nodes": scene}],
+            "nodes": nodes,
+            "meshes": [{"primitives": [mesh]}],
+            "skins": [{"joints": (0..joints.len()).collect::<Vec<_>>(), "inverseBindMatrices": ibm}],
+            "animations": [{"name": "take", "samplers": samplers, "channels": channels}],
+            "buffers": [{"byteLength": b.bin.len()}],
+            "bufferViews": b.views,
+            "accessors": b.accessors,
+        });
+        let mut json_bytes = doc.to_string().into_bytes();
+        while !json_bytes.len().is_multiple_of(4) {
+            json_bytes.push(b' ');
+        }
+        let total = 12 + 8 + json_bytes.len() + 8 + b.bin.len();
+        let mut out = Vec::with_capacity(total);
+        out.extend_from_slice(b"glTF");
+        out.extend_from_slice(&2u32.to_le_bytes());
+        out.extend_from_slice(&(total as u32).to_le_bytes());
+        out.extend_from_slice(&(json_bytes.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"JSON");
+        out.extend_from_slice(&json_bytes);
+        out.extend_from_slice(&(b.bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(&b.bin);
+        out
+    }
+
+    /// The mesh at rest and its skin weights (each vertex wholly to the joint that owns
+    /// its nearest bone segment); returns the primitive.
+    fn encode_mesh(&self, b: &mut GlbBuffers) -> serde_json::Value {
+        use serde_json::json;
+        let n = self.vertices.len();
+        let (mut lo, mut hi) = (glam::Vec3::ZERO, glam::Vec3::ZERO);
+        for (k, v) in self.vertices.iter().enumerate() {
+            let v = v.as_vec3();
+            (lo, hi) = if k == 0 {
+                (v, v)
+            } else {
+                (lo.min(v), hi.max(v))
+            };
+        }
+        let position = b.add(
+            self.vertices
+                .iter()
+                .flat_map(|v| v.as_vec3().to_array())
+                .flat_map(f32::to_le_bytes)
+                .collect(),
+            json!({"componentType": FLOAT, "count": n, "type": "VEC3", "min": lo.to_array(), "max": hi.to_array()}),
+        );
+        let indices = b.add(
+            self.triangles.iter().flatten().flat_map(|i| i.to_le_bytes()).collect(),
+            json!({"componentType": UNSIGNED_INT, "count": self.triangles.len() * 3, "type": "SCALAR"}),
+        );
+        let segs = crate::rig::bind::segments(&self.skeleton);
+        let owners: Vec<u16> = self
+            .vertices
+            .iter()
+            .map(|&v| {
+                if segs.is_empty() {
+                    0
+                } else {
+                    crate::rig::bind::nearest_owner(&self.skeleton, &segs, v) as u16
+                }
+            })
+            .collect();
+        let joints_0 = b.add(
+            owners
+                .iter()
+                .flat_map(|&o| [o, 0, 0, 0])
+                .flat_map(u16::to_le_bytes)
+                .collect(),
+            json!({"componentType": UNSIGNED_SHORT, "count": n, "type": "VEC4"}),
+        );
+        let weights_0 = b.add(
+            (0..n)
+                .flat_map(|_| [1.0f32, 0.0, 0.0, 0.0])
+                .flat_map(f32::to_le_bytes)
+                .collect(),
+            json!({"componentType": FLOAT, "count": n, "type": "VEC4"}),
+        );
+        json!({"attributes": {"POSITION": position, "JOINTS_0": joints_0, "WEIGHTS_0": weights_0}, "indices": indices})
+    }
+
+    /// A key per frame: every joint's rotation, each root's translation; returns the
+    /// samplers and channels.
+    fn encode_animation(
+        &self,
+        b: &mut GlbBuffers,
+    ) -> (Vec<serde_json::Value>, Vec<serde_json::Value>) {
+        use serde_json::json;
+        let joints = &self.skeleton.joints;
+        let frames = self.rotations.len();
+        let last = (frames.saturating_sub(1) as f64 * self.frame_time_s) as f32;
+        let times = b.add(
+            (0..frames)
+                .map(|f| (f as f64 * self.frame_time_s) as f32)
+                .flat_map(f32::to_le_bytes)
+                .collect(),
+            json!({"componentType": FLOAT, "count": frames, "type": "SCALAR", "min": [0.0], "max": [last]}),
+        );
+        let (mut samplers, mut channels) = (Vec::new(), Vec::new());
+        let mut channel =
+            |b: &mut GlbBuffers, data: Vec<u8>, kind: &str, node: usize, path: &str| {
+                let out = b.add(
+                    data,
+                    json!({"componentType": FLOAT, "count": frames, "type": kind}),
+                );
+                samplers.push(json!({"input": times, "output": out, "interpolation": "LINEAR"}));
+                channels.push(
+                    json!({"sampler": samplers.len() - 1, "target": {"node": node, "path": path}}),
+                );
+            };
+        for j in 0..joints.len() {
+            let data = self
+                .rotations
+                .iter()
+                .flat_map(|f| f[j].as_quat().to_array())
+                .flat_map(f32::to_le_bytes)
+                .collect();
+            channel(b, data, "VEC4", j, "rotation");
+        }
+        let roots = (0..joints.len()).filter(|&j| joints[j].parent.is_none());
+        for (r, j) in roots.enumerate() {
+            let data = self
+                .roots
+                .iter()
+                .flat_map(|f| f[r].as_vec3().to_array())
+                .flat_map(f32::to_le_bytes)
+                .collect();
+            channel(b, data, "VEC3", j, "translation");
+        }
+        (samplers, channels)
+    }
+}
+
+/// glTF component types.
+const FLOAT: u32 = 5126;
+const UNSIGNED_INT: u32 = 5125;
+const UNSIGNED_SHORT: u32 = 5123;
+
+/// A GLB's binary chunk as it is built, with its buffer views and accessors.
+#[derive(Default)]
+struct GlbBuffers {
+    bin: Vec<u8>,
+    views: Vec<serde_json::Value>,
+    accessors: Vec<serde_json::Value>,
+}
+
+impl GlbBuffers {
+    /// Pads the chunk to four bytes.
+    fn pad(&mut self) {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+    }
+
+    /// Appends `data` (four-byte aligned) as a buffer view read by `accessor`; returns
+    /// the accessor's index.
+    fn add(&mut self, data: Vec<u8>, mut accessor: serde_json::Value) -> usize {
+        self.pad();
+        self.views.push(serde_json::json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": data.len()}));
+        self.bin.extend_from_slice(&data);
+        accessor["bufferView"] = serde_json::json!(self.views.len() - 1);
+        self.accessors.push(accessor);
+        self.accessors.len() - 1
     }
 }
 
