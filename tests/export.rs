@@ -3,7 +3,7 @@
 
 use rigless::character::demo::{demo_hand, hand_bind_params};
 use rigless::daemon::offline::{
-    export_take, replay_offline_with, OfflineExportError, OfflineOptions,
+    export_take, replay_offline_with, OfflineExportError, OfflineOptions, OfflineTick,
 };
 use rigless::protocol::pc2::decode;
 use rigless::replay::bundled::bundled;
@@ -13,6 +13,39 @@ use rigless::solve::frame::SolverParams;
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
+/// The procedural hand bound, and its bundled finger play.
+fn hand_and_take() -> (Arc<Rig>, Recording) {
+    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
+    let rec =
+        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    (rig, rec)
+}
+
+/// The solve an export runs (the take's rate, no deadline), showing `each` every take
+/// frame's tick.
+fn solve_each(rig: &Arc<Rig>, rec: &Recording, mut each: impl FnMut(&OfflineTick<'_>)) {
+    let opts = OfflineOptions {
+        rate_hz: rec.rate_hz,
+        deadline: false,
+        ..OfflineOptions::default()
+    };
+    replay_offline_with(
+        Arc::clone(rig),
+        SolverParams::default(),
+        rec,
+        opts,
+        &mut |t| {
+            each(&t);
+            if t.index + 1 >= rec.frames.len() {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )
+    .unwrap();
+}
+
 /// The hand's finger play exported: one sample per take frame, every vertex of the
 /// mesh, each equal (to the bit, after the cast to f32) to the mesh the same off-line
 /// solve produces for that frame; the hand moves (its fingertips a few centimetres over
@@ -20,9 +53,7 @@ use std::sync::Arc;
 /// mean, and held samples count here too).
 #[test]
 fn an_exported_take_reads_back_as_the_solve_made_it() {
-    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
-    let rec =
-        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let (rig, rec) = hand_and_take();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("finger_play.pc2");
     let mut calls = 0;
@@ -44,26 +75,9 @@ fn an_exported_take_reads_back_as_the_solve_made_it() {
 
     // The same solve, its meshes kept.
     let mut meshes: Vec<Vec<[f32; 3]>> = Vec::new();
-    let opts = OfflineOptions {
-        rate_hz: rec.rate_hz,
-        deadline: false,
-        ..OfflineOptions::default()
-    };
-    replay_offline_with(
-        Arc::clone(&rig),
-        SolverParams::default(),
-        &rec,
-        opts,
-        &mut |t| {
-            meshes.push(t.vertices.iter().map(|v| v.as_vec3().to_array()).collect());
-            if meshes.len() == rec.frames.len() {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        },
-    )
-    .unwrap();
+    solve_each(&rig, &rec, |t| {
+        meshes.push(t.vertices.iter().map(|v| v.as_vec3().to_array()).collect())
+    });
 
     let bytes = std::fs::read(&path).unwrap();
     let pc2 = decode(&bytes).unwrap();
@@ -91,9 +105,7 @@ fn an_exported_take_reads_back_as_the_solve_made_it() {
 /// leaves no file.
 #[test]
 fn a_take_without_the_characters_labels_is_refused() {
-    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
-    let mut rec =
-        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let (rig, mut rec) = hand_and_take();
     for l in &mut rec.labels {
         l.insert_str(0, "unknown_");
     }
@@ -120,9 +132,7 @@ fn a_take_without_the_characters_labels_is_refused() {
 #[test]
 fn an_exported_skeleton_reads_back_with_the_characters_bones() {
     use rigless::replay::bvh::{parse_bvh, WRITTEN_METRES_PER_UNIT};
-    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
-    let rec =
-        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let (rig, rec) = hand_and_take();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("finger_play.bvh");
     let summary = export_take(
@@ -138,26 +148,7 @@ fn an_exported_skeleton_reads_back_with_the_characters_bones() {
     assert_eq!(summary.points, sk.joints.len());
 
     let mut postures: Vec<Vec<glam::DVec3>> = Vec::new();
-    let opts = OfflineOptions {
-        rate_hz: rec.rate_hz,
-        deadline: false,
-        ..OfflineOptions::default()
-    };
-    replay_offline_with(
-        Arc::clone(&rig),
-        SolverParams::default(),
-        &rec,
-        opts,
-        &mut |t| {
-            postures.push(t.joint_pos.to_vec());
-            if postures.len() == rec.frames.len() {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        },
-    )
-    .unwrap();
+    solve_each(&rig, &rec, |t| postures.push(t.joint_pos.to_vec()));
 
     let text = std::fs::read_to_string(&path).unwrap();
     let bvh = parse_bvh(&text, WRITTEN_METRES_PER_UNIT).unwrap();
@@ -201,9 +192,7 @@ fn an_exported_skeleton_reads_back_with_the_characters_bones() {
 /// root, and the root's keys where the solve put it (to f32 precision).
 #[test]
 fn an_exported_glb_loads_with_the_skeleton_and_the_take() {
-    let rig = Arc::new(Rig::bind(&demo_hand(), &hand_bind_params()).unwrap());
-    let rec =
-        Recording::from_c3d("hand_finger_play", bundled("hand_finger_play").unwrap()).unwrap();
+    let (rig, rec) = hand_and_take();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("finger_play.glb");
     export_take(
@@ -216,26 +205,7 @@ fn an_exported_glb_loads_with_the_skeleton_and_the_take() {
     )
     .unwrap();
     let mut roots: Vec<glam::DVec3> = Vec::new();
-    let opts = OfflineOptions {
-        rate_hz: rec.rate_hz,
-        deadline: false,
-        ..OfflineOptions::default()
-    };
-    replay_offline_with(
-        Arc::clone(&rig),
-        SolverParams::default(),
-        &rec,
-        opts,
-        &mut |t| {
-            roots.push(t.joint_pos[0]);
-            if roots.len() == rec.frames.len() {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        },
-    )
-    .unwrap();
+    solve_each(&rig, &rec, |t| roots.push(t.joint_pos[0]));
 
     let (doc, buffers, _) = gltf::import(&path).unwrap();
     let joints = rig.skeleton.joints.len();

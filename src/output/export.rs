@@ -27,8 +27,8 @@ pub enum ExportError {
     #[error("{path}: {written} frames written, the header promised {samples}")]
     Frames {
         path: String,
-        written: u32,
-        samples: u32,
+        written: usize,
+        samples: usize,
     },
     #[error("{path}: {count} {what} do not fit a PC2 file (at most {max})", max = i32::MAX)]
     TooMany {
@@ -38,13 +38,74 @@ pub enum ExportError {
     },
 }
 
-/// Writes a PC2 file frame by frame (the frame count is known before the first).
-pub struct Pc2Writer {
+/// A file of a header and a known number of frames, written frame by frame: what the
+/// PC2 and BVH writers share.
+struct FramedFile {
     out: std::io::BufWriter<std::fs::File>,
     path: PathBuf,
+    frames: usize,
+    written: usize,
+}
+
+impl FramedFile {
+    /// Creates `path` (replacing it) and writes `header`.
+    fn create(path: &Path, header: &[u8], frames: usize) -> Result<Self, ExportError> {
+        let mut f = Self {
+            out: std::io::BufWriter::new(
+                std::fs::File::create(path).map_err(|source| io_error(path, source))?,
+            ),
+            path: path.to_owned(),
+            frames,
+            written: 0,
+        };
+        f.out
+            .write_all(header)
+            .map_err(|source| io_error(path, source))?;
+        Ok(f)
+    }
+
+    /// Writes one frame's bytes; an error past the promised count.
+    fn write_frame(&mut self, bytes: &[u8]) -> Result<(), ExportError> {
+        if self.written >= self.frames {
+            return Err(self.frames_error(self.written + 1));
+        }
+        self.out
+            .write_all(bytes)
+            .map_err(|source| io_error(&self.path, source))?;
+        self.written += 1;
+        Ok(())
+    }
+
+    /// Flushes the file; an error unless every promised frame was written.
+    fn finish(mut self) -> Result<(), ExportError> {
+        if self.written != self.frames {
+            return Err(self.frames_error(self.written));
+        }
+        self.out
+            .flush()
+            .map_err(|source| io_error(&self.path, source))
+    }
+
+    fn frames_error(&self, written: usize) -> ExportError {
+        ExportError::Frames {
+            path: self.path.display().to_string(),
+            written,
+            samples: self.frames,
+        }
+    }
+}
+
+fn io_error(path: &Path, source: std::io::Error) -> ExportError {
+    ExportError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Writes a PC2 file frame by frame (the frame count is known before the first).
+pub struct Pc2Writer {
+    file: FramedFile,
     points: usize,
-    samples: u32,
-    written: u32,
     /// One frame's bytes, reused.
     buf: Vec<u8>,
 }
@@ -53,17 +114,15 @@ impl Pc2Writer {
     /// A cache of `samples` frames of `points` points at `path` (replaced if it exists),
     /// its first frame at frame 0, a sample per frame.
     pub fn create(path: &Path, points: usize, samples: usize) -> Result<Self, ExportError> {
-        let shown = || path.display().to_string();
         let fits = |what, count: usize| {
-            if count > i32::MAX as usize {
-                Err(ExportError::TooMany {
-                    path: shown(),
+            u32::try_from(count)
+                .ok()
+                .filter(|&c| c <= i32::MAX as u32)
+                .ok_or_else(|| ExportError::TooMany {
+                    path: path.display().to_string(),
                     what,
                     count,
                 })
-            } else {
-                Ok(count as u32)
-            }
         };
         let header = Pc2Header {
             points: fits("points", points)?,
@@ -71,19 +130,9 @@ impl Pc2Writer {
             sample_rate: 1.0,
             samples: fits("frames", samples)?,
         };
-        let io = |source| ExportError::Io {
-            path: shown(),
-            source,
-        };
-        let file = std::fs::File::create(path).map_err(io)?;
-        let mut out = std::io::BufWriter::new(file);
-        out.write_all(&encode_header(&header)).map_err(io)?;
         Ok(Self {
-            out,
-            path: path.to_owned(),
+            file: FramedFile::create(path, &encode_header(&header), samples)?,
             points,
-            samples: header.samples,
-            written: 0,
             buf: Vec::with_capacity(points * 12),
         })
     }
@@ -92,46 +141,22 @@ impl Pc2Writer {
     pub fn push(&mut self, vertices: &[DVec3]) -> Result<(), ExportError> {
         if vertices.len() != self.points {
             return Err(ExportError::Points {
-                path: self.path.display().to_string(),
+                path: self.file.path.display().to_string(),
                 got: vertices.len(),
                 points: self.points,
             });
-        }
-        if self.written >= self.samples {
-            return Err(self.frames_error(self.written + 1));
         }
         self.buf.clear();
         encode_frame(
             vertices.iter().map(|v| v.as_vec3().to_array()),
             &mut self.buf,
         );
-        self.out
-            .write_all(&self.buf)
-            .map_err(|source| ExportError::Io {
-                path: self.path.display().to_string(),
-                source,
-            })?;
-        self.written += 1;
-        Ok(())
+        self.file.write_frame(&self.buf)
     }
 
     /// Flushes the file; an error unless every promised frame was written.
-    pub fn finish(mut self) -> Result<(), ExportError> {
-        if self.written != self.samples {
-            return Err(self.frames_error(self.written));
-        }
-        self.out.flush().map_err(|source| ExportError::Io {
-            path: self.path.display().to_string(),
-            source,
-        })
-    }
-
-    fn frames_error(&self, written: u32) -> ExportError {
-        ExportError::Frames {
-            path: self.path.display().to_string(),
-            written,
-            samples: self.samples,
-        }
+    pub fn finish(self) -> Result<(), ExportError> {
+        self.file.finish()
     }
 }
 
@@ -165,13 +190,10 @@ impl ExportFormat {
 /// Writes a BVH file frame by frame (the frame count is known before the first): the
 /// skeleton at rest as its hierarchy, each frame's posture as a motion line.
 pub struct BvhWriter {
-    out: std::io::BufWriter<std::fs::File>,
-    path: PathBuf,
+    file: FramedFile,
     names: Vec<String>,
     parents: Vec<Option<usize>>,
     rest: Vec<DVec3>,
-    frames: usize,
-    written: usize,
     /// One motion line, reused.
     line: String,
 }
@@ -185,35 +207,18 @@ impl BvhWriter {
         frames: usize,
         frame_time_s: f64,
     ) -> Result<Self, ExportError> {
-        let io = |source| ExportError::Io {
-            path: path.display().to_string(),
-            source,
-        };
-        let file = std::fs::File::create(path).map_err(io)?;
-        let mut out = std::io::BufWriter::new(file);
         let header = crate::replay::bvh::encode_header(skeleton, frames, frame_time_s);
-        out.write_all(header.as_bytes()).map_err(io)?;
         Ok(Self {
-            out,
-            path: path.to_owned(),
+            file: FramedFile::create(path, header.as_bytes(), frames)?,
             names: skeleton.names.to_vec(),
             parents: skeleton.parents.to_vec(),
             rest: skeleton.rest.to_vec(),
-            frames,
-            written: 0,
             line: String::new(),
         })
     }
 
     /// Appends a frame: every joint's world rotation from rest and world position.
     pub fn push(&mut self, world_rot: &[DQuat], world_pos: &[DVec3]) -> Result<(), ExportError> {
-        if self.written >= self.frames {
-            return Err(ExportError::Frames {
-                path: self.path.display().to_string(),
-                written: (self.written + 1) as u32,
-                samples: self.frames as u32,
-            });
-        }
         self.line.clear();
         let sk = BvhSkeleton {
             names: &self.names,
@@ -221,29 +226,12 @@ impl BvhWriter {
             rest: &self.rest,
         };
         crate::replay::bvh::encode_frame(&sk, world_rot, world_pos, &mut self.line);
-        self.out
-            .write_all(self.line.as_bytes())
-            .map_err(|source| ExportError::Io {
-                path: self.path.display().to_string(),
-                source,
-            })?;
-        self.written += 1;
-        Ok(())
+        self.file.write_frame(self.line.as_bytes())
     }
 
     /// Flushes the file; an error unless every promised frame was written.
-    pub fn finish(mut self) -> Result<(), ExportError> {
-        if self.written != self.frames {
-            return Err(ExportError::Frames {
-                path: self.path.display().to_string(),
-                written: self.written as u32,
-                samples: self.frames as u32,
-            });
-        }
-        self.out.flush().map_err(|source| ExportError::Io {
-            path: self.path.display().to_string(),
-            source,
-        })
+    pub fn finish(self) -> Result<(), ExportError> {
+        self.file.finish()
     }
 }
 
@@ -312,10 +300,7 @@ impl GlbWriter {
     /// Writes the file.
     pub fn finish(self) -> Result<(), ExportError> {
         let bytes = self.encode();
-        std::fs::write(&self.path, bytes).map_err(|source| ExportError::Io {
-            path: self.path.display().to_string(),
-            source,
-        })
+        std::fs::write(&self.path, bytes).map_err(|source| io_error(&self.path, source))
     }
 
     /// The GLB bytes (glTF 2.0: a JSON chunk, then a BIN chunk).
