@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference client for the rigless vertex stream, versions 1 and 2 (protocols/vertex-stream.md).
+"""Reference client for the rigless vertex stream, versions 1 to 3 (protocols/vertex-stream.md).
 
 Standard library only. Connects over TCP, reads the topology and then frames, and prints
 what it got: one JSON line per frame with --frames-json, and a JSON summary at the end.
@@ -15,7 +15,7 @@ import struct
 import sys
 
 MAGIC = b"RGLS"
-VERSIONS = (1, 2)
+VERSIONS = (1, 2, 3)
 HEADER = struct.Struct("<4sHHI")
 MAX_PAYLOAD_LEN = 64 << 20
 KIND_TOPOLOGY, KIND_FRAME, KIND_GOODBYE = 1, 2, 3
@@ -87,7 +87,7 @@ def decode_topology(p, version):
     return t
 
 
-def decode_frame(p):
+def decode_frame(p, version):
     r = Reader(p, "frame")
     frame, source_time_s, publish_time_s = r.unpack("Qdd")
     iterations, stop, _pad = r.unpack("HBB")
@@ -106,11 +106,18 @@ def decode_frame(p):
     markers = r.unpack(f"{3 * nm}f") if nm else ()
     nv = r.count(12)
     vertices = r.unpack(f"{3 * nv}f") if nv else ()
+    received_time_s, joints = 0.0, ()
+    if version >= 3:
+        (received_time_s,) = r.unpack("d")
+        nj = r.count(12)
+        joints = r.unpack(f"{3 * nj}f") if nj else ()
     r.end()
     return {"frame": frame, "source_time_s": source_time_s, "publish_time_s": publish_time_s,
+            "received_time_s": received_time_s,
             "status": status, "marker_states": [FILL_STATES[c] for c in codes],
             "markers_m": [markers[i:i + 3] for i in range(0, len(markers), 3)],
-            "vertices_m": vertices}
+            "vertices_m": vertices,
+            "joints_m": [joints[i:i + 3] for i in range(0, len(joints), 3)]}
 
 
 def read_exact(sock, n):
@@ -155,7 +162,8 @@ def main():
                "frame_numbers_increasing": True, "skipped": 0, "goodbye": None,
                "all_finite": True, "bbox_min": [math.inf] * 3, "bbox_max": [-math.inf] * 3,
                "fill_counts": {s: 0 for s in FILL_STATES}, "stops": {s: 0 for s in STOP_CODES},
-               "vertex_count_matches": True, "marker_count_matches": True}
+               "vertex_count_matches": True, "marker_count_matches": True,
+               "joint_count_matches": True}
     while True:
         m = read_message(sock)
         if m is None:
@@ -169,7 +177,7 @@ def main():
         elif kind == KIND_FRAME:
             if summary["topology"] is None:
                 raise ProtocolError("frame before topology")
-            f = decode_frame(p)
+            f = decode_frame(p, version)
             last = summary["last_frame"]
             if last is not None:
                 if f["frame"] <= last:
@@ -182,6 +190,8 @@ def main():
             v = f["vertices_m"]
             if len(v) != 3 * summary["topology"]["vertex_count"]:
                 summary["vertex_count_matches"] = False
+            if version >= 3 and len(f["joints_m"]) != summary["topology"]["joint_names"]:
+                summary["joint_count_matches"] = False
             if len(f["marker_states"]) != len(summary["topology"]["marker_names"]):
                 summary["marker_count_matches"] = False
             if not all(math.isfinite(x) for x in v):
@@ -196,7 +206,7 @@ def main():
             summary["stops"][f["status"]["stop"]] += 1
             if args.frames_json:
                 print(json.dumps({k: f[k] for k in ("frame", "source_time_s", "publish_time_s",
-                                                    "status", "marker_states")}))
+                                                    "received_time_s", "status", "marker_states")}))
             if args.frames and summary["frames"] >= args.frames:
                 break
         elif kind == KIND_GOODBYE:

@@ -133,6 +133,8 @@ fn packets() -> Vec<(&'static str, Vec<u8>)> {
             marker_states: &[0, 1],
             markers_m: &markers,
             vertices_m: &vertices,
+            received_time_s: 1.5,
+            joints_m: &[Vec3::Y],
         },
         &mut stream,
     );

@@ -148,6 +148,21 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
                 f.vertices_m == expected,
                 "{name}: frame {i} vertices differ"
             );
+            // Version 3: the fitted joints, and when the newest sample came in (this
+            // tick's own samples, stamped `t`, published at `1e9 + t` less the tick's
+            // own duration: under 0.5 s unless the machine stalls).
+            let joints: Vec<glam::Vec3> = pipeline
+                .joint_world()
+                .1
+                .iter()
+                .map(|p| p.as_vec3())
+                .collect();
+            assert!(f.joints_m == joints && !joints.is_empty(), "{name}: joints");
+            let age_s = f.publish_time_s - f.received_time_s;
+            assert!(
+                (0.0..0.5).contains(&age_s),
+                "{name}: frame {i} sample age {age_s} s"
+            );
         }
     }
     // The quitter's socket errors on a write after it hung up: three clients remain.
@@ -200,6 +215,8 @@ fn clients_over_max_clients_are_told_the_server_is_full() {
             tcp: Some(loopback),
             websocket: Some(loopback),
             max_clients: 4,
+            viewer: true,
+            websocket_any_port_if_taken: false,
         },
         &common::tiny_topology(),
         Arc::clone(&slot),
@@ -256,4 +273,67 @@ fn clients_over_max_clients_are_told_the_server_is_full() {
     assert_eq!(stats.refused.load(Ordering::Relaxed), 2);
     assert_eq!(stats.accept_errors.load(Ordering::Relaxed), 0);
     server.shutdown("test over");
+}
+
+/// The WebSocket port serves the browser viewer's page to a plain HTTP request, beside a
+/// WebSocket client, without counting it as a client; with `viewer = false` the page is
+/// not found, and the stream still works.
+#[test]
+fn the_websocket_port_serves_the_viewer_page() {
+    use std::io::Write;
+    for viewer in [true, false] {
+        let loopback = "127.0.0.1:0".parse().unwrap();
+        let slot = Arc::new(LatestSlot::new());
+        let server = StreamServer::start(
+            &StreamOutputConfig {
+                tcp: None,
+                websocket: Some(loopback),
+                viewer,
+                ..StreamOutputConfig::default()
+            },
+            &common::tiny_topology(),
+            Arc::clone(&slot),
+        )
+        .unwrap();
+        let addr = server.ws_addr().unwrap();
+        let mut ws = ws_client(addr);
+        assert!(matches!(ws_message(&mut ws), Some(Message::Topology(_))));
+        let get = |path: &str| {
+            let mut s = TcpStream::connect(addr).unwrap();
+            s.set_read_timeout(Some(TIMEOUT)).unwrap();
+            write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+            let mut reply = Vec::new();
+            s.read_to_end(&mut reply).unwrap();
+            String::from_utf8(reply).unwrap()
+        };
+        let page = get("/");
+        let js = get("/viewer.js");
+        if viewer {
+            assert!(page.starts_with("HTTP/1.1 200 OK\r\n"), "{page}");
+            assert!(page.ends_with(rigless::output::viewer::INDEX_HTML));
+            assert!(js.ends_with(rigless::output::viewer::VIEWER_JS));
+        } else {
+            assert!(
+                page.starts_with("HTTP/1.1 404") && js.starts_with("HTTP/1.1 404"),
+                "{page}"
+            );
+        }
+        let stats = server.stats();
+        // Counted once the reply is out: the client may see it first.
+        let start = Instant::now();
+        while stats.pages_served.load(Ordering::Relaxed) < 2 {
+            assert!(start.elapsed() < TIMEOUT, "pages not counted");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(
+            stats.connections.load(Ordering::Relaxed),
+            1,
+            "only the WebSocket client"
+        );
+        server.shutdown("test over");
+        assert_eq!(
+            ws_message(&mut ws),
+            Some(Message::Goodbye("test over".into()))
+        );
+    }
 }

@@ -185,6 +185,8 @@ fn start(max_clients: usize, slot: &Arc<LatestSlot<DeformedFrame>>) -> StreamSer
             tcp: Some(loopback),
             websocket: Some(loopback),
             max_clients,
+            viewer: true,
+            websocket_any_port_if_taken: false,
         },
         &common::tiny_topology(),
         Arc::clone(slot),

@@ -37,7 +37,7 @@
 //! lattice; every file vertex gets its own Green coordinates.
 
 use super::bind_params::BindParams;
-use super::cell_size::{default_cell_size, CellChoice};
+use super::cell_size::{default_cell_size, CellChoice, Figure};
 use super::mesh::{
     parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError, MAX_SKIN_JOINTS,
 };
@@ -508,6 +508,7 @@ impl LoadedCharacter {
                 &ch.triangles,
                 &ch.skeleton,
                 markers,
+                Figure::of(&self.joint_roles),
                 extent(&ch.vertices).max_element(),
             );
             b.cell_size_m = c.cell_size_m;
@@ -731,6 +732,7 @@ pub fn build(
             &mesh.triangles,
             sk,
             &markers,
+            Figure::of(&joint_roles),
             size_m,
         )),
         _ => None,

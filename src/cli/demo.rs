@@ -1,7 +1,7 @@
 //! `rigless demo`: a bundled session of a procedural character played live through the
 //! whole pipeline (the embedded default stage, with the flags applied).
 
-use super::{check_seconds, run_stage, LiveOptions};
+use super::{check_seconds, run_stage, LiveOptions, ViewerFlag};
 use anyhow::Result;
 use clap::ValueEnum;
 use rigless::output::rerun_sink::RerunTarget;
@@ -27,9 +27,11 @@ pub struct DemoArgs {
     /// Where the vertex stream listens (TCP; port 0 picks a free port).
     #[arg(long, default_value = "127.0.0.1:7878")]
     stream: SocketAddr,
-    /// Also serve the vertex stream over WebSocket here (e.g. 127.0.0.1:7879).
-    #[arg(long)]
-    websocket: Option<SocketAddr>,
+    /// The browser viewer: serve its page and the WebSocket stream at this address, or
+    /// `off` (default: 127.0.0.1:7879, or
+    /// a free port when that one is taken; the address is printed).
+    #[arg(long, value_name = "ADDR|off")]
+    viewer: Option<ViewerFlag>,
     /// Rerun: off, spawn (a viewer; without one on PATH, save rigless-CHARACTER.rrd and
     /// print how to open it), connect=HOST:PORT (a running viewer, gRPC port 9876 by
     /// default) or save=PATH.rrd.
@@ -62,12 +64,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
         (DemoCharacter::Body, DemoMotion::Reach) => ("body", "body_reach"),
         (DemoCharacter::Body, DemoMotion::Rom) => ("body", "body_rom"),
     };
-    let ws_line = a
-        .websocket
-        .map_or(String::new(), |w| format!("websocket = \"{w}\"\n"));
     // The embedded default stage, with the flags applied; validated like a file.
     let text = format!(
-        "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"{session}\"\nspeed = {:?}\nloop = {}\n\n[outputs.stream]\ntcp = \"{}\"\n{ws_line}",
+        "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"{session}\"\nspeed = {:?}\nloop = {}\n\n[outputs.stream]\ntcp = \"{}\"\n",
         a.speed, a.looping, a.stream
     );
     let cfg = rigless::config::parse_stage(&text, "demo flags")?;
@@ -78,6 +77,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             seconds: a.seconds,
             json: a.json,
             rerun: a.rerun,
+            viewer: a.viewer,
         },
     )
 }

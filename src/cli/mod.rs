@@ -21,6 +21,7 @@ use rigless::output::rerun_sink::RerunTarget;
 use rigless::rig::bind::BindStage;
 use rigless::runtime::clock::SystemClock;
 use std::io::{IsTerminal, Write};
+use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -137,11 +138,60 @@ pub struct LiveOptions {
     pub json: bool,
     /// Overrides `[outputs.rerun] target`.
     pub rerun: Option<RerunTarget>,
+    /// `--viewer`: where the browser viewer is served, or off.
+    pub viewer: Option<ViewerFlag>,
+}
+
+/// `--viewer ADDR|off`: the browser viewer's address (the vertex stream's WebSocket
+/// port, which serves the page too), or no viewer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewerFlag {
+    Off,
+    At(SocketAddr),
+}
+
+impl std::str::FromStr for ViewerFlag {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "off" => Ok(ViewerFlag::Off),
+            a => a.parse().map(ViewerFlag::At).map_err(|e| {
+                format!("{a:?} is neither `off` nor an address such as 127.0.0.1:7879 ({e})")
+            }),
+        }
+    }
+}
+
+/// Where the viewer is served when no flag and no `[outputs.stream] websocket` says.
+pub const DEFAULT_VIEWER_ADDR: SocketAddr =
+    SocketAddr::new(std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST), 7879);
+
+/// Applies `--viewer` to the stage's stream: an address opens the WebSocket there with
+/// the page; `off` serves no page (a configured WebSocket stays); no flag serves the page
+/// on the configured WebSocket, else on [`DEFAULT_VIEWER_ADDR`] (a free port when
+/// another program holds that one, so that two daemons on one machine both start).
+fn apply_viewer(
+    stream: &mut rigless::output::config::StreamOutputConfig,
+    flag: Option<ViewerFlag>,
+) {
+    match flag {
+        Some(ViewerFlag::Off) => stream.viewer = false,
+        Some(ViewerFlag::At(a)) => {
+            stream.websocket = Some(a);
+            stream.viewer = true;
+        }
+        None if stream.viewer && stream.websocket.is_none() => {
+            stream.websocket = Some(DEFAULT_VIEWER_ADDR);
+            stream.websocket_any_port_if_taken = true;
+        }
+        None => {}
+    }
 }
 
 /// Runs a stage on the system clock until it ends, `--seconds` pass or Ctrl-C: prints
 /// what was started, a status line every second and the summary.
-pub fn run_stage(cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Result<()> {
+pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Result<()> {
+    apply_viewer(&mut cfg.outputs.stream, opts.viewer);
     // `--rerun save=PATH` is relative to where the command runs, not to the stage.
     let rerun = opts.rerun.clone().map(|t| match t {
         RerunTarget::Save(p) => RerunTarget::Save(std::path::absolute(&p).unwrap_or(p)),
@@ -176,7 +226,7 @@ pub fn run_stage(cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Resul
     // Until here Ctrl-C ends the process (binding can be long); from here it stops the
     // stage in order.
     let interrupted = ctrl_c_flag()?;
-    print_started(&stage, opts.json);
+    print_started(&stage, cfg.outputs.stream.viewer, opts.json);
     let tty = std::io::stdout().is_terminal() && !opts.json;
     while !stage.is_finished() {
         std::thread::sleep(Duration::from_millis(50));
@@ -196,7 +246,7 @@ pub fn run_stage(cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> Resul
 
 /// What was started. Tests and scripts read the `... listening on` lines for the ports
 /// (printed with `--json` too); the Rerun note goes to stderr either way.
-fn print_started(stage: &Stage, json: bool) {
+fn print_started(stage: &Stage, viewer: bool, json: bool) {
     let i = stage.info();
     if let Some(note) = &i.rerun_note {
         eprintln!("{note}");
@@ -206,6 +256,9 @@ fn print_started(stage: &Stage, json: bool) {
     }
     if let Some(a) = i.stream_ws {
         println!("vertex stream listening on ws://{a}");
+        if viewer {
+            println!("viewer: open http://{a}/ in a browser");
+        }
     }
     // With --json, only the network inputs' lines (a recording's is for people).
     let network = |kind: &str| !matches!(kind, "replay" | "synthetic");

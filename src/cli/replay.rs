@@ -1,7 +1,7 @@
 //! `rigless replay FILE --to URL` (a recording sent as live traffic) and `rigless replay
 //! FILE --solve CHARACTER` (a recording driving a character through a stage).
 
-use super::{ctrl_c_flag, run_stage, LiveOptions};
+use super::{ctrl_c_flag, run_stage, LiveOptions, ViewerFlag};
 use anyhow::{bail, Context, Result};
 use rigless::daemon::offline::export_take;
 use rigless::output::rerun_sink::RerunTarget;
@@ -43,6 +43,11 @@ pub struct ReplayArgs {
         requires = "solve"
     )]
     rerun: Option<RerunTarget>,
+    /// With --solve: the browser viewer: serve its page and the WebSocket stream at this
+    /// address, or `off` (default: 127.0.0.1:7879, or a free port when that one is
+    /// taken; the address is printed).
+    #[arg(long, value_name = "ADDR|off", requires = "solve")]
+    viewer: Option<ViewerFlag>,
     /// Playback speed (1 = the file's timing).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
@@ -151,6 +156,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
                 seconds: a.end.map(|e| e / a.speed),
                 json: a.json,
                 rerun: a.rerun,
+                viewer: a.viewer,
             },
         );
     }

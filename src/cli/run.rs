@@ -1,6 +1,6 @@
 //! `rigless run --config stage.toml`: the live daemon from a stage config.
 
-use super::{check_seconds, run_stage, LiveOptions};
+use super::{check_seconds, run_stage, LiveOptions, ViewerFlag};
 use anyhow::Result;
 use rigless::output::rerun_sink::RerunTarget;
 use std::path::PathBuf;
@@ -25,6 +25,11 @@ pub struct RunArgs {
     /// default) or save=PATH.rrd. Overrides the stage's [outputs.rerun].
     #[arg(long, value_name = "off|spawn|connect=ADDR|save=PATH")]
     rerun: Option<RerunTarget>,
+    /// The browser viewer: serve its page and the WebSocket stream at this address, or
+    /// `off` (default: the stage's `[outputs.stream] websocket`, else 127.0.0.1:7879, or
+    /// a free port when that one is taken; the address is printed).
+    #[arg(long, value_name = "ADDR|off")]
+    viewer: Option<ViewerFlag>,
     /// Print the status and the summary as JSON lines instead of text.
     #[arg(long)]
     json: bool,
@@ -49,6 +54,7 @@ pub fn run(a: RunArgs) -> Result<()> {
             seconds: a.seconds,
             json: a.json,
             rerun: a.rerun,
+            viewer: a.viewer,
         },
     )
 }

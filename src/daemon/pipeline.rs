@@ -254,6 +254,14 @@ impl Pipeline {
             f.frame = self.frame_no;
             f.source_time_s = self.markers.source_time_s;
             f.publish_time_s = unix_now();
+            // The newest sample's age on the daemon's clock, to the publish time's clock:
+            // the tick started at `t_s`, `start` on the monotonic clock.
+            let age_s = t_s - self.markers.received_at_s + start.elapsed().as_secs_f64();
+            f.received_time_s = if age_s.is_finite() {
+                f.publish_time_s - age_s
+            } else {
+                0.0
+            };
             let s = &mut f.status;
             s.iterations = solve.iterations.min(u16::MAX as usize) as u16;
             s.stop = match solve.stop {

@@ -304,6 +304,8 @@ pub struct MarkerBuffer {
     /// sample with a far-future time pin every later frame's.
     source_time_s: f64,
     source_at_s: f64,
+    /// The receive time of the newest sample taken, daemon clock (−∞: none yet).
+    received_at_s: f64,
     /// Confidence of each marker in the last frame (1 measured, decay factor predicted,
     /// 1 rigid-filled, 0 held).
     confidence: Vec<f64>,
@@ -356,6 +358,7 @@ impl MarkerBuffer {
             names: Vec::new(),
             source_time_s: 0.0,
             source_at_s: f64::NEG_INFINITY,
+            received_at_s: f64::NEG_INFINITY,
             confidence: vec![0.0; n],
             scratch_ref: Vec::with_capacity(widest),
             scratch_cur: Vec::with_capacity(widest),
@@ -404,6 +407,7 @@ impl MarkerBuffer {
             self.counters.invalid += 1;
             return;
         }
+        self.received_at_s = self.received_at_s.max(s.time_s);
         if s.source_time_s.is_finite() && s.time_s >= self.source_at_s {
             self.source_time_s = s.source_time_s;
             self.source_at_s = s.time_s;
@@ -509,6 +513,7 @@ impl MarkerBuffer {
         out.positions.resize(n, DVec3::ZERO);
         out.states.resize(n, FillState::Held);
         out.source_time_s = self.source_time_s;
+        out.received_at_s = self.received_at_s;
         let cfg = &self.cfg;
         // Measured markers first: the rigid fill needs them.
         for (k, tr) in self.tracks.iter().enumerate() {

@@ -70,6 +70,9 @@ pub struct MarkerSample {
 pub struct MarkerFrame {
     /// Source timestamp in seconds (device time when the protocol has one).
     pub source_time_s: f64,
+    /// When the newest sample reached the daemon, seconds on the daemon's clock
+    /// (−∞: none yet).
+    pub received_at_s: f64,
     /// Position per marker (for `Held` markers: the last known one, for display only).
     pub positions: Vec<DVec3>,
     /// How each position was obtained.
@@ -82,6 +85,7 @@ impl MarkerFrame {
         let states = vec![FillState::Measured; positions.len()];
         Self {
             source_time_s,
+            received_at_s: f64::NEG_INFINITY,
             positions,
             states,
         }
@@ -91,6 +95,7 @@ impl MarkerFrame {
     pub fn empty(n: usize) -> Self {
         Self {
             source_time_s: 0.0,
+            received_at_s: f64::NEG_INFINITY,
             positions: vec![DVec3::ZERO; n],
             states: vec![FillState::Held; n],
         }

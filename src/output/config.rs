@@ -61,8 +61,17 @@ pub struct StreamOutputConfig {
     /// TCP address to listen on (port 0: any free port); loopback by default.
     pub tcp: Option<SocketAddr>,
     /// WebSocket address to listen on (same messages, one binary WebSocket message
-    /// each); off unless set.
+    /// each); off unless set (`rigless run`, `demo` and `replay --solve` open it at
+    /// 127.0.0.1:7879 for the browser viewer unless told `--viewer off`).
     pub websocket: Option<SocketAddr>,
+    /// Serve the browser viewer's page on the WebSocket port: a request there that is
+    /// not a WebSocket upgrade gets the page (`src/output/viewer.rs`).
+    pub viewer: bool,
+    /// When the WebSocket address is taken, listen on a free port of the same host
+    /// instead of failing. Not read from files: the command line's default viewer
+    /// address sets it, so that two daemons on one machine both start.
+    #[serde(skip)]
+    pub websocket_any_port_if_taken: bool,
     /// Most clients served at once, over TCP and WebSocket together (a connection still
     /// in its WebSocket handshake counts); the next one is sent a goodbye saying the
     /// server is full, and closed.
@@ -77,6 +86,8 @@ impl Default for StreamOutputConfig {
         Self {
             tcp: Some(SocketAddr::from(([127, 0, 0, 1], 7878))),
             websocket: None,
+            viewer: true,
+            websocket_any_port_if_taken: false,
             max_clients: DEFAULT_MAX_CLIENTS,
         }
     }

@@ -14,6 +14,9 @@ pub struct DeformedFrame {
     pub frame: u64,
     /// The markers' source time, seconds.
     pub source_time_s: f64,
+    /// When the newest marker sample this frame used reached the daemon, seconds since
+    /// the Unix epoch (0: none yet).
+    pub received_time_s: f64,
     /// When the frame was published, seconds since the Unix epoch.
     pub publish_time_s: f64,
     pub status: FrameStatus,
@@ -47,6 +50,7 @@ impl DeformedFrame {
         Self {
             frame: 0,
             source_time_s: 0.0,
+            received_time_s: 0.0,
             publish_time_s: 0.0,
             status: FrameStatus::ZERO,
             marker_states: vec![FillState::Held; markers],
@@ -71,6 +75,8 @@ impl DeformedFrame {
             marker_states: fill_codes(&self.marker_states),
             markers_m: &self.markers_m,
             vertices_m: &self.vertices_m,
+            received_time_s: self.received_time_s,
+            joints_m: &self.joints_m,
         }
     }
 }

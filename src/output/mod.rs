@@ -1,7 +1,7 @@
 //! Sinks that read published frames: the in-process frame itself ([`frame`]), what
 //! every sink knows of the character ([`scene`]), the vertex stream server and the Rerun
-//! recording, files of a solved take ([`export`]), and their config sections
-//! ([`config`]).
+//! recording, the browser viewer served on the stream's WebSocket port ([`viewer`]),
+//! files of a solved take ([`export`]), and their config sections ([`config`]).
 
 pub mod config;
 pub mod export;
@@ -9,3 +9,4 @@ pub mod frame;
 pub mod rerun_sink;
 pub mod scene;
 pub mod stream;
+pub mod viewer;

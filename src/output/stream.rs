@@ -1,7 +1,9 @@
 //! The vertex stream server, over TCP and over WebSocket (each on its own port): each
 //! client gets the topology, then every solved frame in the format of
 //! `protocols/vertex-stream.md`, and a goodbye at shutdown. Over WebSocket every message
-//! is one binary WebSocket message holding exactly the same bytes.
+//! is one binary WebSocket message holding exactly the same bytes. The WebSocket port
+//! also serves the browser viewer's page ([`super::viewer`]): a request there that does
+//! not ask for an upgrade gets the page and is closed, and does not count as a client.
 //!
 //! Runs on its own thread with a single-threaded tokio runtime. The solver publishes into
 //! a [`LatestSlot`]; a dispatcher task encodes each frame once and puts the bytes into a
@@ -17,17 +19,20 @@
 
 use super::config::StreamOutputConfig;
 use super::frame::DeformedFrame;
+use super::viewer::{bad_request, head_end, parse_head, respond, MAX_HEAD_BYTES};
 use crate::protocol::vertex_stream::{encode_frame, encode_goodbye, encode_topology, Topology};
 use crate::runtime::said::Throttle;
 use crate::runtime::slot::LatestSlot;
 use futures_util::SinkExt;
 use std::io;
 use std::net::SocketAddr;
+use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::thread::JoinHandle;
 use std::time::Duration;
-use tokio::io::AsyncWriteExt;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinSet;
@@ -69,8 +74,12 @@ pub struct StreamStats {
     /// Clients dropped on a write error or timeout (a client that hangs up is noticed
     /// at the next write, so it counts here too).
     pub write_errors: AtomicU64,
-    /// WebSocket connections whose handshake failed or timed out.
+    /// WebSocket connections whose handshake failed or timed out (a request head that
+    /// does not parse included).
     pub handshake_errors: AtomicU64,
+    /// Requests on the WebSocket port answered with the viewer's page (or a 404); they
+    /// are not counted in `connections`.
+    pub pages_served: AtomicU64,
 }
 
 /// A frame encoded once for every client: its number and its message bytes.
@@ -100,6 +109,7 @@ impl StreamServer {
         slot: Arc<LatestSlot<DeformedFrame>>,
     ) -> io::Result<Self> {
         let (tcp, ws, max_clients) = (cfg.tcp, cfg.websocket, cfg.max_clients.max(1));
+        let viewer = cfg.viewer;
         let bind = |a: Option<SocketAddr>| -> io::Result<Option<std::net::TcpListener>> {
             a.map(|a| {
                 let l = std::net::TcpListener::bind(a)?;
@@ -108,7 +118,15 @@ impl StreamServer {
             })
             .transpose()
         };
-        let (tcp_l, ws_l) = (bind(tcp)?, bind(ws)?);
+        let ws_l = match bind(ws) {
+            Err(e) if e.kind() == io::ErrorKind::AddrInUse && cfg.websocket_any_port_if_taken => {
+                let taken = ws.expect("a WebSocket address was bound");
+                tracing::info!("{taken} is taken: the WebSocket and the viewer take a free port");
+                bind(Some(SocketAddr::new(taken.ip(), 0)))?
+            }
+            r => r?,
+        };
+        let tcp_l = bind(tcp)?;
         let local_addr = tcp_l.as_ref().map(|l| l.local_addr()).transpose()?;
         let ws_addr = ws_l.as_ref().map(|l| l.local_addr()).transpose()?;
         let mut topo = Vec::new();
@@ -127,6 +145,7 @@ impl StreamServer {
                     tcp: tcp_l,
                     ws: ws_l,
                     max_clients,
+                    viewer,
                 };
                 rt.block_on(serve(listeners, topo, slot, shutdown_rx, thread_stats));
             })?;
@@ -179,19 +198,115 @@ impl Drop for StreamServer {
 /// A connected client of either transport.
 enum Conn {
     Tcp(TcpStream),
-    Ws(Box<WebSocketStream<TcpStream>>),
+    Ws(Box<WebSocketStream<Rewind>>),
+}
+
+/// What an accepted socket turned out to be.
+enum Accepted {
+    Client(Conn),
+    /// A request on the WebSocket port that was not an upgrade: answered and closed.
+    Page,
+    /// A WebSocket handshake that failed or took too long.
+    Failed,
+}
+
+/// A socket whose first bytes were already read (the request head): they are read again
+/// before the socket's own, so the WebSocket handshake sees the whole request.
+struct Rewind {
+    prefix: Vec<u8>,
+    at: usize,
+    inner: TcpStream,
+}
+
+impl AsyncRead for Rewind {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let me = &mut *self;
+        if me.at < me.prefix.len() {
+            let n = buf.remaining().min(me.prefix.len() - me.at);
+            buf.put_slice(&me.prefix[me.at..me.at + n]);
+            me.at += n;
+            return Poll::Ready(Ok(()));
+        }
+        Pin::new(&mut me.inner).poll_read(cx, buf)
+    }
+}
+
+impl AsyncWrite for Rewind {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.inner).poll_write(cx, buf)
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// Reads a request head from `sock`: the bytes up to its blank line and whatever came
+/// with them, at most [`MAX_HEAD_BYTES`]. `None` if the peer closes first or sends more
+/// without ending its head.
+async fn read_head(sock: &mut TcpStream) -> Option<(Vec<u8>, usize)> {
+    let mut buf = vec![0u8; MAX_HEAD_BYTES];
+    let mut have = 0;
+    while have < buf.len() {
+        let n = sock.read(&mut buf[have..]).await.ok()?;
+        if n == 0 {
+            return None;
+        }
+        // The blank line may straddle two reads: look from three bytes before.
+        let from = have.saturating_sub(3);
+        have += n;
+        if let Some(end) = head_end(&buf[from..have]) {
+            buf.truncate(have);
+            return Some((buf, from + end));
+        }
+    }
+    None
 }
 
 impl Conn {
-    /// The connection of an accepted socket: over WebSocket once its handshake is done
-    /// (`None` if it fails or takes longer than `limit`).
-    async fn accept(sock: TcpStream, websocket: bool, limit: Duration) -> Option<Self> {
+    /// What an accepted socket is: over WebSocket, a client once its handshake is done,
+    /// or a page request, answered when `viewer` (else refused with a 404); each bounded
+    /// by `limit`.
+    async fn accept(sock: TcpStream, websocket: bool, viewer: bool, limit: Duration) -> Accepted {
         if !websocket {
-            return Some(Conn::Tcp(sock));
+            return Accepted::Client(Conn::Tcp(sock));
         }
-        match tokio::time::timeout(limit, tokio_tungstenite::accept_async(sock)).await {
-            Ok(Ok(w)) => Some(Conn::Ws(Box::new(w))),
-            _ => None,
+        let handshake = async move {
+            let mut sock = sock;
+            let (bytes, end) = read_head(&mut sock).await?;
+            let reply = match parse_head(&bytes[..end]) {
+                Ok(h) if h.websocket => {
+                    let rewind = Rewind {
+                        prefix: bytes,
+                        at: 0,
+                        inner: sock,
+                    };
+                    let ws = tokio_tungstenite::accept_async(rewind).await.ok()?;
+                    return Some(Accepted::Client(Conn::Ws(Box::new(ws))));
+                }
+                Ok(h) => respond(&h, viewer),
+                Err(e) => bad_request(&e),
+            };
+            sock.write_all(&reply).await.ok()?;
+            // The peer reads to the end: close our side, and let it go.
+            sock.shutdown().await.ok()?;
+            Some(Accepted::Page)
+        };
+        match tokio::time::timeout(limit, handshake).await {
+            Ok(Some(a)) => a,
+            _ => Accepted::Failed,
         }
     }
 
@@ -229,11 +344,13 @@ async fn accept_on(l: &Option<TcpListener>) -> io::Result<(TcpStream, SocketAddr
     }
 }
 
-/// The listening sockets and how many clients they may serve at once.
+/// The listening sockets, how many clients they may serve at once, and whether the
+/// WebSocket port serves the viewer's page.
 struct Listeners {
     tcp: Option<std::net::TcpListener>,
     ws: Option<std::net::TcpListener>,
     max_clients: usize,
+    viewer: bool,
 }
 
 /// How long the accept loop waits after failures in a row: [`ACCEPT_BACKOFF_MIN_S`],
@@ -279,7 +396,7 @@ async fn serve(
             None
         }
     };
-    let max_clients = listeners.max_clients;
+    let (max_clients, viewer) = (listeners.max_clients, listeners.viewer);
     let (tcp, ws) = (register(listeners.tcp), register(listeners.ws));
     let (frames_tx, frames_rx) = watch::channel(None);
     let dispatcher = tokio::spawn(dispatch(slot, frames_tx, shutdown.clone()));
@@ -333,7 +450,7 @@ async fn serve(
             stats.refused.fetch_add(1, Ordering::Relaxed);
             tracing::debug!(%peer, websocket, "vertex stream: refused, full");
             if refusals.len() < MAX_REFUSALS {
-                refusals.spawn(refuse(sock, websocket, Arc::clone(&full)));
+                refusals.spawn(refuse(sock, websocket, viewer, Arc::clone(&full)));
             }
             continue;
         }
@@ -348,11 +465,16 @@ async fn serve(
         clients.spawn(async move {
             let _ = sock.set_nodelay(true);
             let limit = Duration::from_secs_f64(WRITE_TIMEOUT_SECS);
-            let Some(conn) = Conn::accept(sock, websocket, limit).await else {
-                stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
-                return;
-            };
-            serve_client(conn, topo, frames, shutdown, stats).await;
+            match Conn::accept(sock, websocket, viewer, limit).await {
+                Accepted::Client(conn) => serve_client(conn, topo, frames, shutdown, stats).await,
+                Accepted::Page => {
+                    stats.connections.fetch_sub(1, Ordering::Relaxed);
+                    stats.pages_served.fetch_add(1, Ordering::Relaxed);
+                }
+                Accepted::Failed => {
+                    stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
+                }
+            }
         });
     }
     drop((tcp, ws, refusals));
@@ -387,9 +509,9 @@ async fn dispatch(
 /// Sends a connection the server had no room for the `goodbye` (after the WebSocket
 /// handshake, over WebSocket) and closes it; each step bounded by
 /// [`GOODBYE_TIMEOUT_SECS`].
-async fn refuse(sock: TcpStream, websocket: bool, goodbye: Arc<Vec<u8>>) {
+async fn refuse(sock: TcpStream, websocket: bool, viewer: bool, goodbye: Arc<Vec<u8>>) {
     let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
-    if let Some(mut conn) = Conn::accept(sock, websocket, limit).await {
+    if let Accepted::Client(mut conn) = Conn::accept(sock, websocket, viewer, limit).await {
         if conn.send(&goodbye, GOODBYE_TIMEOUT_SECS).await {
             conn.close().await;
         }

@@ -1,4 +1,4 @@
-//! The vertex stream's wire format (version 1), as pure functions over bytes: encode a
+//! The vertex stream's wire format (version 3), as pure functions over bytes: encode a
 //! [`Topology`], a frame (a [`FrameView`] of whatever holds it) or a goodbye into a
 //! caller's buffer, and decode any of them back (a frame as a [`WireFrame`]). No I/O and
 //! no solver or marker types here; `protocols/vertex-stream.md` is the specification and
@@ -13,8 +13,9 @@ use glam::Vec3;
 pub const MAGIC: [u8; 4] = *b"RGLS";
 /// The format version this build writes; it reads this one and every earlier one
 /// ([`OLDEST_VERSION`]..=`VERSION`).
-pub const VERSION: u16 = 2;
-/// The oldest version this build reads (version 1: no parts in the topology).
+pub const VERSION: u16 = 3;
+/// The oldest version this build reads (version 1: no parts in the topology; versions 1
+/// and 2: no arrival time and no joints in a frame).
 pub const OLDEST_VERSION: u16 = 1;
 /// Header length, bytes.
 pub const HEADER_LEN: usize = 12;
@@ -124,6 +125,12 @@ pub struct FrameView<'a> {
     pub markers_m: &'a [Vec3],
     /// Full-resolution vertices, metres, world frame.
     pub vertices_m: &'a [Vec3],
+    /// When the newest marker sample this frame used reached the daemon, seconds since
+    /// the Unix epoch (0: none yet). Version 3.
+    pub received_time_s: f64,
+    /// The fitted skeleton's joint positions, metres, world frame, in the topology's
+    /// joint order (empty: not sent). Version 3.
+    pub joints_m: &'a [Vec3],
 }
 
 /// A decoded frame: what a client gets.
@@ -142,6 +149,12 @@ pub struct WireFrame {
     pub markers_m: Vec<Vec3>,
     /// Full-resolution vertices, metres, world frame.
     pub vertices_m: Vec<Vec3>,
+    /// When the newest marker sample reached the daemon, seconds since the Unix epoch
+    /// (0: none yet, or a version 1 or 2 server).
+    pub received_time_s: f64,
+    /// The fitted skeleton's joint positions, metres (empty from a version 1 or 2
+    /// server).
+    pub joints_m: Vec<Vec3>,
 }
 
 impl WireFrame {
@@ -155,6 +168,8 @@ impl WireFrame {
             marker_states: &self.marker_states,
             markers_m: &self.markers_m,
             vertices_m: &self.vertices_m,
+            received_time_s: self.received_time_s,
+            joints_m: &self.joints_m,
         }
     }
 }
@@ -308,6 +323,13 @@ pub fn encode_frame(f: &FrameView<'_>, out: &mut Vec<u8>) {
             put_f32(out, c);
         }
     }
+    out.extend_from_slice(&f.received_time_s.to_le_bytes());
+    put_u32(out, f.joints_m.len() as u32);
+    for p in f.joints_m {
+        for c in p.to_array() {
+            put_f32(out, c);
+        }
+    }
     finish(out, start);
 }
 
@@ -360,7 +382,7 @@ pub fn decode(b: &[u8]) -> Result<(Message, usize), DecodeError> {
     let version = u16::from_le_bytes([b[4], b[5]]);
     let msg = match kind {
         KIND_TOPOLOGY => Message::Topology(decode_topology(payload, version)?),
-        KIND_FRAME => Message::Frame(decode_frame(payload)?),
+        KIND_FRAME => Message::Frame(decode_frame(payload, version)?),
         _ => {
             let mut r = Reader::new(payload, "goodbye");
             let s = r.string()?;
@@ -543,7 +565,7 @@ fn decode_parts(
     Ok(parts)
 }
 
-fn decode_frame(b: &[u8]) -> Result<WireFrame, DecodeError> {
+fn decode_frame(b: &[u8], version: u16) -> Result<WireFrame, DecodeError> {
     let mut r = Reader::new(b, "frame");
     let frame = r.u64()?;
     let source_time_s = r.f64()?;
@@ -565,6 +587,13 @@ fn decode_frame(b: &[u8]) -> Result<WireFrame, DecodeError> {
     let markers_m = r.vec3s(nm)?;
     let nv = r.count(12)?;
     let vertices_m = r.vec3s(nv)?;
+    let (received_time_s, joints_m) = if version >= 3 {
+        let received = r.f64()?;
+        let nj = r.count(12)?;
+        (received, r.vec3s(nj)?)
+    } else {
+        (0.0, Vec::new())
+    };
     r.end()?;
     Ok(WireFrame {
         frame,
@@ -584,6 +613,8 @@ fn decode_frame(b: &[u8]) -> Result<WireFrame, DecodeError> {
         marker_states,
         markers_m,
         vertices_m,
+        received_time_s,
+        joints_m,
     })
 }
 
@@ -629,6 +660,8 @@ mod tests {
             marker_states: vec![1],
             markers_m: vec![Vec3::new(0.0, 1.0, 0.0)],
             vertices_m: vec![Vec3::X, Vec3::Y, Vec3::Z],
+            received_time_s: 1.0e9 - 0.5,
+            joints_m: vec![Vec3::new(0.0, 0.5, 0.0)],
         }
     }
 
@@ -651,14 +684,16 @@ mod tests {
     fn frame_bytes_match_the_documented_example() {
         // protocols/vertex-stream.md, "Worked example", byte for byte.
         const HEX: &str = "
-            52 47 4c 53 02 00 02 00 74 00 00 00 07 00 00 00
+            52 47 4c 53 03 00 02 00 8c 00 00 00 07 00 00 00
             00 00 00 00 00 00 00 00 00 00 e0 3f 00 00 00 00
             65 cd cd 41 03 00 02 00 00 00 40 3f 00 00 00 00
             00 00 00 00 00 00 00 00 00 00 00 00 00 00 00 00
             00 00 00 00 01 00 00 00 01 00 00 00 00 00 00 00
             00 00 80 3f 00 00 00 00 03 00 00 00 00 00 80 3f
             00 00 00 00 00 00 00 00 00 00 00 00 00 00 80 3f
-            00 00 00 00 00 00 00 00 00 00 00 00 00 00 80 3f";
+            00 00 00 00 00 00 00 00 00 00 00 00 00 00 80 3f
+            00 00 c0 ff 64 cd cd 41 01 00 00 00 00 00 00 00
+            00 00 00 3f 00 00 00 00";
         let expected: Vec<u8> = HEX
             .split_whitespace()
             .map(|h| u8::from_str_radix(h, 16).unwrap())
@@ -705,8 +740,29 @@ mod tests {
         }
         b.clear();
         encode_topology(&example_topology(), &mut b);
-        b[4] = 3;
-        assert_eq!(decode(&b), Err(DecodeError::Version { found: 3 }));
+        b[4] = 4;
+        assert_eq!(decode(&b), Err(DecodeError::Version { found: 4 }));
+    }
+
+    /// A version 2 frame (no arrival time, no joints) still reads, with neither; the
+    /// same bytes announced as version 3 are malformed (the new fields are missing).
+    #[test]
+    fn version_2_frames_read_without_arrival_time_or_joints() {
+        let mut f = example_frame();
+        let mut b = Vec::new();
+        encode_frame(&f.view(), &mut b);
+        let mut v2 = b[..b.len() - 8 - 4 - 12].to_vec();
+        v2[4] = 2;
+        let len = (v2.len() - HEADER_LEN) as u32;
+        v2[8..12].copy_from_slice(&len.to_le_bytes());
+        f.received_time_s = 0.0;
+        f.joints_m.clear();
+        assert_eq!(decode(&v2).unwrap().0, Message::Frame(f));
+        v2[4] = 3;
+        assert!(matches!(
+            decode(&v2),
+            Err(DecodeError::Malformed { kind: "frame", .. })
+        ));
     }
 
     #[test]

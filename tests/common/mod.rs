@@ -175,3 +175,38 @@ pub fn tight_solver_params() -> rigless::solve::frame::SolverParams {
     p.ik.cost_tolerance = 0.0;
     p
 }
+
+/// Runs `program SCRIPT RIGLESS_BINARY OUT_DIR` (a check written in another language that
+/// drives rigless as a user would), bounded by `timeout`, and returns the JSON object it
+/// prints on its last line; panics with what it printed when it fails or overruns.
+pub fn run_json_check(
+    program: &str,
+    script: &str,
+    out_dir: &std::path::Path,
+    timeout: Duration,
+) -> serde_json::Value {
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(script);
+    let mut child = Command::new(program)
+        .arg(&script)
+        .arg(env!("CARGO_BIN_EXE_rigless"))
+        .arg(out_dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{program} {}: {e}", script.display()));
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > timeout {
+            child.kill().unwrap();
+            panic!("{} took more than {timeout:?}", script.display());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let output = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}\n{stdout}");
+    let line = stdout.lines().last().expect("a result line");
+    println!("{line}");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"))
+}
