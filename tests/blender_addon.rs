@@ -20,8 +20,8 @@ fn the_blender_addon_applies_records_and_refuses_in_blender() {
         .status()
         .is_ok_and(|s| s.success());
     if !has_bpy {
-        eprintln!(
-            "skipped: Blender's bpy module is not installed (pip install bpy==4.2.0, Python 3.11)"
+        common::skip_for_missing_peer(
+            "Blender's bpy module is not installed (pip install bpy==4.2.0, Python 3.11)",
         );
         return;
     }

@@ -34,7 +34,7 @@ fn missing_peer() -> Option<String> {
 #[test]
 fn the_viewer_page_draws_the_stream_and_reconnects_in_chromium() {
     if let Some(why) = missing_peer() {
-        eprintln!("skipped: {why}");
+        common::skip_for_missing_peer(&why);
         return;
     }
     let out = tempfile::tempdir().unwrap();

@@ -6,6 +6,8 @@
 //! (`clients/blender/rigless_live/stream.py`, plain Python). Each skips, saying why,
 //! when its interpreter is absent.
 
+mod common;
+
 use glam::Vec3;
 use rigless::protocol::vertex_stream::{
     encode_frame, encode_goodbye, encode_topology, FrameStatus, StopCode, Topology, WireFrame,
@@ -88,7 +90,7 @@ fn write_messages(dir: &Path) -> Vec<WireFrame> {
 
 fn run(program: &str, script: &str, dir: &Path) -> Option<serde_json::Value> {
     if Command::new(program).arg("--version").output().is_err() {
-        eprintln!("skipped: {program} is not installed");
+        common::skip_for_missing_peer(&format!("{program} is not installed"));
         return None;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join(script);

@@ -99,7 +99,7 @@ fn translating_all_markers_translates_the_mesh_exactly() {
 }
 
 #[test]
-fn warm_start_needs_no_more_iterations_than_cold() {
+fn a_warm_start_needs_at_most_half_the_iterations_of_a_cold_one() {
     use rigless::character::procedural::{hand_pose, skin_pose, HandMotion};
     let (ch, rig) = setup();
     let mut truth = vec![DVec3::ZERO; ch.vertices.len()];
@@ -125,8 +125,10 @@ fn warm_start_needs_no_more_iterations_than_cold() {
             total_cold += c.iterations;
         }
     }
+    // Measured: 44 warm against 126 cold (deterministic: no clock, no thread). A warm
+    // start that did nothing would need as many as a cold one; half is the margin.
     assert!(
-        total_warm <= total_cold,
+        2 * total_warm <= total_cold,
         "warm {total_warm} iterations, cold {total_cold}"
     );
 }

@@ -2,7 +2,8 @@
 //! through the channel, the marker buffer and the solver; frames come out of the slots.
 
 use crossbeam_channel::bounded;
-use rigless::character::demo::{demo_hand, hand_bind_params, Motion};
+use rigless::character::body::BodyMotion;
+use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params, Motion};
 use rigless::character::procedural::skin_pose;
 use rigless::character::session::{SyntheticParams, SyntheticSession};
 use rigless::daemon::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
@@ -12,7 +13,7 @@ use rigless::output::frame::DeformedFrame;
 use rigless::rig::bind::Rig;
 use rigless::runtime::clock::{Clock, ManualClock};
 use rigless::runtime::slot::LatestSlot;
-use rigless::solve::frame::{Solver, SolverParams};
+use rigless::solve::frame::{Method, Solver, SolverParams};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
@@ -188,9 +189,11 @@ fn frames_track_the_truth_through_occlusion_gaps() {
     assert!(states[FillState::Predicted as usize] > 0);
     assert!(states[FillState::Held as usize] > 0);
     assert_eq!(held_states[FillState::Predicted as usize], 0);
-    // Filling must beat holding.
+    // Filling must beat holding by a margin: measured 0.0211 against 0.0252 of the
+    // height (0.84 times; the session, its gaps and the ticks are deterministic). A fill
+    // that predicted nothing would give 1.0 times; 0.9 catches a broken prediction.
     assert!(
-        err_mean < held_mean,
+        err_mean < 0.9 * held_mean,
         "filled {err_mean} vs held {held_mean}"
     );
     // Without gaps the hand tracks to about 1.3 % of its height (README); a tenth of the
@@ -198,26 +201,103 @@ fn frames_track_the_truth_through_occlusion_gaps() {
     assert!(err_mean < 0.025, "mean vertex error {err_mean} of height");
 }
 
-#[test]
-fn the_warm_loop_does_not_allocate() {
-    let mut s = setup(0.10, 4.0);
-    let mut batch = Vec::with_capacity(64);
-    let mut allocated_in_ticks = 0;
-    for i in 0..s.session.frames() {
-        let (t, _) = s.feed(i, &mut batch);
+/// Allocations in the warm ticks (from the tenth on) of `seconds` of `motion` with 10 %
+/// of the samples in gaps, solved with `method`, and how many marker samples were
+/// rigid-filled on the way.
+fn warm_tick_allocations(
+    ch: rigless::character::Character,
+    bind: rigless::character::bind_params::BindParams,
+    motion: Motion,
+    method: Method,
+    seconds: f64,
+) -> (u64, usize) {
+    let rig = Arc::new(Rig::bind(&ch, &bind).unwrap());
+    let mut session = SyntheticSession::new(
+        Arc::new(ch),
+        motion,
+        SyntheticParams {
+            rate_hz: RATE_HZ,
+            duration_secs: seconds,
+            gap_fraction: 0.10,
+            seed: 7,
+            ..SyntheticParams::default()
+        },
+    );
+    let (tx, rx) = bounded(16_384);
+    let slot = Arc::new(LatestSlot::new());
+    let buffer = MarkerBuffer::new(BufferConfig::default(), &rig.marker_rest, &rig.marker_joint);
+    let params = SolverParams {
+        method,
+        ..SolverParams::default()
+    };
+    let solver = Solver::new(Arc::clone(&rig), params);
+    let mut pipeline = Pipeline::new(solver, buffer, rx, vec![Arc::clone(&slot)]);
+    let mut batch = Vec::with_capacity(256);
+    let (mut allocated, mut rigid) = (0, 0);
+    for i in 0..session.frames() {
+        let t = i as f64 / RATE_HZ;
+        batch.clear();
+        session.frame(i, t, &mut batch);
+        for smp in &batch {
+            tx.try_send(*smp).unwrap();
+        }
         let deadline = far_deadline();
         let before = allocations();
-        s.pipeline.tick(t, deadline, &|| t);
+        pipeline.tick(t, deadline, &|| t);
         // A sink takes the frame and lets go of it, as the stream's dispatcher does.
-        drop(s.slot.take());
+        let f = slot.take();
         if i >= 10 {
-            allocated_in_ticks += allocations() - before;
+            allocated += allocations() - before;
+        }
+        rigid += f.map_or(0, |f| {
+            f.marker_states
+                .iter()
+                .filter(|s| **s == FillState::RigidFilled)
+                .count()
+        });
+    }
+    (allocated, rigid)
+}
+
+/// The per-frame path (drain, gap filling, solve, full mesh, publish) allocates nothing
+/// once warm: the hand with ARAP, the body with ARAP while rigid filling works, and the
+/// body with the harmonic method.
+#[test]
+fn the_warm_loop_does_not_allocate() {
+    let cases = [
+        (
+            "hand, ARAP",
+            demo_hand(),
+            hand_bind_params(),
+            Motion::FingerPlay,
+            Method::Arap,
+            4.0,
+        ),
+        (
+            "body walk, ARAP",
+            demo_body(),
+            body_bind_params(),
+            Motion::Body(BodyMotion::Walk),
+            Method::Arap,
+            3.0,
+        ),
+        (
+            "body walk, harmonic",
+            demo_body(),
+            body_bind_params(),
+            Motion::Body(BodyMotion::Walk),
+            Method::Harmonic,
+            2.0,
+        ),
+    ];
+    for (name, ch, bind, motion, method, seconds) in cases {
+        let (allocated, rigid) = warm_tick_allocations(ch, bind, motion, method, seconds);
+        assert_eq!(allocated, 0, "{name}: allocations in warm ticks");
+        if matches!(motion, Motion::Body(_)) {
+            // The body's head and hand clusters fill their gaps rigidly: that path ran.
+            assert!(rigid > 0, "{name}: no marker was rigid-filled");
         }
     }
-    assert_eq!(
-        allocated_in_ticks, 0,
-        "allocations in warm ticks (drain, gap filling, solve, full mesh, publish)"
-    );
 }
 
 #[test]

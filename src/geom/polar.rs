@@ -257,8 +257,9 @@ mod tests {
             single += (iters == 1) as usize;
             worst = worst.max(rotation_angle_between(q, r));
         }
-        // 1e-8 rad: 25 times the measured worst (4e-10), and 1e-5 mm at a metre's lever.
-        assert!(worst < 1e-8, "worst error {worst} rad");
+        // The bound the docs give (method.md: "measured under 4e-10 rad"); the cases are
+        // seeded, so the measured 3.76e-10 is the same on every run.
+        assert!(worst < 4e-10, "worst error {worst} rad");
         // Starts within 1e-3 rad take one step (half of the cases, all of them).
         assert!(single >= 10_000, "{single} single-step extractions");
     }

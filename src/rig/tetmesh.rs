@@ -542,7 +542,14 @@ mod tests {
         for v in [i32::MAX, i32::MAX, i32::MAX] {
             b.extend(v.to_le_bytes());
         }
-        assert!(parse_capsule(&b).is_err());
+        // Refused by the length check at byte 12, which comes before any buffer is
+        // sized by a count: the counts promise 2^31 × 68 bytes, the file has 12.
+        let (why, at) = parse_capsule(&b).unwrap_err();
+        assert_eq!(at, 12, "{why}");
+        assert!(
+            why.contains("n=2147483647, m=2147483647, k=2147483647, file has 12"),
+            "{why}"
+        );
     }
 
     proptest! {

@@ -159,7 +159,14 @@ mod tests {
         });
         let mut last = 0;
         let mut taken = 0u64;
+        // Bounded: a lost newest value fails the test instead of hanging it (10,000
+        // publishes take milliseconds; 20 s is a stalled machine).
+        let start = std::time::Instant::now();
         while last != 9_999 {
+            assert!(
+                start.elapsed() < std::time::Duration::from_secs(20),
+                "the newest value never arrived (last taken {last})"
+            );
             if let Some(v) = slot.take() {
                 assert!(*v >= last, "values arrive in order");
                 last = *v;

@@ -210,3 +210,13 @@ pub fn run_json_check(
     println!("{line}");
     serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"))
 }
+
+/// A real peer a test needs (a browser, Blender, an interpreter) is absent: with
+/// `RIGLESS_REQUIRE_PEERS` set (`.ci/run` sets it, after installing them) that is a
+/// failure; otherwise the test skips, printing why.
+pub fn skip_for_missing_peer(why: &str) {
+    if std::env::var_os("RIGLESS_REQUIRE_PEERS").is_some() {
+        panic!("{why} (RIGLESS_REQUIRE_PEERS is set: .ci/run should have installed it)");
+    }
+    eprintln!("skipped: {why}");
+}
