@@ -439,3 +439,71 @@ fn all_markers_lost_for_ten_seconds_then_back() {
         "after return {after:?}, uninterrupted {uninterrupted:?}"
     );
 }
+
+/// A clock that stalls: every `every`-th wait ends `stall_s` past the time asked for, as a
+/// machine that stops the loop's thread does. Otherwise a manual clock.
+struct StallingClock {
+    now_s: std::sync::Mutex<(f64, u64)>,
+    every: u64,
+    stall_s: f64,
+}
+
+impl Clock for StallingClock {
+    fn now_s(&self) -> f64 {
+        self.now_s.lock().unwrap().0
+    }
+    fn sleep_until(&self, t_s: f64) {
+        let mut g = self.now_s.lock().unwrap();
+        g.1 += 1;
+        let stall = if g.1.is_multiple_of(self.every) {
+            self.stall_s
+        } else {
+            0.0
+        };
+        g.0 = g.0.max(t_s) + stall;
+    }
+    fn unix_s(&self, t_s: f64) -> f64 {
+        1.7e9 + t_s
+    }
+    fn deadline_at(&self, _t_s: f64) -> Instant {
+        far_deadline()
+    }
+}
+
+/// Ticks that fall more than a period behind are skipped and counted as overruns, never
+/// run in a burst: a 2.5-period stall every 30th wait over one second at 120 Hz.
+#[test]
+fn late_ticks_are_skipped_and_counted_not_bunched() {
+    let mut s = setup(0.0, 1.5);
+    let period = 1.0 / RATE_HZ;
+    let clock = StallingClock {
+        now_s: std::sync::Mutex::new((10.0, 0)),
+        every: 30,
+        stall_s: 2.5 * period,
+    };
+    let stop = AtomicBool::new(false);
+    let status = LatestSlot::<LoopStatus>::new();
+    let last = run_loop(
+        &mut s.pipeline,
+        &clock,
+        LoopParams {
+            start_s: 10.0,
+            rate_hz: RATE_HZ,
+            deadline_fraction: 0.8,
+            end_s: Some(11.0),
+            status_interval_s: 0.5,
+        },
+        &stop,
+        &status,
+    );
+    // Each stall puts the loop 2.5 periods behind its tick: the 2 whole periods are
+    // skipped (overruns) and the loop runs the tick that is due, half a period late. 121
+    // ticks are due in the second; the loop waits 121 − 2 × stalls times, so the stalls
+    // at waits 30, 60 and 90 happen and the one at 120 does not: 6 overruns, 115 frames.
+    assert_eq!((last.frames, last.overruns), (115, 6), "{last:?}");
+    assert_eq!(
+        last.frames + last.overruns,
+        121,
+        "every due tick run or counted: {last:?}"
+    );
+}

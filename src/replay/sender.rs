@@ -542,3 +542,34 @@ pub fn replay(
     stats.jitter_ms_max = q(1.0);
     Ok(stats)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::osc::OscMapping;
+
+    /// VMC is Unity's left-handed frame: the sender negates Z and the OSC input negates it
+    /// back. Markers off every axis (values exact in f32) survive the round trip exactly,
+    /// and go on the wire with Z negated; either negation missing fails this.
+    #[test]
+    fn vmc_round_trips_markers_off_every_axis() {
+        let p = DVec3::new(0.25, 1.5, -0.75);
+        let q = DVec3::new(-0.125, 0.875, 0.375);
+        let bytes = encode_vmc(2.5, &[("LeftHand", p), ("Head", q)]);
+        let f = OscMapping::default().decode(&bytes).unwrap();
+        let got: Vec<(String, DVec3)> = f
+            .markers()
+            .iter()
+            .map(|m| (m.name.clone(), m.position_m))
+            .collect();
+        assert_eq!(got, vec![("LeftHand".into(), p), ("Head".into(), q)]);
+        assert_eq!(f.vmc_time_s, Some(2.5));
+        let Ok((_, OscPacket::Bundle(b))) = rosc::decoder::decode_udp(&bytes) else {
+            panic!("a VMC bundle");
+        };
+        let OscPacket::Message(m) = &b.content[0] else {
+            panic!("a message first");
+        };
+        assert_eq!(m.args[1..4], [0.25f32, 1.5, 0.75].map(OscType::Float));
+    }
+}
