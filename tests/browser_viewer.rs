@@ -70,12 +70,12 @@ fn the_viewer_page_draws_the_stream_and_reconnects_in_chromium() {
     );
 
     // The framed hand covers 5–10 % of the 960×720 picture; 2 % is a blank or lost
-    // picture. Each measured marker is a 7-pixel green square (8 markers, 49 pixels each,
-    // some behind the overlay's text or each other).
+    // picture. Each marker is a 7-pixel square in its fill state's colour (8 markers, 49
+    // pixels each, some behind the overlay's text or each other).
     let px = &r["pixels"];
     let share = px["skin"].as_f64().unwrap() / px["total"].as_f64().unwrap();
     assert!(share >= 0.02, "character share {share}: {r}");
-    assert!(px["measured_marker"].as_f64().unwrap() >= 20.0, "{r}");
+    assert!(px["marker"].as_f64().unwrap() >= 20.0, "{r}");
     assert!(out.path().join("viewer.png").is_file());
 
     // The daemon was stopped and started again on the same ports: a second connection.

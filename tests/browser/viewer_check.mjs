@@ -143,13 +143,19 @@ async function main() {
       const c = document.createElement("canvas"); c.width = src.width; c.height = src.height;
       const ctx = c.getContext("2d"); ctx.drawImage(src, 0, 0);
       const d = ctx.getImageData(0, 0, c.width, c.height).data;
+      // Markers in any fill state's colour: which state a marker is in at the moment of
+      // the picture depends on how late the replay's samples are on a loaded machine.
       let skin = 0, marker = 0;
       for (let i = 0; i < d.length; i += 4) {
         const [r, g, b] = [d[i], d[i + 1], d[i + 2]];
-        if (r > 60 && r > b + 40 && r >= g) skin++;
-        if (g > 180 && r < 120 && b < 140) marker++;
+        const measured = g > 180 && r < 120 && b < 140;
+        const predicted = r > 200 && g > 150 && b < 60;
+        const rigid = b > 200 && r < 150;
+        const held = r > 200 && g < 90 && b < 90;
+        if (measured || predicted || rigid || held) marker++;
+        else if (r > 60 && r > b + 40 && r >= g) skin++;
       }
-      return { total: d.length / 4, skin, measured_marker: marker };
+      return { total: d.length / 4, skin, marker };
     });
 
     // Restart the daemon on the same ports: the page reconnects by itself.
