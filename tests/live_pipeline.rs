@@ -300,25 +300,22 @@ fn the_warm_loop_does_not_allocate() {
     }
 }
 
+/// The loop from 10 s to 11 s on its clock at the test rate: 121 ticks due.
+const ONE_SECOND_FROM_10: LoopParams = LoopParams {
+    start_s: 10.0,
+    rate_hz: RATE_HZ,
+    deadline_fraction: 0.8,
+    end_s: Some(11.0),
+    status_interval_s: 0.5,
+};
+
 #[test]
 fn run_loop_paces_ticks_on_the_clock_and_stops_at_the_end() {
     let mut s = setup(0.0, 1.0);
     let clock = ManualClock::new(10.0);
     let stop = AtomicBool::new(false);
     let status = LatestSlot::<LoopStatus>::new();
-    let last = run_loop(
-        &mut s.pipeline,
-        &clock,
-        LoopParams {
-            start_s: 10.0,
-            rate_hz: RATE_HZ,
-            deadline_fraction: 0.8,
-            end_s: Some(11.0),
-            status_interval_s: 0.5,
-        },
-        &stop,
-        &status,
-    );
+    let last = run_loop(&mut s.pipeline, &clock, ONE_SECOND_FROM_10, &stop, &status);
     // Ticks at 10 + k/120 for k = 0..=120: 121 frames, no overruns on a manual clock.
     assert_eq!(last.frames, 121);
     assert_eq!(last.overruns, 0);
@@ -483,19 +480,7 @@ fn late_ticks_are_skipped_and_counted_not_bunched() {
     };
     let stop = AtomicBool::new(false);
     let status = LatestSlot::<LoopStatus>::new();
-    let last = run_loop(
-        &mut s.pipeline,
-        &clock,
-        LoopParams {
-            start_s: 10.0,
-            rate_hz: RATE_HZ,
-            deadline_fraction: 0.8,
-            end_s: Some(11.0),
-            status_interval_s: 0.5,
-        },
-        &stop,
-        &status,
-    );
+    let last = run_loop(&mut s.pipeline, &clock, ONE_SECOND_FROM_10, &stop, &status);
     // Each stall puts the loop 2.5 periods behind its tick: the 2 whole periods are
     // skipped (overruns) and the loop runs the tick that is due, half a period late. 121
     // ticks are due in the second; the loop waits 121 − 2 × stalls times, so the stalls
