@@ -4,6 +4,8 @@
 //! renamed, mapped, swapped and lost; the layout written into a character file; and the
 //! shared data folder's real takes (skipped, with the reason printed, when it is absent).
 
+mod common;
+
 use glam::DVec3;
 use rigless::calibrate::labels::{LeftOut, MapEntry, Source};
 use rigless::calibrate::layout::write_into;
@@ -409,16 +411,7 @@ fn the_layout_is_written_into_a_character_file() {
 
 /// A real take of the shared data folder, or `None` (skipped, with the reason printed).
 fn shared_take(rel: &str) -> Option<Recording> {
-    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if !p.is_file() {
-        eprintln!(
-            "skipped: {} is absent (the shared test data is not part of this repository)",
-            p.display()
-        );
-        return None;
-    }
+    let p = common::shared_path(rel)?;
     Some(Recording::load(&p).unwrap_or_else(|e| panic!("{e}")))
 }
 
@@ -470,25 +463,31 @@ fn real_takes_drive_real_assets_through_the_live_pipeline() {
     let Some(qualisys) = shared_take("c3d/Qualisys.c3d") else {
         return;
     };
-    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let data = common::shared_dir();
     let dir = tempfile::tempdir().unwrap();
     let mut cases = Vec::new();
-    if let Some(f) = makehuman_file(&data, &["body"], dir.path()).unwrap() {
-        cases.push((f, qualisys.clone(), 55));
+    // Each asset's own check first: an absent one is a printed skip (a failure in CI).
+    if common::shared_path("meshes/makehuman/default.mhskel").is_some() {
+        let f = makehuman_file(&data, &["body"], dir.path()).unwrap();
+        cases.push((
+            f.expect("MakeHuman's base.obj beside its skeleton"),
+            qualisys.clone(),
+            55,
+        ));
     }
-    let cesium = data.join("meshes/gltf-samples/CesiumMan.glb");
-    if cesium.is_file() {
+    if let Some(cesium) = common::shared_path("meshes/gltf-samples/CesiumMan.glb") {
         cases.push((
             gltf_file(&cesium, dir.path()).unwrap(),
             qualisys.clone(),
             55,
         ));
     }
-    if let (Some(f), Some(dfki)) = (
-        webxr_hand_file(&data, dir.path(), true).unwrap(),
+    if let (Some(_), Some(dfki)) = (
+        common::shared_path("meshes/webxr-generic-hand/right.glb"),
         shared_take("hand/dfki_hand_recording.tsv"),
     ) {
-        cases.push((f, dfki, 13));
+        let f = webxr_hand_file(&data, dir.path(), true).unwrap();
+        cases.push((f.expect("the WebXR hand's files"), dfki, 13));
     }
     for (file, rec, labels) in cases {
         let loaded = load_character(&file).unwrap_or_else(|e| panic!("{e}"));

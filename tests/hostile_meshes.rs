@@ -11,6 +11,8 @@
 //! document holds); and the real assets read exactly as the `gltf` crate reads them
 //! (skipped, with the reason printed, when the shared data is absent).
 
+mod common;
+
 mod alloc_meter;
 
 use alloc_meter::{measure, Usage};
@@ -1285,18 +1287,7 @@ proptest! {
 // ---- The real assets, as the gltf crate reads them ----
 
 fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!(
-            "skipped: {} is absent (the shared test data is not part of this repository)",
-            p.display()
-        );
-        None
-    }
+    common::shared_path(rel)
 }
 
 /// The reader as it was before (the `gltf` crate's buffers and accessor readers, and the

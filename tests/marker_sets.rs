@@ -2,21 +2,13 @@
 //! the reason printed, when it is absent): which table `--marker-set auto` picks for
 //! each, how many labels it places, and which it does not know.
 
+mod common;
+
 use rigless::calibrate::marker_sets::{best_set, Placed};
 use rigless::replay::recording::Recording;
-use std::path::Path;
 
 fn labels(rel: &str) -> Option<Vec<String>> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if !p.exists() {
-        eprintln!(
-            "skipped: {} is absent (the shared test data is not part of this repository)",
-            p.display()
-        );
-        return None;
-    }
+    let p = common::shared_path(rel)?;
     Some(Recording::load(&p).unwrap_or_else(|e| panic!("{e}")).labels)
 }
 

@@ -4,6 +4,8 @@
 //! own `default.mhskel`). Each bakes and tracks a motion inside its joint limits without
 //! inverted tets.
 
+mod common;
+
 use glam::DVec3;
 use rigless::bench::assets::webxr_hand_file;
 use rigless::bench::exercise::{exercise, ExerciseOptions};
@@ -20,18 +22,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 fn shared(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if p.exists() {
-        Some(p.canonicalize().unwrap())
-    } else {
-        eprintln!(
-            "skipped: {} is absent (the shared test data is not part of this repository)",
-            p.display()
-        );
-        None
-    }
+    common::shared_path(rel).map(|p| p.canonicalize().unwrap())
 }
 
 /// What [`track`] measured over a motion.

@@ -3,20 +3,14 @@
 //! labels and gap share, and the Qualisys hand recording read from TSV and from its C3D
 //! conversion agreeing sample for sample.
 
+mod common;
+
 use rigless::replay::c3d::read_c3d;
 use rigless::replay::tsv::parse_tsv;
 use std::path::PathBuf;
 
 fn data(rel: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        println!("skipping: {} is absent", p.display());
-        None
-    }
+    common::shared_path(rel)
 }
 
 fn missing_share(frames: &[Vec<glam::DVec3>]) -> f64 {

@@ -1,20 +1,16 @@
 //! Golden test on the real TetGen capsules of `../shared/data/tetmesh` (skipped, with the
 //! reason printed, when the shared data folder is absent).
 
+mod common;
+
 use rigless::rig::arap_system::{ArapOperator, ArapSystem, LinearRows};
 use rigless::rig::tetmesh::read_capsule;
-use std::path::Path;
 
 #[test]
 fn capsules_read_with_their_documented_sizes_and_solve() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tetmesh");
-    if !dir.is_dir() {
-        eprintln!(
-            "skipped: {} is absent (the shared test data is not part of this repository)",
-            dir.display()
-        );
+    let Some(dir) = common::shared_path("tetmesh") else {
         return;
-    }
+    };
     // Sizes from ../shared/data/README.md.
     for (file, n, m) in [
         ("capsule_400.bin", 418, 1_696),

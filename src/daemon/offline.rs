@@ -8,7 +8,7 @@
 //! point cache, or the fitted skeleton to BVH ([`export_take`], `rigless replay
 //! --export`).
 
-use super::pipeline::Pipeline;
+use super::pipeline::{Pipeline, TickReport};
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::index::{LabelMap, MarkerIndex};
 use crate::markers::{FillState, MarkerSample};
@@ -20,6 +20,7 @@ use crate::solve::arap::StopReason;
 use crate::solve::frame::{SolveReport, Solver, SolverParams};
 use glam::DVec3;
 use std::ops::ControlFlow;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -67,8 +68,12 @@ pub struct OfflineReport {
     pub joint_limit_violation_deg_max: f64,
     /// Most control tets inverted in one tick (ARAP only; 0 for the harmonic method).
     pub inverted_tets_max: usize,
-    /// Ticks stopped by their deadline.
+    /// Ticks stopped by their deadline, and by the solver's iteration cap.
     pub deadline_stops: usize,
+    pub iteration_cap_stops: usize,
+    /// ARAP iterations per tick, mean and largest (0 for the harmonic method).
+    pub iterations_mean: f64,
+    pub iterations_max: usize,
     /// Whole tick (drain, buffer, solve, full mesh, publish), ms.
     pub frame_ms_p50: f64,
     pub frame_ms_p99: f64,
@@ -109,6 +114,91 @@ pub fn replay_offline_with(
     opts: OfflineOptions,
     on_tick: &mut dyn FnMut(OfflineTick<'_>) -> ControlFlow<()>,
 ) -> Result<Option<OfflineReport>, crate::solve::harmonic::HarmonicError> {
+    let span = Span {
+        warm_from: 0,
+        from: 0,
+        to: tick_count(rec, opts.rate_hz),
+    };
+    Ok(play(rig, params, rec, opts, span, on_tick)?.map(Tally::finish))
+}
+
+/// Ticks of `rec` at `rate_hz`: from its first frame's time to its last's.
+fn tick_count(rec: &Recording, rate_hz: f64) -> usize {
+    (rec.duration_secs() * rate_hz).floor() as usize + 1
+}
+
+/// The ticks a [`play`] goes through, in three runs: `..warm_from` only feed the marker
+/// buffer (its gap filling and gating then stand as they would live); `warm_from..from`
+/// are solved, neither shown nor counted (the solver's warm start settling); `from..to`
+/// are solved, shown and counted.
+#[derive(Clone, Copy, Debug)]
+struct Span {
+    warm_from: usize,
+    from: usize,
+    to: usize,
+}
+
+/// The running figures of a replay's counted ticks, which the parts of an export add up.
+#[derive(Debug, Default)]
+struct Tally {
+    /// Maxima and counts so far (`frames` = ticks counted).
+    rep: OfflineReport,
+    held: usize,
+    fed_samples: usize,
+    sq_sum: f64,
+    in_view: usize,
+    times_ms: Vec<f64>,
+}
+
+impl Tally {
+    /// Adds a later part's ticks.
+    fn merge(&mut self, o: Tally) {
+        let (r, q) = (&mut self.rep, &o.rep);
+        r.frames += q.frames;
+        r.residual_mm_max = r.residual_mm_max.max(q.residual_mm_max);
+        r.bone_length_error_max = r.bone_length_error_max.max(q.bone_length_error_max);
+        r.joint_limit_violation_deg_max = r
+            .joint_limit_violation_deg_max
+            .max(q.joint_limit_violation_deg_max);
+        r.inverted_tets_max = r.inverted_tets_max.max(q.inverted_tets_max);
+        r.deadline_stops += q.deadline_stops;
+        r.iteration_cap_stops += q.iteration_cap_stops;
+        r.iterations_mean += q.iterations_mean;
+        r.iterations_max = r.iterations_max.max(q.iterations_max);
+        self.held += o.held;
+        self.fed_samples += o.fed_samples;
+        self.sq_sum += o.sq_sum;
+        self.in_view += o.in_view;
+        self.times_ms.extend(o.times_ms);
+    }
+
+    fn finish(mut self) -> OfflineReport {
+        let mut rep = self.rep;
+        rep.held_share = self.held as f64 / self.fed_samples.max(1) as f64;
+        rep.iterations_mean /= rep.frames.max(1) as f64;
+        rep.residual_mm_rms = (self.sq_sum / self.in_view.max(1) as f64).sqrt();
+        self.times_ms.sort_by(f64::total_cmp);
+        let t = &self.times_ms;
+        let at = |q: f64| {
+            t.get(((t.len().max(1) - 1) as f64 * q).round() as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        (rep.frame_ms_p50, rep.frame_ms_p99, rep.frame_ms_max) = (at(0.5), at(0.99), at(1.0));
+        rep
+    }
+}
+
+/// Plays the ticks of `span` ([`replay_offline_with`] for a part of the take); `None`
+/// when no label feeds a marker.
+fn play(
+    rig: Arc<Rig>,
+    params: SolverParams,
+    rec: &Recording,
+    opts: OfflineOptions,
+    span: Span,
+    on_tick: &mut dyn FnMut(OfflineTick<'_>) -> ControlFlow<()>,
+) -> Result<Option<Tally>, crate::solve::harmonic::HarmonicError> {
     let map = LabelMap::new(&rec.labels, &MarkerIndex::fixed(&rig.marker_names));
     let fed: Vec<(usize, u32)> = map
         .marker_of_label
@@ -135,16 +225,16 @@ pub fn replay_offline_with(
         m
     };
     let period_s = 1.0 / opts.rate_hz;
-    let ticks = (rec.duration_secs() * opts.rate_hz).floor() as usize + 1;
-    let mut times_ms = Vec::with_capacity(ticks);
-    let mut rep = OfflineReport {
-        labels_fed: fed.len(),
-        markers_unfed: map.unfed_markers.len(),
-        frames: ticks,
-        ..OfflineReport::default()
+    let ticks = tick_count(rec, opts.rate_hz).min(span.to);
+    let mut tally = Tally {
+        rep: OfflineReport {
+            labels_fed: fed.len(),
+            markers_unfed: map.unfed_markers.len(),
+            ..OfflineReport::default()
+        },
+        times_ms: Vec::with_capacity(ticks.saturating_sub(span.from)),
+        ..Tally::default()
     };
-    let (mut held, mut fed_samples) = (0usize, 0usize);
-    let (mut sq_sum, mut in_view) = (0.0, 0usize);
     let mut next = 0;
     for tick in 0..ticks {
         let t_s = tick as f64 * period_s;
@@ -166,6 +256,10 @@ pub fn replay_offline_with(
             }
             next += 1;
         }
+        if tick < span.warm_from {
+            pipeline.feed(t_s);
+            continue;
+        }
         // Without a deadline the solve stops on convergence or its iteration cap; the
         // hour is only an Instant far enough away.
         let budget = if opts.deadline {
@@ -174,24 +268,10 @@ pub fn replay_offline_with(
             Duration::from_secs(3600)
         };
         let r = pipeline.tick(t_s, Instant::now() + budget, &|| t_s);
-        times_ms.push(r.frame_ms);
-        let states = &pipeline.markers().states;
-        held += fed_markers
-            .iter()
-            .filter(|&&k| states[k] == FillState::Held)
-            .count();
-        fed_samples += fed_markers.len();
-        take(&mut rep, &r.solve);
-        if fed_markers.iter().any(|&k| states[k] != FillState::Held)
-            && r.solve.marker_residual_rms_mm.is_finite()
-        {
-            sq_sum += r.solve.marker_residual_rms_mm.powi(2);
-            in_view += 1;
-            rep.residual_mm_max = rep.residual_mm_max.max(r.solve.marker_residual_max_mm);
+        if tick < span.from {
+            continue;
         }
-        if let Some(cp) = pipeline.control_positions() {
-            rep.inverted_tets_max = rep.inverted_tets_max.max(rig.control.inverted_tets(cp));
-        }
+        count(&mut tally, &pipeline, &fed_markers, &r);
         let (joint_rot, joint_pos) = pipeline.joint_world();
         let shown = OfflineTick {
             index: tick,
@@ -201,21 +281,44 @@ pub fn replay_offline_with(
             joint_pos,
         };
         if on_tick(shown).is_break() {
-            rep.frames = tick + 1;
             break;
         }
     }
-    rep.held_share = held as f64 / fed_samples.max(1) as f64;
-    rep.residual_mm_rms = (sq_sum / in_view.max(1) as f64).sqrt();
-    times_ms.sort_by(f64::total_cmp);
-    let at = |q: f64| times_ms[((times_ms.len() - 1) as f64 * q).round() as usize];
-    (rep.frame_ms_p50, rep.frame_ms_p99, rep.frame_ms_max) = (at(0.5), at(0.99), at(1.0));
-    Ok(Some(rep))
+    Ok(Some(tally))
+}
+
+/// Counts one tick into the tally.
+fn count(tally: &mut Tally, pipeline: &Pipeline, fed_markers: &[usize], r: &TickReport) {
+    let rep = &mut tally.rep;
+    rep.frames += 1;
+    tally.times_ms.push(r.frame_ms);
+    let states = &pipeline.markers().states;
+    tally.held += fed_markers
+        .iter()
+        .filter(|&&k| states[k] == FillState::Held)
+        .count();
+    tally.fed_samples += fed_markers.len();
+    take(rep, &r.solve);
+    if fed_markers.iter().any(|&k| states[k] != FillState::Held)
+        && r.solve.marker_residual_rms_mm.is_finite()
+    {
+        tally.sq_sum += r.solve.marker_residual_rms_mm.powi(2);
+        tally.in_view += 1;
+        rep.residual_mm_max = rep.residual_mm_max.max(r.solve.marker_residual_max_mm);
+    }
+    if let Some(cp) = pipeline.control_positions() {
+        let inverted = pipeline.rig().control.inverted_tets(cp);
+        rep.inverted_tets_max = rep.inverted_tets_max.max(inverted);
+    }
 }
 
 /// One tick's solver figures into the running maxima.
 fn take(rep: &mut OfflineReport, s: &SolveReport) {
     rep.deadline_stops += (s.stop == StopReason::Deadline) as usize;
+    rep.iteration_cap_stops += (s.stop == StopReason::IterationCap) as usize;
+    // The sum until `Tally::finish` divides it.
+    rep.iterations_mean += s.iterations as f64;
+    rep.iterations_max = rep.iterations_max.max(s.iterations);
     rep.bone_length_error_max = rep.bone_length_error_max.max(s.bone_length_error);
     rep.joint_limit_violation_deg_max = rep
         .joint_limit_violation_deg_max
@@ -241,28 +344,86 @@ pub struct ExportSummary {
     /// Frames written (the take's), at `rate_hz`.
     pub frames: usize,
     pub rate_hz: f64,
-    /// Vertices (a point cache) or joints (a BVH) per frame.
+    /// Vertices (a point cache) or joints (a BVH, a glTF) per frame.
     pub points: usize,
+    /// Parts of the take solved at once ([`ExportOptions::threads`]).
+    pub parts: usize,
     /// The replay's figures over the take.
     pub replay: OfflineReport,
 }
 
-/// The file a take is being written to.
-enum TakeFile {
+/// How [`export_take`] solves a take.
+#[derive(Clone, Copy, Debug)]
+pub struct ExportOptions {
+    /// Character metres per recording metre (a calibration's scale).
+    pub marker_scale: f64,
+    /// Parts of the take solved at once, one thread each; 1 solves the take in one pass,
+    /// frame after frame, exactly as the live loop would; 0 takes one per core.
+    pub threads: usize,
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        Self {
+            marker_scale: 1.0,
+            threads: 0,
+        }
+    }
+}
+
+/// Solved ticks before a part's first frame that warm its solver up, seconds of the
+/// take: a part that starts mid-take starts from the rest pose, and its first frames
+/// converge from there to where the one-pass solve's warm start was. The marker buffer
+/// needs no such margin: a part feeds it every sample from the take's start.
+/// `EXPORT_WARM_UP_SECS` is set by the measured seam error (docs/benchmarks.md, Export).
+pub const EXPORT_WARM_UP_SECS: f64 = 0.25;
+
+/// A part is at least this many times its warm-up long, else the take has fewer parts.
+const MIN_PART_WARM_UPS: usize = 4;
+
+/// Where a part of a take goes.
+enum PartOut {
     Pc2(Pc2Writer),
     Bvh(BvhWriter),
     Glb(Box<GlbWriter>),
+    /// A later part of a skeleton export, kept until the parts before it are written:
+    /// each frame's joint rotations and positions, `joints` per frame.
+    Posture {
+        joints: usize,
+        rot: Vec<glam::DQuat>,
+        pos: Vec<DVec3>,
+    },
+}
+
+impl PartOut {
+    fn push(&mut self, t: &OfflineTick<'_>) -> Result<(), crate::output::export::ExportError> {
+        match self {
+            PartOut::Pc2(w) => w.push(t.vertices),
+            PartOut::Bvh(w) => w.push(t.joint_rot, t.joint_pos),
+            PartOut::Glb(w) => {
+                w.push(t.joint_rot, t.joint_pos);
+                Ok(())
+            }
+            PartOut::Posture { rot, pos, .. } => {
+                rot.extend_from_slice(t.joint_rot);
+                pos.extend_from_slice(t.joint_pos);
+                Ok(())
+            }
+        }
+    }
 }
 
 /// Solves every frame of `rec` at its own rate, without deadlines, and writes each to
 /// `path` in the format of its extension ([`ExportFormat`]): the full mesh (PC2, in the
 /// character's vertex order, metres, Y up) or the fitted skeleton's posture (BVH, in
-/// centimetres); one sample per take frame. `progress` hears frames done and in all.
+/// centimetres; glTF, the mesh skinned to it); one sample per take frame. With
+/// `opts.threads` above 1 the take is cut into parts solved at once, each warmed up over
+/// the [`EXPORT_WARM_UP_SECS`] before it. `progress` hears frames done and in all.
 pub fn export_take(
     rig: Arc<Rig>,
     params: SolverParams,
     rec: &Recording,
-    marker_scale: f64,
+    opts: ExportOptions,
     path: &std::path::Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ExportSummary, OfflineExportError> {
@@ -270,90 +431,270 @@ pub fn export_take(
         path: path.display().to_string(),
     })?;
     let frames = rec.frames.len();
-    let sk = &rig.skeleton;
-    let names: Vec<String> = sk.joints.iter().map(|j| j.name.clone()).collect();
-    let parents: Vec<Option<usize>> = sk.joints.iter().map(|j| j.parent).collect();
-    let rest: Vec<DVec3> = sk.joints.iter().map(|j| j.rest).collect();
-    let points = match format {
-        ExportFormat::Pc2 => rig.mesh_rest.len(),
-        ExportFormat::Bvh | ExportFormat::Glb => names.len(),
+    let map = LabelMap::new(&rec.labels, &MarkerIndex::fixed(&rig.marker_names));
+    if frames == 0 || map.marker_of_label.iter().all(Option::is_none) {
+        return Err(OfflineExportError::NoLabels {
+            take: rec.name.clone(),
+        });
+    }
+    let threads = match opts.threads {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        n => n,
     };
-    let create = || -> Result<TakeFile, crate::output::export::ExportError> {
-        Ok(match format {
-            ExportFormat::Pc2 => TakeFile::Pc2(Pc2Writer::create(path, points, frames)?),
-            ExportFormat::Bvh => {
-                let skeleton = BvhSkeleton {
-                    names: &names,
-                    parents: &parents,
-                    rest: &rest,
-                };
-                TakeFile::Bvh(BvhWriter::create(
-                    path,
-                    &skeleton,
-                    frames,
-                    1.0 / rec.rate_hz,
-                )?)
-            }
-            ExportFormat::Glb => TakeFile::Glb(Box::new(GlbWriter::new(
-                path,
-                &rig.skeleton,
-                &rig.mesh_rest,
-                &rig.triangles,
-                1.0 / rec.rate_hz,
-            ))),
-        })
-    };
-    // Created at the first frame: a take that feeds no marker leaves no file.
-    let mut file: Option<TakeFile> = None;
-    let mut failed = None;
-    let opts = OfflineOptions {
+    let warm = (EXPORT_WARM_UP_SECS * rec.rate_hz).ceil() as usize;
+    let parts = threads
+        .min(frames / (warm * MIN_PART_WARM_UPS).max(1))
+        .max(1);
+    let bounds: Vec<usize> = (0..=parts).map(|i| i * frames / parts).collect();
+    let outs = create_outputs(&rig, format, path, frames, 1.0 / rec.rate_hz, &bounds)?;
+    let play_opts = OfflineOptions {
         rate_hz: rec.rate_hz,
-        marker_scale,
+        marker_scale: opts.marker_scale,
         deadline: false,
     };
-    let report = replay_offline_with(Arc::clone(&rig), params, rec, opts, &mut |t| {
-        let f = match file.as_mut() {
-            Some(f) => Ok(f),
-            None => create().map(|f| file.insert(f)),
-        };
-        let pushed = f.and_then(|f| match f {
-            TakeFile::Pc2(w) => w.push(t.vertices),
-            TakeFile::Bvh(w) => w.push(t.joint_rot, t.joint_pos),
-            TakeFile::Glb(w) => {
-                w.push(t.joint_rot, t.joint_pos);
-                Ok(())
+    let solved = solve_parts(&rig, params, rec, play_opts, &bounds, warm, outs, progress);
+    let written = solved.and_then(|(tally, file)| {
+        finish_file(file)?;
+        Ok(tally)
+    });
+    // A failed export leaves no half-written file behind.
+    let tally = match written {
+        Ok(t) => t,
+        Err(e) => {
+            if let Err(rm) = std::fs::remove_file(path) {
+                tracing::debug!("removing {}: {rm}", path.display());
             }
-        });
-        if let Err(e) = pushed {
-            failed = Some(e);
-            return ControlFlow::Break(());
+            return Err(e);
         }
-        progress(t.index + 1, frames);
-        // The take's frames, not the tick past its last one.
-        if t.index + 1 >= frames {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    })?;
-    if let Some(e) = failed {
-        return Err(e.into());
+    };
+    if parts > 1 {
+        // The polling above may have missed the last parts' final frames.
+        progress(frames, frames);
     }
-    let Some(replay) = report else {
+    let Some(tally) = tally else {
         return Err(OfflineExportError::NoLabels {
             take: rec.name.clone(),
         });
     };
-    match file {
-        Some(TakeFile::Pc2(w)) => w.finish()?,
-        Some(TakeFile::Bvh(w)) => w.finish()?,
-        Some(TakeFile::Glb(w)) => w.finish()?,
-        None => {}
-    }
     Ok(ExportSummary {
         frames,
         rate_hz: rec.rate_hz,
-        points,
-        replay,
+        points: match format {
+            ExportFormat::Pc2 => rig.mesh_rest.len(),
+            ExportFormat::Bvh | ExportFormat::Glb => rig.skeleton.joints.len(),
+        },
+        parts,
+        replay: tally.finish(),
     })
+}
+
+/// Solves the parts `bounds` of `rec` at once, the first on this thread (showing
+/// `progress`), each into its output; the figures of them all and the skeleton
+/// formats' file, every part's postures written to it in take order.
+#[allow(clippy::too_many_arguments)]
+fn solve_parts(
+    rig: &Arc<Rig>,
+    params: SolverParams,
+    rec: &Recording,
+    play_opts: OfflineOptions,
+    bounds: &[usize],
+    warm: usize,
+    outs: Vec<PartOut>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(Option<Tally>, Option<PartOut>), OfflineExportError> {
+    let (parts, frames) = (bounds.len() - 1, bounds[bounds.len() - 1]);
+    let done = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let span = |i: usize| Span {
+        warm_from: if i == 0 {
+            0
+        } else {
+            bounds[i].saturating_sub(warm)
+        },
+        from: bounds[i],
+        to: bounds[i + 1],
+    };
+    let results: Vec<PartResult> = std::thread::scope(|scope| {
+        let mut outs = outs.into_iter();
+        let first = outs.next();
+        let later: Vec<_> = outs
+            .enumerate()
+            .map(|(k, out)| {
+                let (rig, span, done, stop) = (Arc::clone(rig), span(k + 1), &done, &stop);
+                scope.spawn(move || {
+                    run_part(
+                        rig,
+                        params,
+                        rec,
+                        play_opts,
+                        span,
+                        out,
+                        done,
+                        stop,
+                        &mut |_| {},
+                    )
+                })
+            })
+            .collect();
+        let mut all = Vec::with_capacity(parts);
+        if let Some(out) = first {
+            all.push(run_part(
+                Arc::clone(rig),
+                params,
+                rec,
+                play_opts,
+                span(0),
+                out,
+                &done,
+                &stop,
+                &mut |d| progress(d, frames),
+            ));
+        }
+        // The first part done, the others' progress still shows.
+        while later.iter().any(|h| !h.is_finished()) {
+            progress(done.load(Ordering::Relaxed), frames);
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        for h in later {
+            all.push(h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)));
+        }
+        all
+    });
+    let mut tally: Option<Tally> = None;
+    let mut file: Option<PartOut> = None;
+    for r in results {
+        let (t, out) = r?;
+        match (&mut tally, t) {
+            (Some(all), Some(t)) => all.merge(t),
+            (None, t) => tally = t,
+            (Some(_), None) => {}
+        }
+        finish_part(&mut file, out)?;
+    }
+    Ok((tally, file))
+}
+
+/// Flushes the skeleton formats' file (a PC2 part is finished with its part).
+fn finish_file(file: Option<PartOut>) -> Result<(), OfflineExportError> {
+    match file {
+        Some(PartOut::Bvh(w)) => w.finish()?,
+        Some(PartOut::Glb(w)) => w.finish()?,
+        _ => {}
+    }
+    Ok(())
+}
+
+/// What a part of an export gives back: its figures and its output.
+type PartResult = Result<(Option<Tally>, PartOut), OfflineExportError>;
+
+/// The outputs of an export's parts (`bounds`, as [`Pc2Writer::create_parts`]): a PC2
+/// writer per part; the skeleton formats' one file for the first part and a posture
+/// store for each later one.
+fn create_outputs(
+    rig: &Rig,
+    format: ExportFormat,
+    path: &std::path::Path,
+    frames: usize,
+    frame_time_s: f64,
+    bounds: &[usize],
+) -> Result<Vec<PartOut>, crate::output::export::ExportError> {
+    let sk = &rig.skeleton;
+    let first = match format {
+        ExportFormat::Pc2 => {
+            let parts = Pc2Writer::create_parts(path, rig.mesh_rest.len(), frames, bounds)?;
+            return Ok(parts.into_iter().map(PartOut::Pc2).collect());
+        }
+        ExportFormat::Bvh => {
+            let names: Vec<String> = sk.joints.iter().map(|j| j.name.clone()).collect();
+            let parents: Vec<Option<usize>> = sk.joints.iter().map(|j| j.parent).collect();
+            let rest: Vec<DVec3> = sk.joints.iter().map(|j| j.rest).collect();
+            let skeleton = BvhSkeleton {
+                names: &names,
+                parents: &parents,
+                rest: &rest,
+            };
+            PartOut::Bvh(BvhWriter::create(path, &skeleton, frames, frame_time_s)?)
+        }
+        ExportFormat::Glb => PartOut::Glb(Box::new(GlbWriter::new(
+            path,
+            sk,
+            &rig.mesh_rest,
+            &rig.triangles,
+            frame_time_s,
+        ))),
+    };
+    let mut outs = vec![first];
+    for w in bounds.windows(2).skip(1) {
+        let n = (w[1] - w[0]) * sk.joints.len();
+        outs.push(PartOut::Posture {
+            joints: sk.joints.len(),
+            rot: Vec::with_capacity(n),
+            pos: Vec::with_capacity(n),
+        });
+    }
+    Ok(outs)
+}
+
+/// Plays one part of an export into `out`, counting its frames into `done` (and showing
+/// the count to `shown`); stops early when `stop` is raised, and raises it when its
+/// output fails.
+#[allow(clippy::too_many_arguments)]
+fn run_part(
+    rig: Arc<Rig>,
+    params: SolverParams,
+    rec: &Recording,
+    opts: OfflineOptions,
+    span: Span,
+    mut out: PartOut,
+    done: &AtomicUsize,
+    stop: &AtomicBool,
+    shown: &mut dyn FnMut(usize),
+) -> PartResult {
+    let mut failed = None;
+    let tally = play(rig, params, rec, opts, span, &mut |t| {
+        if stop.load(Ordering::Relaxed) {
+            return ControlFlow::Break(());
+        }
+        if let Err(e) = out.push(&t) {
+            failed = Some(e);
+            stop.store(true, Ordering::Relaxed);
+            return ControlFlow::Break(());
+        }
+        shown(done.fetch_add(1, Ordering::Relaxed) + 1);
+        ControlFlow::Continue(())
+    });
+    if let Err(e) = tally {
+        stop.store(true, Ordering::Relaxed);
+        return Err(e.into());
+    }
+    if let Some(e) = failed {
+        return Err(e.into());
+    }
+    Ok((tally?, out))
+}
+
+/// Completes a part's output in take order: a PC2 part is finished on its own; the
+/// skeleton formats' file (the first part's) takes each later part's postures.
+fn finish_part(
+    file: &mut Option<PartOut>,
+    out: PartOut,
+) -> Result<(), crate::output::export::ExportError> {
+    match (file.as_mut(), out) {
+        (_, PartOut::Pc2(w)) => w.finish(),
+        (Some(f), PartOut::Posture { joints, rot, pos }) => {
+            let joints = joints.max(1);
+            for (r, p) in rot.chunks(joints).zip(pos.chunks(joints)) {
+                match f {
+                    PartOut::Bvh(w) => w.push(r, p)?,
+                    PartOut::Glb(w) => w.push(r, p),
+                    PartOut::Pc2(_) | PartOut::Posture { .. } => {}
+                }
+            }
+            Ok(())
+        }
+        (_, first) => {
+            *file = Some(first);
+            Ok(())
+        }
+    }
 }

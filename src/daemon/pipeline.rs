@@ -219,10 +219,11 @@ impl Pipeline {
         self.solver.joint_world()
     }
 
-    /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
-    /// `deadline`), publish (stamped with `unix_now()`, read just before publishing).
-    pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {
-        let start = Instant::now();
+    /// The first half of a tick: drains the received samples into the buffer (and the
+    /// recorder) and samples the buffer at `t_s`; returns the samples drained. Alone, it
+    /// brings the buffer's history (gap filling, gating) up to `t_s` without solving: an
+    /// export's part that starts mid-take replays the take's earlier samples this way.
+    pub fn feed(&mut self, t_s: f64) -> usize {
         let mut drained = 0;
         while let Ok(s) = self.rx.try_recv() {
             // The buffer works in the character's metres; the recorder keeps the
@@ -240,6 +241,14 @@ impl Pipeline {
         }
         self.samples += drained as u64;
         self.buffer.sample_at(t_s, &mut self.markers);
+        drained
+    }
+
+    /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
+    /// `deadline`), publish (stamped with `unix_now()`, read just before publishing).
+    pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {
+        let start = Instant::now();
+        let drained = self.feed(t_s);
         if let Some(slot) = &self.pin_slot {
             if slot.read_if_newer(&mut self.pin_version, &mut self.pins) {
                 self.solver.set_pins(&self.pins);
@@ -248,6 +257,62 @@ impl Pipeline {
         let solve = self
             .solver
             .solve(&self.markers, deadline, &mut self.vertices);
+        // Off line (an export, a check) nothing reads the frame: it is not built.
+        if !self.slots.is_empty() {
+            self.publish(t_s, start, &solve, unix_now);
+        }
+        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        if self.window_ms.len() < WINDOW_LEN {
+            self.window_ms.push(frame_ms);
+            self.window_solve_ms.push(solve.solve_ms);
+        } else {
+            self.window_ms[self.window_at] = frame_ms;
+            self.window_solve_ms[self.window_at] = solve.solve_ms;
+        }
+        self.window_at = (self.window_at + 1) % WINDOW_LEN;
+        self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
+        // Ticks with no marker in view (before a replay starts, after it ends) say nothing
+        // of the fit.
+        let in_view = self.markers.states.iter().any(|s| *s != FillState::Held);
+        if in_view && solve.marker_residual_rms_mm.is_finite() {
+            self.residual_sq_sum += solve.marker_residual_rms_mm * solve.marker_residual_rms_mm;
+            self.residual_frames += 1;
+            self.residual_max_mm = self.residual_max_mm.max(solve.marker_residual_max_mm);
+        }
+        self.interval_frames += 1;
+        self.interval_iterations += solve.iterations as u64;
+        let report = TickReport {
+            frame: self.frame_no,
+            samples: drained,
+            solve,
+            frame_ms,
+        };
+        self.frame_no += 1;
+        report
+    }
+
+    /// Passes the samples still queued to the recorder (at shutdown, so that a session
+    /// file holds every sample that arrived).
+    pub fn flush_to_recorder(&mut self) {
+        while let Ok(s) = self.rx.try_recv() {
+            if let Some(tx) = &self.recorder {
+                if tx.try_send(s).is_err() {
+                    self.record_dropped += 1;
+                }
+            }
+        }
+    }
+
+    /// A pooled frame no sink holds any more, or a new one while the pool fills.
+    /// Fills a pooled frame with the tick's solve (stamped with `unix_now()`) and
+    /// publishes it to every slot.
+    fn publish(
+        &mut self,
+        t_s: f64,
+        start: Instant,
+        solve: &SolveReport,
+        unix_now: &dyn Fn() -> f64,
+    ) {
         let mut frame = self.recycled_frame();
         {
             let f = Arc::get_mut(&mut frame).expect("a recycled frame is unshared");
@@ -315,49 +380,8 @@ impl Pipeline {
             slot.publish(Arc::clone(&frame));
         }
         self.keep_for_reuse(frame);
-        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
-        if self.window_ms.len() < WINDOW_LEN {
-            self.window_ms.push(frame_ms);
-            self.window_solve_ms.push(solve.solve_ms);
-        } else {
-            self.window_ms[self.window_at] = frame_ms;
-            self.window_solve_ms[self.window_at] = solve.solve_ms;
-        }
-        self.window_at = (self.window_at + 1) % WINDOW_LEN;
-        self.deadline_stops += (solve.stop == StopReason::Deadline) as u64;
-        // Ticks with no marker in view (before a replay starts, after it ends) say nothing
-        // of the fit.
-        let in_view = self.markers.states.iter().any(|s| *s != FillState::Held);
-        if in_view && solve.marker_residual_rms_mm.is_finite() {
-            self.residual_sq_sum += solve.marker_residual_rms_mm * solve.marker_residual_rms_mm;
-            self.residual_frames += 1;
-            self.residual_max_mm = self.residual_max_mm.max(solve.marker_residual_max_mm);
-        }
-        self.interval_frames += 1;
-        self.interval_iterations += solve.iterations as u64;
-        let report = TickReport {
-            frame: self.frame_no,
-            samples: drained,
-            solve,
-            frame_ms,
-        };
-        self.frame_no += 1;
-        report
     }
 
-    /// Passes the samples still queued to the recorder (at shutdown, so that a session
-    /// file holds every sample that arrived).
-    pub fn flush_to_recorder(&mut self) {
-        while let Ok(s) = self.rx.try_recv() {
-            if let Some(tx) = &self.recorder {
-                if tx.try_send(s).is_err() {
-                    self.record_dropped += 1;
-                }
-            }
-        }
-    }
-
-    /// A pooled frame no sink holds any more, or a new one while the pool fills.
     fn recycled_frame(&mut self) -> Arc<DeformedFrame> {
         if let Some(i) = self.pool.iter_mut().position(|f| Arc::get_mut(f).is_some()) {
             return self.pool.swap_remove(i);

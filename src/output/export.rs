@@ -7,7 +7,7 @@
 use crate::protocol::pc2::{encode_frame, encode_header, Pc2Header};
 use crate::replay::bvh::BvhSkeleton;
 use glam::{DQuat, DVec3};
-use std::io::Write;
+use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
 
 /// Why an export failed.
@@ -64,6 +64,23 @@ impl FramedFile {
         Ok(f)
     }
 
+    /// Opens `path` (made by [`FramedFile::create`], not truncated) for `frames` frames
+    /// starting `offset` bytes in: one part of a file whose parts are written at once.
+    fn open_at(path: &Path, offset: u64, frames: usize) -> Result<Self, ExportError> {
+        let mut file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(path)
+            .map_err(|source| io_error(path, source))?;
+        file.seek(std::io::SeekFrom::Start(offset))
+            .map_err(|source| io_error(path, source))?;
+        Ok(Self {
+            out: std::io::BufWriter::new(file),
+            path: path.to_owned(),
+            frames,
+            written: 0,
+        })
+    }
+
     /// Writes one frame's bytes; an error past the promised count.
     fn write_frame(&mut self, bytes: &[u8]) -> Result<(), ExportError> {
         if self.written >= self.frames {
@@ -114,6 +131,51 @@ impl Pc2Writer {
     /// A cache of `samples` frames of `points` points at `path` (replaced if it exists),
     /// its first frame at frame 0, a sample per frame.
     pub fn create(path: &Path, points: usize, samples: usize) -> Result<Self, ExportError> {
+        let header = Self::header(path, points, samples)?;
+        Ok(Self {
+            file: FramedFile::create(path, &encode_header(&header), samples)?,
+            points,
+            buf: Vec::with_capacity(points * 12),
+        })
+    }
+
+    /// [`Pc2Writer::create`]'s cache written in parts at once: one writer per range
+    /// `bounds[i]..bounds[i + 1]` of samples, each positioned at its first frame (PC2
+    /// frames have a fixed size, 12 bytes a point). `bounds` rises from 0 to `samples`;
+    /// each writer's [`Pc2Writer::finish`] checks its own part.
+    pub fn create_parts(
+        path: &Path,
+        points: usize,
+        samples: usize,
+        bounds: &[usize],
+    ) -> Result<Vec<Self>, ExportError> {
+        let head = encode_header(&Self::header(path, points, samples)?);
+        let frame_bytes = points as u64 * 12;
+        // Saturating: a size past the disk's fails at `set_len` with the OS's error.
+        let whole = (head.len() as u64).saturating_add(frame_bytes.saturating_mul(samples as u64));
+        std::fs::File::create(path)
+            .and_then(|mut f| {
+                f.write_all(&head)?;
+                f.set_len(whole)
+            })
+            .map_err(|source| io_error(path, source))?;
+        bounds
+            .windows(2)
+            .map(|w| {
+                let at =
+                    (head.len() as u64).saturating_add(frame_bytes.saturating_mul(w[0] as u64));
+                Ok(Self {
+                    file: FramedFile::open_at(path, at, w[1].saturating_sub(w[0]))?,
+                    points,
+                    buf: Vec::with_capacity(points * 12),
+                })
+            })
+            .collect()
+    }
+
+    /// The header of a cache of `samples` frames of `points` points; an error when a
+    /// count does not fit the format.
+    fn header(path: &Path, points: usize, samples: usize) -> Result<Pc2Header, ExportError> {
         let fits = |what, count: usize| {
             u32::try_from(count)
                 .ok()
@@ -124,16 +186,11 @@ impl Pc2Writer {
                     count,
                 })
         };
-        let header = Pc2Header {
+        Ok(Pc2Header {
             points: fits("points", points)?,
             start_frame: 0.0,
             sample_rate: 1.0,
             samples: fits("frames", samples)?,
-        };
-        Ok(Self {
-            file: FramedFile::create(path, &encode_header(&header), samples)?,
-            points,
-            buf: Vec::with_capacity(points * 12),
         })
     }
 

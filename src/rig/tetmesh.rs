@@ -97,8 +97,8 @@ impl TetMesh {
         self.tets
             .iter()
             .filter(|t| {
-                let [a, b, c, d] = t.map(|i| positions[i as usize]);
-                signed_volume6(a, b, c, d) <= 0.0
+                let p = |k: usize| positions[t[k] as usize];
+                signed_volume6(p(0), p(1), p(2), p(3)) <= 0.0
             })
             .count()
     }

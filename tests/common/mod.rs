@@ -7,19 +7,35 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-/// A file of `../shared/data` (real recordings, meshes, captures), or `None` with the
-/// reason printed when it is absent (the tests that need it then skip).
-pub fn shared_file(rel: &str) -> Option<Vec<u8>> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    match std::fs::read(&p) {
-        Ok(b) => Some(b),
-        Err(e) => {
-            println!("skipping: {}: {e}", p.display());
-            None
-        }
+/// The shared data folder beside the checkout: real recordings, meshes and captures
+/// from other people's systems, which the project does not ship.
+pub fn shared_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data")
+}
+
+/// A path under the shared data folder, or `None` when it is absent: the test then
+/// skips, printing why; with `RIGLESS_REQUIRE_SHARED_DATA` set (`.ci/run` sets it when
+/// the folder is there) an absent file is a failure instead.
+pub fn shared_path(rel: &str) -> Option<PathBuf> {
+    let p = shared_dir().join(rel);
+    if p.exists() {
+        return Some(p);
     }
+    let why = format!(
+        "{} is absent (the shared test data is not part of this repository)",
+        p.display()
+    );
+    if std::env::var_os("RIGLESS_REQUIRE_SHARED_DATA").is_some() {
+        panic!("{why}; RIGLESS_REQUIRE_SHARED_DATA is set");
+    }
+    eprintln!("skipped: {why}");
+    None
+}
+
+/// A file of the shared data folder read whole, or `None` as [`shared_path`].
+pub fn shared_file(rel: &str) -> Option<Vec<u8>> {
+    let p = shared_path(rel)?;
+    Some(std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
 }
 
 /// Bounded wait for the demo to print its stream address (binding the hand takes about a
