@@ -15,6 +15,8 @@ use std::io::Write;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+mod common;
+
 #[test]
 fn a_vrpn_tracker_drives_the_daemon() {
     let markers: Vec<(String, glam::DVec3)> = rigless::character::demo::demo_hand()
@@ -107,26 +109,6 @@ fn a_vrpn_tracker_drives_the_daemon() {
     );
     assert!(summary.source_samples >= 8 * 120, "{summary:?}");
     // Each sensor fed the marker the config names for it, at its rest position: the
-    // solved mesh is the hand at rest. 0.5 mm: the solver stops at a relative change of
-    // 1e-3, a few micrometres from the exact rest pose on this 20 cm hand; a marker mapped
-    // to the wrong sensor would move the mesh by centimetres.
-    let hand = rigless::character::demo::demo_hand();
-    for (k, m) in hand.markers.iter().enumerate() {
-        assert!(
-            (last.markers_m[k].as_dvec3() - m.rest).length() < 1e-5,
-            "marker {}",
-            m.name
-        );
-    }
-    let worst = last
-        .vertices_m
-        .iter()
-        .zip(&hand.vertices)
-        .map(|(v, r)| (v.as_dvec3() - *r).length())
-        .fold(0.0, f64::max);
-    println!(
-        "largest vertex distance from the rest pose: {:.4} mm",
-        worst * 1e3
-    );
-    assert!(worst < 5e-4, "the hand is {worst} m from its rest pose");
+    // solved mesh is the hand at rest.
+    common::assert_hand_at_rest(&last);
 }

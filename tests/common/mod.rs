@@ -236,3 +236,29 @@ pub fn skip_for_missing_peer(why: &str) {
     }
     eprintln!("skipped: {why}");
 }
+
+/// The procedural hand's solved frame is its rest pose: every marker where the hand
+/// carries it (1e-5 m: sent as f64, read back as the stream's f32) and every vertex
+/// within 0.5 mm of rest (the solver stops at a relative change of 1e-3, a few
+/// micrometres from the exact rest pose on this 20 cm hand). Markers fed to the wrong
+/// slots, in the wrong units or axes, move the mesh by centimetres. Returns the largest
+/// vertex distance, metres.
+pub fn assert_hand_at_rest(frame: &rigless::output::frame::DeformedFrame) -> f64 {
+    let hand = rigless::character::demo::demo_hand();
+    for (k, m) in hand.markers.iter().enumerate() {
+        let d = (frame.markers_m[k].as_dvec3() - m.rest).length();
+        assert!(d < 1e-5, "marker {} is {d} m from its rest position", m.name);
+    }
+    let worst = frame
+        .vertices_m
+        .iter()
+        .zip(&hand.vertices)
+        .map(|(v, r)| (v.as_dvec3() - *r).length())
+        .fold(0.0, f64::max);
+    println!(
+        "largest vertex distance from the rest pose: {:.4} mm",
+        worst * 1e3
+    );
+    assert!(worst < 5e-4, "the hand is {worst} m from its rest pose");
+    worst
+}
