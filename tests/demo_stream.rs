@@ -172,7 +172,11 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
     let s = rigless::replay::session::read_session(&std::fs::read(&session).unwrap()).unwrap();
     // Sample times are the take's (the replay's source clock), 120 frames a second from
     // its first: the span recorded is the newest minus the first, plus a frame.
-    let first = s.samples.iter().map(|x| x.time_s).fold(f64::INFINITY, f64::min);
+    let first = s
+        .samples
+        .iter()
+        .map(|x| x.time_s)
+        .fold(f64::INFINITY, f64::min);
     let newest = s.samples.iter().map(|x| x.time_s).fold(0.0, f64::max);
     let span = newest - first + 1.0 / 120.0;
     println!(

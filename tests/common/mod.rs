@@ -247,7 +247,11 @@ pub fn assert_hand_at_rest(frame: &rigless::output::frame::DeformedFrame) -> f64
     let hand = rigless::character::demo::demo_hand();
     for (k, m) in hand.markers.iter().enumerate() {
         let d = (frame.markers_m[k].as_dvec3() - m.rest).length();
-        assert!(d < 1e-5, "marker {} is {d} m from its rest position", m.name);
+        assert!(
+            d < 1e-5,
+            "marker {} is {d} m from its rest position",
+            m.name
+        );
     }
     let worst = frame
         .vertices_m
