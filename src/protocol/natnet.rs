@@ -698,7 +698,89 @@ mod tests {
             )
     }
 
+    /// Names as servers write them; a NUL, which a C string cannot hold, is dropped.
+    fn name() -> impl Strategy<Value = String> {
+        "[A-Za-z0-9_:\\- \\x00]{0,16}"
+    }
+
+    fn any_description() -> impl Strategy<Value = Description> {
+        prop_oneof![
+            (name(), proptest::collection::vec(name(), 0..8))
+                .prop_map(|(name, markers)| Description::MarkerSet { name, markers }),
+            (name(), any::<i32>(), any::<i32>())
+                .prop_map(|(name, id, parent)| Description::RigidBody { name, id, parent }),
+            (name(), any::<i32>()).prop_map(|(name, id)| Description::Skeleton { name, id }),
+        ]
+    }
+
+    /// What a description reads back as: its names without NULs.
+    fn without_nuls(d: &Description) -> Description {
+        let clean = |s: &String| s.replace('\0', "");
+        match d {
+            Description::MarkerSet { name, markers } => Description::MarkerSet {
+                name: clean(name),
+                markers: markers.iter().map(clean).collect(),
+            },
+            Description::RigidBody { name, id, parent } => Description::RigidBody {
+                name: clean(name),
+                id: *id,
+                parent: *parent,
+            },
+            Description::Skeleton { name, id } => Description::Skeleton {
+                name: clean(name),
+                id: *id,
+            },
+        }
+    }
+
+    fn any_server_info() -> impl Strategy<Value = ServerInfo> {
+        (
+            "[A-Za-z0-9 ._-]{0,255}",
+            any::<[u8; 4]>(),
+            (3u8..=4, 0u8..=2),
+            proptest::option::of(1u64..),
+            proptest::option::of(1u16..),
+            proptest::option::of(any::<[u8; 4]>()),
+        )
+            .prop_map(|(app, app_version, (major, minor), clock_hz, data_port, group)| {
+                ServerInfo {
+                    app,
+                    app_version,
+                    natnet: Version(major, minor),
+                    clock_hz,
+                    data_port,
+                    multicast_group: group.map(std::net::Ipv4Addr::from),
+                }
+            })
+    }
+
     proptest! {
+        /// The model definitions a replay server sends read back as themselves, names
+        /// without NULs, whatever their names, counts and ids.
+        #[test]
+        fn encoded_model_definitions_decode_to_themselves(
+            d in proptest::collection::vec(any_description(), 0..6),
+        ) {
+            let b = encode_model_def(&d).unwrap();
+            let want: Vec<Description> = d.iter().map(without_nuls).collect();
+            prop_assert_eq!(decode(&b, Version(3, 0)), Ok(Message::ModelDef(want)));
+        }
+
+        /// The server info reads back as itself, in Motive's 283 bytes, whatever its
+        /// name (up to the field's 255 bytes), versions, clock, port and group. A NatNet
+        /// 3 packet always carries the clock and the port: an absent one goes as 0.
+        #[test]
+        fn encoded_server_info_decodes_to_itself(info in any_server_info()) {
+            let b = encode_server_info(&info);
+            prop_assert_eq!(b.len(), 283);
+            let want = ServerInfo {
+                clock_hz: Some(info.clock_hz.unwrap_or(0)),
+                data_port: Some(info.data_port.unwrap_or(0)),
+                ..info
+            };
+            prop_assert_eq!(decode(&b, Version(3, 0)), Ok(Message::ServerInfo(want)));
+        }
+
         #[test]
         fn encoded_frames_decode_to_themselves(f in any_frame()) {
             let b = encode_frame(&f).unwrap();
