@@ -712,6 +712,75 @@ pub fn run(
 mod tests {
     use super::*;
 
+    /// A loopback server that answers the first connect request with its info and model
+    /// definitions and then falls silent: the client connects again once
+    /// [`SERVER_SILENCE_S`] has passed without a packet, and not before.
+    #[test]
+    fn a_silent_server_is_connected_again_after_five_seconds() {
+        use crate::protocol::natnet::{encode_model_def, encode_server_info, NAT_CONNECT};
+        let server = UdpSocket::bind("127.0.0.1:0").unwrap();
+        server
+            .set_read_timeout(Some(std::time::Duration::from_millis(100)))
+            .unwrap();
+        let server_addr = server.local_addr().unwrap();
+        let data = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let command = command_socket(server_addr).unwrap();
+        let stop = AtomicBool::new(false);
+        let stats = NatNetStats::default();
+        let mut client = CommandClient::new(Version(3, 0), true);
+        let info = encode_server_info(&ServerInfo {
+            app: "Motive".into(),
+            app_version: [3, 1, 0, 0],
+            natnet: Version(3, 0),
+            clock_hz: Some(1_000_000),
+            data_port: Some(data.local_addr().unwrap().port()),
+            multicast_group: None,
+        });
+        let models = encode_model_def(&[]).unwrap();
+        let started = std::time::Instant::now();
+        // Seconds from the start at which connect requests arrived.
+        let connects = std::thread::scope(|scope| {
+            let served = scope.spawn(|| {
+                let mut connects: Vec<f64> = Vec::new();
+                let mut buf = [0u8; 1024];
+                // Bounded: 9 s, enough for a second connect at about 5 s.
+                while started.elapsed().as_secs_f64() < 9.0 && connects.len() < 2 {
+                    let Ok((n, from)) = server.recv_from(&mut buf) else {
+                        continue;
+                    };
+                    if n >= 2 && u16::from_le_bytes([buf[0], buf[1]]) == NAT_CONNECT {
+                        connects.push(started.elapsed().as_secs_f64());
+                        if connects.len() == 1 {
+                            server.send_to(&info, from).unwrap();
+                            server.send_to(&models, from).unwrap();
+                        }
+                    }
+                }
+                stop.store(true, Ordering::Relaxed);
+                connects
+            });
+            run_with_server(
+                &data,
+                &command,
+                server_addr,
+                &mut client,
+                &stop,
+                &stats,
+                &mut |_, _, _| {},
+            )
+            .unwrap();
+            served.join().unwrap()
+        });
+        assert_eq!(connects.len(), 2, "{connects:?}");
+        let gap = connects[1] - connects[0];
+        // The server's answer came a few ms after the first request: silence is counted
+        // from it. Half a second of slack for a loaded machine.
+        assert!(
+            (SERVER_SILENCE_S..SERVER_SILENCE_S + 0.5).contains(&gap),
+            "connected again after {gap} s"
+        );
+    }
+
     #[test]
     fn the_command_client_connects_asks_for_models_and_keeps_unicast_alive() {
         let mut c = CommandClient::new(Version(3, 0), true);

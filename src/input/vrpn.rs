@@ -713,6 +713,100 @@ mod tests {
     use super::*;
     use crate::protocol::vrpn::Message;
 
+    /// The greeting and one report of `Dev`'s sensor `sensor`, as a server sends them.
+    fn greeting_and_report(sensor: i32) -> Vec<u8> {
+        let mut out = cookie().to_vec();
+        encode_message(
+            &mut out,
+            0,
+            0,
+            7,
+            SENDER_DESCRIPTION,
+            &description_payload("Dev"),
+        );
+        encode_message(
+            &mut out,
+            0,
+            0,
+            4,
+            TYPE_DESCRIPTION,
+            &description_payload(POS_QUAT),
+        );
+        let r = PosQuat {
+            sensor,
+            position: glam::DVec3::new(0.1, 0.2, 0.3),
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        encode_message(
+            &mut out,
+            1,
+            0,
+            7,
+            4,
+            &crate::protocol::vrpn::encode_pos_quat(&r),
+        );
+        out
+    }
+
+    /// A server that drops the connection after one report: the client counts the drop,
+    /// waits [`RECONNECT_S`], connects again and reads the next connection's report.
+    #[test]
+    fn a_dropped_server_is_connected_again() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let server = std::thread::spawn(move || {
+            for sensor in [1, 2] {
+                let (mut s, _) = listener.accept().unwrap();
+                s.write_all(&greeting_and_report(sensor)).unwrap();
+                // What the client sent (its cookie, its descriptions) is read before the
+                // close, which is then an orderly one (unread bytes would make it a reset).
+                s.set_read_timeout(Some(Duration::from_millis(200)))
+                    .unwrap();
+                let mut chunk = [0u8; 4096];
+                while matches!(s.read(&mut chunk), Ok(n) if n > 0) {}
+                // Closed at the end of the loop body: the drop.
+                if sensor == 2 {
+                    // Held open until the client has read the report and stopped.
+                    std::thread::sleep(Duration::from_millis(500));
+                }
+            }
+        });
+        let stop = AtomicBool::new(false);
+        let stats = VrpnStats::default();
+        let mut sensors = Vec::new();
+        let started = std::time::Instant::now();
+        run(addr, "Dev", &stop, &stats, &mut |_, _, r| {
+            sensors.push(r.sensor);
+            if r.sensor == 2 {
+                stop.store(true, Ordering::Relaxed);
+            }
+        });
+        server.join().unwrap();
+        assert_eq!(sensors, [1, 2]);
+        assert_eq!(stats.connections.load(Ordering::Relaxed), 2);
+        assert_eq!(stats.closed.load(Ordering::Relaxed), 1);
+        assert_eq!(stats.errors.load(Ordering::Relaxed), 0);
+        // The second connection waited out the pause after the drop, and no more.
+        let took = started.elapsed().as_secs_f64();
+        assert!((RECONNECT_S..RECONNECT_S + 3.0).contains(&took), "{took} s");
+    }
+
+    /// Time passed in: a ping after a second of silence and every second after, none
+    /// while the server talks, and the connection given up at five seconds.
+    #[test]
+    fn liveness_pings_a_quiet_server_and_gives_up_a_silent_one() {
+        let mut l = Liveness::new(10.0);
+        assert_eq!(l.poll(10.5), Due::Nothing);
+        assert_eq!(l.poll(11.0), Due::Ping);
+        assert_eq!(l.poll(11.5), Due::Nothing);
+        assert_eq!(l.poll(12.0), Due::Ping);
+        l.heard(12.25);
+        assert_eq!(l.poll(13.0), Due::Nothing);
+        assert_eq!(l.poll(13.25), Due::Ping);
+        assert_eq!(l.poll(17.0), Due::Ping);
+        assert_eq!(l.poll(17.25), Due::Dead { silent_s: 5.0 });
+    }
+
     /// A server that describes `Dev` and its types, sends a ping and one report, and
     /// returns what the client sent back.
     #[test]

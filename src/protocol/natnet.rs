@@ -742,16 +742,16 @@ mod tests {
             proptest::option::of(1u16..),
             proptest::option::of(any::<[u8; 4]>()),
         )
-            .prop_map(|(app, app_version, (major, minor), clock_hz, data_port, group)| {
-                ServerInfo {
+            .prop_map(
+                |(app, app_version, (major, minor), clock_hz, data_port, group)| ServerInfo {
                     app,
                     app_version,
                     natnet: Version(major, minor),
                     clock_hz,
                     data_port,
                     multicast_group: group.map(std::net::Ipv4Addr::from),
-                }
-            })
+                },
+            )
     }
 
     proptest! {
