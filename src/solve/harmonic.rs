@@ -757,6 +757,57 @@ mod tests {
         assert!(moved("index_tip") > 0.01, "{}", moved("index_tip"));
     }
 
+    /// The 180° remedy: the index finger bent at its knuckle in 10° steps from rest to
+    /// 200°, each frame from the last. Up to 150° from the root the field interpolates
+    /// from the root; past it (160° on) each frame interpolates the change since the
+    /// previous one. Through 180°, where the hemisphere of the root-relative constraint
+    /// flips, every vertex moves on smoothly: no step moves it more than twice its
+    /// median step plus 1 mm (the root-relative field, kept past 180°, turns the
+    /// knuckle's vertices the other way round at once).
+    #[test]
+    fn a_finger_bent_through_180_degrees_moves_smoothly() {
+        let (ch, rig) = setup();
+        let mut st = rig.new_state();
+        let sk = &ch.skeleton;
+        let j = sk
+            .joints
+            .iter()
+            .position(|jt| jt.name == "index_1")
+            .unwrap();
+        let (mut rot, mut pos) = (vec![DQuat::IDENTITY; sk.len()], vec![DVec3::ZERO; sk.len()]);
+        let mut local = vec![DQuat::IDENTITY; sk.len()];
+        let mut frames = vec![ch.vertices.clone()];
+        for step in 1..=20 {
+            let deg = 10.0 * step as f64;
+            local[j] = DQuat::from_axis_angle(sk.joints[j].bend_axis, deg.to_radians());
+            sk.forward(&local, DVec3::ZERO, &mut rot, &mut pos);
+            let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+            let rep = rig.deform(&mut st, &rot, &pos, &mut out);
+            assert_eq!(rep.previous_reference, deg > 150.0, "at {deg}°");
+            frames.push(out);
+        }
+        let mut worst = (0.0, 0, 0);
+        for v in 0..ch.vertices.len() {
+            let steps: Vec<f64> = frames
+                .windows(2)
+                .map(|w| (w[1][v] - w[0][v]).length())
+                .collect();
+            let mut sorted = steps.clone();
+            sorted.sort_by(f64::total_cmp);
+            let bound = 2.0 * sorted[sorted.len() / 2] + 1e-3;
+            for (k, m) in steps.iter().enumerate() {
+                if m / bound > worst.0 {
+                    worst = (m / bound, v, 10 * (k + 1));
+                }
+            }
+        }
+        let (ratio, v, deg) = worst;
+        assert!(
+            ratio <= 1.0,
+            "vertex {v} jumps at {deg}°: {ratio} times its bound"
+        );
+    }
+
     #[test]
     fn correspondences_from_the_file_replace_the_automatic_ones_of_their_joint() {
         let (ch, auto) = setup();
