@@ -64,6 +64,10 @@ fn track(toml_path: &Path, seconds: f64) -> Tracked {
     let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
     let mut out = vec![DVec3::ZERO; ch.vertices.len()];
     let mut markers = vec![DVec3::ZERO; ch.markers.len()];
+    // No real asset here carries a skin rigless reads (MakeHuman's weights are not in
+    // its files; the glTF samples' skins are not kept), so there is no skinned truth to
+    // compare the mesh with: the truth is the markers, placed on the bones exactly, and
+    // the residual is the measure. `skin_pose` poses the markers only.
     let mut skinned = Vec::new();
     let (mut inv, mut jlv, mut ble, mut res2) = (0usize, 0.0f64, 0.0, 0.0);
     let (mut min_ratio, mut cold) = (f64::INFINITY, (0, 0.0));
@@ -281,6 +285,12 @@ fn makehuman_file(dir: &Path, groups: &[&str]) -> Option<PathBuf> {
     )
 }
 
+/// The MakeHuman body's marker residual bound, mm RMS: measured 0.08 (the body group)
+/// and 0.12 (every part); the solve has no deadline here, so it is the same on every
+/// machine up to libm's rounding, and twice the larger figure leaves room for that. A
+/// marker bound to the wrong bone, or a solve stopped early, leaves millimetres.
+const MAKEHUMAN_RESIDUAL_MM: f64 = 0.25;
+
 #[test]
 fn makehuman_body_bakes_and_tracks() {
     let dir = tempfile::tempdir().unwrap();
@@ -307,9 +317,8 @@ fn makehuman_body_bakes_and_tracks() {
         (1.5..1.8).contains(&h),
         "height {h} m after the decimetre conversion"
     );
-    // The 2 mm residual target scaled from a hand to a body (1.66 m against 0.2 m).
     let t = track(&path, 1.0);
-    assert_tracked(&t, 2.0 * 1.66 / 0.2);
+    assert_tracked(&t, MAKEHUMAN_RESIDUAL_MM);
     assert_eq!(t.inverted_tets, 0, "{t:?}");
 }
 
@@ -345,7 +354,7 @@ fn makehuman_with_all_its_parts_bakes_and_tracks() {
         assert!(names.contains(&group), "{group}: {names:?}");
     }
     let t = track(&path, 1.0);
-    assert_tracked(&t, 2.0 * 1.66 / 0.2);
+    assert_tracked(&t, MAKEHUMAN_RESIDUAL_MM);
 }
 
 /// A character file for a skinned glTF with one marker on every skin joint and no limits
