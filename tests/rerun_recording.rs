@@ -183,6 +183,11 @@ fn demo_saves_a_recording_that_rerun_reads_back() {
             .all(|i| i.fract() == 0.0 && (0.0..=30.0).contains(i)),
         "{its:?}"
     );
+    // Each frame's convergence trace holds the criterion after each of its local steps:
+    // one more than its iterations (the first step comes before any), at most the
+    // trace's 32. A trace logged for the wrong frame or cut short changes the sum.
+    let traced: u64 = its.iter().map(|i| (*i as u64 + 1).min(32)).sum();
+    assert_eq!(rows("/solver/convergence"), traced, "{v}");
     // The default blueprint: the 3D view and the plots.
     assert_eq!(
         v["views"],
