@@ -343,8 +343,20 @@ struct InputWindow {
 }
 
 impl InputWindow {
-    /// Logs the window's rate and longest gap once it spans [`INPUT_WINDOW_S`].
-    fn log(&mut self, rec: &::rerun::RecordingStream, stats: &RerunStats, t_s: f64) {
+    fn new(series: InputSeries) -> Self {
+        Self {
+            series,
+            start_s: None,
+            start_frames: 0,
+            seen_frames: 0,
+            changed_s: 0.0,
+        }
+    }
+
+    /// Looks at the input's counters at `t_s` (a frame's publish time): once the window
+    /// spans [`INPUT_WINDOW_S`], its frame rate (Hz) and longest gap (s), and a new
+    /// window starts; `None` before. Pure but for the counters: time is passed in.
+    fn measure(&mut self, t_s: f64) -> Option<(f64, f64)> {
         let c = &self.series.counters;
         let n = c.frames.load(Ordering::Relaxed);
         let start_s = *self.start_s.get_or_insert_with(|| {
@@ -359,12 +371,22 @@ impl InputWindow {
         }
         let span_s = t_s - start_s;
         if span_s < INPUT_WINDOW_S {
-            return;
+            return None;
         }
         let rate_hz = (n - self.start_frames) as f64 / span_s;
         // Between two frames (the source's own clock), or since the last frame (this
         // thread's view, to a solver tick) when the source has gone quiet.
         let gap_s = c.take_longest_interval_s().max(t_s - self.changed_s);
+        self.start_s = Some(t_s);
+        self.start_frames = n;
+        Some((rate_hz, gap_s))
+    }
+
+    /// Logs the window's rate and longest gap once it spans [`INPUT_WINDOW_S`].
+    fn log(&mut self, rec: &::rerun::RecordingStream, stats: &RerunStats, t_s: f64) {
+        let Some((rate_hz, gap_s)) = self.measure(t_s) else {
+            return;
+        };
         let base = format!("inputs/{}", self.series.name);
         stats.check(rec.log(
             format!("{base}/packet_rate_hz"),
@@ -374,8 +396,6 @@ impl InputWindow {
             format!("{base}/gap_ms"),
             &::rerun::Scalars::single(gap_s * 1e3),
         ));
-        self.start_s = Some(t_s);
-        self.start_frames = n;
     }
 }
 
@@ -424,16 +444,7 @@ impl Logger {
             mesh_every: opts.mesh_every,
             control_mesh: opts.control_mesh,
             harmonic_field,
-            inputs: inputs
-                .into_iter()
-                .map(|series| InputWindow {
-                    series,
-                    start_s: None,
-                    start_frames: 0,
-                    seen_frames: 0,
-                    changed_s: 0.0,
-                })
-                .collect(),
+            inputs: inputs.into_iter().map(InputWindow::new).collect(),
             first_time_s: None,
             strips: Vec::new(),
             strip_colors: Vec::new(),
@@ -592,5 +603,80 @@ impl Logger {
         if let Err(e) = self.rec.flush_blocking() {
             tracing::warn!("rerun: flushing the recording failed: {e}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::SourceCounters;
+
+    /// An input's series on a manual schedule: frames counted at their times, windows
+    /// measured at the loop's ticks (120 Hz publish times), all passed in.
+    struct Schedule {
+        window: InputWindow,
+        counters: Arc<SourceCounters>,
+    }
+
+    impl Schedule {
+        fn new() -> Self {
+            let counters = Arc::new(SourceCounters::default());
+            let series = InputSeries {
+                name: "0_replay".into(),
+                counters: Arc::clone(&counters),
+            };
+            Self {
+                window: InputWindow::new(series),
+                counters,
+            }
+        }
+
+        /// Ticks `from..to` (1/120 s apart); before each, the source's frames due by
+        /// then (`frame_s`, ascending, taken from the front). Returns the points logged.
+        fn run(&mut self, ticks: std::ops::Range<u32>, frame_s: &mut Vec<f64>) -> Vec<(f64, f64)> {
+            let mut points = Vec::new();
+            for k in ticks {
+                let t_s = f64::from(k) / 120.0;
+                while frame_s.first().is_some_and(|&f| f <= t_s + 1e-12) {
+                    self.counters.count_frame(frame_s.remove(0));
+                }
+                points.extend(self.window.measure(t_s));
+            }
+            points
+        }
+    }
+
+    /// A steady 120 Hz source reads 120 Hz in every quarter-second window (a frame
+    /// either way at a window's ends: ±4 Hz) and gaps of one frame (8.3 ms); a 100 ms
+    /// stall shows as a 100 ms gap in its window and a lower rate there; a source that
+    /// stops shows its silence growing, window after window, at a rate of 0.
+    #[test]
+    fn input_series_read_rate_and_gaps_on_a_manual_schedule() {
+        let mut s = Schedule::new();
+        // 2 s at 120 Hz.
+        let mut frames: Vec<f64> = (0..240).map(|i| f64::from(i) / 120.0).collect();
+        let steady = s.run(0..240, &mut frames);
+        assert_eq!(steady.len(), 7, "{steady:?}");
+        for (rate, gap) in &steady {
+            assert!((rate - 120.0).abs() <= 4.0 + 1e-9, "{steady:?}");
+            assert!((gap - 1.0 / 120.0).abs() < 1e-9, "{steady:?}");
+        }
+        // A stall: 12 frames (100 ms) missing, then 120 Hz again until 3 s.
+        let mut frames: Vec<f64> = (240..360)
+            .filter(|i| !(264..276).contains(i))
+            .map(|i| f64::from(i) / 120.0)
+            .collect();
+        let stalled = s.run(240..360, &mut frames);
+        let longest = stalled.iter().map(|p| p.1).fold(0.0, f64::max);
+        assert!((longest - 13.0 / 120.0).abs() < 1e-9, "{stalled:?}");
+        assert!(stalled.iter().any(|p| p.0 < 100.0), "{stalled:?}");
+        // Silence from 3 s: the window open then still holds the last frames; every
+        // later one reads no frame, and the gap grows by a window each time.
+        let silent = s.run(360..480, &mut Vec::new());
+        assert!(silent[1..].iter().all(|p| p.0 == 0.0), "{silent:?}");
+        assert!(
+            silent.windows(2).all(|w| w[1].1 >= w[0].1 + 0.25 - 1e-9),
+            "{silent:?}"
+        );
     }
 }
