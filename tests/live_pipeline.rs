@@ -492,3 +492,56 @@ fn late_ticks_are_skipped_and_counted_not_bunched() {
         "every due tick run or counted: {last:?}"
     );
 }
+
+/// The loop's count of deadline stops: the hand's pipeline given a mid-curl frame cold
+/// (many iterations to go) and a deadline already passed stops that tick after one
+/// iteration and counts it; the same markers for five more ticks, with time to spare,
+/// add nothing. A count that missed the stop, or counted the other ticks, fails.
+#[test]
+fn the_loop_counts_the_ticks_its_deadline_stops() {
+    use rigless::character::procedural::{hand_pose, HandMotion};
+    use rigless::markers::MarkerSample;
+    use rigless::solve::arap::StopReason;
+    let ch = demo_hand();
+    let rig = Arc::new(Rig::bind(&ch, &hand_bind_params()).unwrap());
+    let mut truth = vec![glam::DVec3::ZERO; ch.vertices.len()];
+    let mut markers = vec![glam::DVec3::ZERO; ch.markers.len()];
+    skin_pose(
+        &ch,
+        &hand_pose(&ch.skeleton, HandMotion::FingerPlay, 1.0),
+        &mut truth,
+        &mut markers,
+    );
+    let (tx, rx) = bounded(64);
+    let buffer = MarkerBuffer::new(BufferConfig::default(), &rig.marker_rest, &rig.marker_joint);
+    let solver = Solver::new(Arc::clone(&rig), SolverParams::default());
+    let mut pipeline = Pipeline::new(solver, buffer, rx, Vec::new());
+    let send = |t: f64| {
+        for (k, p) in markers.iter().enumerate() {
+            let s = MarkerSample {
+                marker: k as u32,
+                time_s: t,
+                source_time_s: t,
+                position_m: *p,
+                occluded: false,
+            };
+            tx.try_send(s).unwrap();
+        }
+    };
+    send(0.0);
+    let cut = pipeline.tick(0.0, Instant::now(), &|| 0.0);
+    assert_eq!(
+        (cut.solve.stop, cut.solve.iterations),
+        (StopReason::Deadline, 1),
+        "{:?}",
+        cut.solve
+    );
+    for i in 1..=5 {
+        let t = f64::from(i) / RATE_HZ;
+        send(t);
+        let calm = pipeline.tick(t, far_deadline(), &|| t);
+        assert_ne!(calm.solve.stop, StopReason::Deadline, "{:?}", calm.solve);
+    }
+    let status = pipeline.status(1.0, 0);
+    assert_eq!(status.deadline_stops, 1, "{status:?}");
+}
