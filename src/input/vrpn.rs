@@ -713,8 +713,9 @@ mod tests {
     use super::*;
     use crate::protocol::vrpn::Message;
 
-    /// The greeting and one report of `Dev`'s sensor `sensor`, as a server sends them.
-    fn greeting_and_report(sensor: i32) -> Vec<u8> {
+    /// A server's greeting: the cookie, sender 7 named `Dev`, type 4 the position
+    /// report.
+    fn greeting() -> Vec<u8> {
         let mut out = cookie().to_vec();
         encode_message(
             &mut out,
@@ -732,19 +733,30 @@ mod tests {
             TYPE_DESCRIPTION,
             &description_payload(POS_QUAT),
         );
+        out
+    }
+
+    /// Appends `Dev`'s report of `sensor` at `position`, stamped `secs.usecs`.
+    fn report(out: &mut Vec<u8>, sensor: i32, position: glam::DVec3, secs: u32, usecs: u32) {
         let r = PosQuat {
             sensor,
-            position: glam::DVec3::new(0.1, 0.2, 0.3),
+            position,
             rotation: [0.0, 0.0, 0.0, 1.0],
         };
         encode_message(
-            &mut out,
-            1,
-            0,
+            out,
+            secs,
+            usecs,
             7,
             4,
             &crate::protocol::vrpn::encode_pos_quat(&r),
         );
+    }
+
+    /// The greeting and one report of `Dev`'s sensor `sensor`.
+    fn greeting_and_report(sensor: i32) -> Vec<u8> {
+        let mut out = greeting();
+        report(&mut out, sensor, glam::DVec3::new(0.1, 0.2, 0.3), 1, 0);
         out
     }
 
@@ -815,15 +827,7 @@ mod tests {
         let addr = listener.local_addr().unwrap();
         let server = std::thread::spawn(move || {
             let (mut s, _) = listener.accept().unwrap();
-            let mut out = cookie().to_vec();
-            encode_message(
-                &mut out,
-                0,
-                0,
-                7,
-                SENDER_DESCRIPTION,
-                &description_payload("Dev"),
-            );
+            let mut out = greeting();
             encode_message(
                 &mut out,
                 0,
@@ -832,28 +836,8 @@ mod tests {
                 TYPE_DESCRIPTION,
                 &description_payload(PING),
             );
-            encode_message(
-                &mut out,
-                0,
-                0,
-                4,
-                TYPE_DESCRIPTION,
-                &description_payload(POS_QUAT),
-            );
             encode_message(&mut out, 1, 0, 7, 3, &[]);
-            let r = PosQuat {
-                sensor: 3,
-                position: glam::DVec3::new(1.0, 2.0, 3.0),
-                rotation: [0.0, 0.0, 0.0, 1.0],
-            };
-            encode_message(
-                &mut out,
-                2,
-                500_000,
-                7,
-                4,
-                &crate::protocol::vrpn::encode_pos_quat(&r),
-            );
+            report(&mut out, 3, glam::DVec3::new(1.0, 2.0, 3.0), 2, 500_000);
             s.write_all(&out).unwrap();
             s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
             let mut got = Vec::new();

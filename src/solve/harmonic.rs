@@ -630,6 +630,11 @@ mod tests {
         )
     }
 
+    /// The index of the joint named `name`.
+    fn joint(sk: &crate::character::skeleton::Skeleton, name: &str) -> usize {
+        sk.joints.iter().position(|jt| jt.name == name).unwrap()
+    }
+
     #[test]
     fn cotangent_weights_give_the_dirichlet_energy_of_linear_functions() {
         // For a piecewise-linear f, Σ_t Σ_ij w_ij (f_i − f_j)² = Σ_t area_t |∇f|² (the
@@ -731,11 +736,7 @@ mod tests {
         let (ch, rig) = setup();
         let mut st = rig.new_state();
         let sk = &ch.skeleton;
-        let j = sk
-            .joints
-            .iter()
-            .position(|jt| jt.name == "index_2")
-            .unwrap();
+        let j = joint(sk, "index_2");
         let mut local = vec![DQuat::IDENTITY; sk.len()];
         local[j] = DQuat::from_axis_angle(sk.joints[j].bend_axis, 1.2);
         let (mut rot, mut pos) = (vec![DQuat::IDENTITY; sk.len()], vec![DVec3::ZERO; sk.len()]);
@@ -745,7 +746,7 @@ mod tests {
         assert!(!rep.previous_reference);
         // The thumb does not move; the index tip does.
         let moved = |name: &str| {
-            let jt = sk.joints.iter().position(|x| x.name == name).unwrap();
+            let jt = joint(sk, name);
             ch.vertices
                 .iter()
                 .zip(&out)
@@ -769,11 +770,7 @@ mod tests {
         let (ch, rig) = setup();
         let mut st = rig.new_state();
         let sk = &ch.skeleton;
-        let j = sk
-            .joints
-            .iter()
-            .position(|jt| jt.name == "index_1")
-            .unwrap();
+        let j = joint(sk, "index_1");
         let (mut rot, mut pos) = (vec![DQuat::IDENTITY; sk.len()], vec![DVec3::ZERO; sk.len()]);
         let mut local = vec![DQuat::IDENTITY; sk.len()];
         let mut frames = vec![ch.vertices.clone()];
