@@ -6,6 +6,8 @@
 //! manual clock); [`run_loop`] paces it on a [`Clock`]. The per-frame path does not
 //! allocate once warm: published frames come back to a pool when every sink has let go.
 
+use super::input_rates::InputRates;
+use crate::input::SourceCounters;
 use crate::markers::buffer::MarkerBuffer;
 use crate::markers::{FillState, MarkerFrame, MarkerSample};
 use crate::output::frame::DeformedFrame;
@@ -110,6 +112,8 @@ pub struct Pipeline {
     control_mesh: bool,
     /// Publish the harmonic rotation field ([`Self::with_harmonic_field`]).
     harmonic_field: bool,
+    /// The inputs' rate windows ([`Self::with_input_rates`]).
+    input_rates: InputRates,
 }
 
 impl Pipeline {
@@ -148,6 +152,7 @@ impl Pipeline {
             pins: Vec::new(),
             control_mesh: false,
             harmonic_field: false,
+            input_rates: InputRates::default(),
         }
     }
 
@@ -188,6 +193,14 @@ impl Pipeline {
     /// angle from the root segment; nothing with ARAP).
     pub fn with_harmonic_field(mut self) -> Self {
         self.harmonic_field = !self.solver.has_control_mesh();
+        self
+    }
+
+    /// Measures the packet rate and gaps of the inputs whose counters are `counters`
+    /// (in the config's order) on every tick, and publishes the recent windows with every
+    /// frame.
+    pub fn with_input_rates(mut self, counters: &[Arc<SourceCounters>]) -> Self {
+        self.input_rates = InputRates::new(counters);
         self
     }
 
@@ -249,6 +262,9 @@ impl Pipeline {
     pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {
         let start = Instant::now();
         let drained = self.feed(t_s);
+        self.input_rates.tick(self.frame_no, t_s, &|| {
+            unix_now() - start.elapsed().as_secs_f64()
+        });
         if let Some(slot) = &self.pin_slot {
             if slot.read_if_newer(&mut self.pin_version, &mut self.pins) {
                 self.solver.set_pins(&self.pins);
@@ -371,6 +387,9 @@ impl Pipeline {
                 f.field_deg.resize(self.vertices.len(), 0.0);
                 self.solver.harmonic_field_deg(&mut f.field_deg);
             }
+            // Sized on a pooled frame's first use; no allocation after.
+            f.input_windows.clear();
+            f.input_windows.extend(self.input_rates.recent());
             // Within the capacity reserved at creation: no allocation.
             f.convergence.clear();
             f.convergence

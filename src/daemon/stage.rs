@@ -22,7 +22,7 @@ use crate::config::StageConfig;
 use crate::input::{ChannelSink, Input, InputError, OpenContext, PinTarget, SourceCounters};
 use crate::markers::buffer::MarkerBuffer;
 use crate::output::frame::DeformedFrame;
-use crate::output::rerun_sink::{self, InputSeries, RerunOptions, RerunStats, RerunTarget};
+use crate::output::rerun_sink::{self, RerunOptions, RerunStats, RerunTarget};
 use crate::output::scene::Scene;
 use crate::output::stream::{StreamServer, StreamStats};
 use crate::replay::session::{run_recorder, SessionHeader, SessionWriter};
@@ -481,12 +481,12 @@ impl Stage {
             .iter()
             .map(|_| Arc::new(SourceCounters::default()))
             .collect();
+        pipeline = pipeline.with_input_rates(&counters);
         let rerun = start_rerun(
             cfg,
             &sinks.rerun_target,
             scene,
             &infos,
-            &counters,
             Arc::clone(&sinks.rerun_slot),
         )?;
         // Everything is open: the clock starts the inputs and the loop a moment from now.
@@ -905,19 +905,14 @@ fn start_rerun(
     target: &RerunTarget,
     scene: Scene,
     infos: &[InputInfo],
-    counters: &[Arc<SourceCounters>],
     slot: Arc<LatestSlot<DeformedFrame>>,
 ) -> Result<Option<RunningRerun>, StageError> {
     let stop = Arc::new(AtomicBool::new(false));
     let stats = Arc::new(RerunStats::default());
     let series = infos
         .iter()
-        .zip(counters)
         .enumerate()
-        .map(|(k, (i, c))| InputSeries {
-            name: format!("{k}_{}", i.kind),
-            counters: Arc::clone(c),
-        })
+        .map(|(k, i)| format!("{k}_{}", i.kind))
         .collect();
     let r = &cfg.outputs.rerun;
     let thread = rerun_sink::start(

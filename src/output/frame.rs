@@ -41,6 +41,26 @@ pub struct DeformedFrame {
     /// Volume projections the solver made to unfold control tets this frame (0 on most
     /// frames).
     pub untangle_projections: u32,
+    /// The inputs' most recent rate windows, oldest first (at most a few per input: a
+    /// sink that skips frames still finds every window in a later one).
+    pub input_windows: Vec<InputWindowPoint>,
+}
+
+/// One input's packet rate and longest gap over a window of the stage's clock, measured
+/// by the loop when the window closed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputWindowPoint {
+    /// The input's index in the stage's config.
+    pub input: usize,
+    /// The frame (solver tick) that closed the window.
+    pub frame: u64,
+    /// When the window closed, seconds since the Unix epoch (the stage's clock).
+    pub unix_s: f64,
+    /// Frames (packets) the input received per second over the window, Hz.
+    pub rate_hz: f64,
+    /// The longest time without a frame in the window, seconds: between two of the
+    /// input's frames (its own clock), or since its last frame when it went quiet.
+    pub gap_s: f64,
 }
 
 impl DeformedFrame {
@@ -62,6 +82,7 @@ impl DeformedFrame {
             control_m: Vec::new(),
             field_deg: Vec::new(),
             untangle_projections: 0,
+            input_windows: Vec::new(),
         }
     }
 

@@ -27,15 +27,17 @@
 //!   points coloured by their joint.
 //! - `inputs/K_KIND/packet_rate_hz` and `inputs/K_KIND/gap_ms` for each input (`K` its
 //!   place in the stage, `KIND` its scheme), every quarter second: frames per second, and
-//!   the longest wait for a frame (between two frames, or since the last one).
+//!   the longest wait for a frame (between two frames, or since the last one), as the loop
+//!   measured them ([`crate::daemon::input_rates`] fills the frames'
+//!   [`InputWindowPoint`]s); each point at the frame that closed its window, so frames the
+//!   sink skips lose none.
 //!
 //! A default blueprint lays out the 3D view beside the plots (see [`blueprint`]).
 //!
 //! World frame: metres, Y up (`ViewCoordinates::RIGHT_HAND_Y_UP` on `character`).
 
-use super::frame::DeformedFrame;
+use super::frame::{DeformedFrame, InputWindowPoint};
 use super::scene::Scene;
-use crate::input::SourceCounters;
 use crate::markers::FillState;
 use crate::runtime::slot::LatestSlot;
 use std::path::PathBuf;
@@ -95,17 +97,6 @@ pub struct RerunOptions {
     /// Log the harmonic rotation field and correspondences (on the mesh's frames).
     pub harmonic_field: bool,
 }
-
-/// An input whose packet rate and gaps are plotted.
-#[derive(Clone, Debug)]
-pub struct InputSeries {
-    /// Entity name under `inputs/` (one path part: letters, digits, `_`).
-    pub name: String,
-    pub counters: Arc<SourceCounters>,
-}
-
-/// Seconds between points of the input series.
-const INPUT_WINDOW_S: f64 = 0.25;
 
 /// Colour of a rotation-field angle: blue at 0°, green at 45°, red from 90°.
 fn field_color(angle_deg: f32) -> ::rerun::Color {
@@ -243,7 +234,7 @@ fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStrea
 pub fn start(
     opts: &RerunOptions,
     scene: Scene,
-    inputs: Vec<InputSeries>,
+    inputs: Vec<String>,
     slot: Arc<LatestSlot<DeformedFrame>>,
     stop: Arc<AtomicBool>,
     stats: Arc<RerunStats>,
@@ -325,76 +316,44 @@ struct Logger {
     harmonic_field: bool,
     /// The markers' names as Rerun text (shared buffers: a clone does not copy).
     labels: Vec<::rerun::components::Text>,
-    inputs: Vec<InputWindow>,
+    inputs: Vec<InputSeries>,
     first_time_s: Option<f64>,
     strips: Vec<Vec<[f32; 3]>>,
     strip_colors: Vec<::rerun::Color>,
 }
 
-/// An input's series state: the window being measured.
-struct InputWindow {
-    series: InputSeries,
-    /// Start of the window (publish time, s) and the frame count then.
-    start_s: Option<f64>,
-    start_frames: u64,
-    /// Frame count at the previous logged frame, and when it last changed (publish time).
-    seen_frames: u64,
-    changed_s: f64,
+/// An input's plotted series: its entity path and the last window logged.
+struct InputSeries {
+    /// `inputs/K_KIND`.
+    base: String,
+    /// The frame that closed the last window logged.
+    logged_through: Option<u64>,
 }
 
-impl InputWindow {
-    fn new(series: InputSeries) -> Self {
-        Self {
-            series,
-            start_s: None,
-            start_frames: 0,
-            seen_frames: 0,
-            changed_s: 0.0,
-        }
-    }
-
-    /// Looks at the input's counters at `t_s` (a frame's publish time): once the window
-    /// spans [`INPUT_WINDOW_S`], its frame rate (Hz) and longest gap (s), and a new
-    /// window starts; `None` before. Pure but for the counters: time is passed in.
-    fn measure(&mut self, t_s: f64) -> Option<(f64, f64)> {
-        let c = &self.series.counters;
-        let n = c.frames.load(Ordering::Relaxed);
-        let start_s = *self.start_s.get_or_insert_with(|| {
-            self.start_frames = n;
-            self.seen_frames = n;
-            self.changed_s = t_s;
-            t_s
-        });
-        if n != self.seen_frames {
-            self.seen_frames = n;
-            self.changed_s = t_s;
-        }
-        let span_s = t_s - start_s;
-        if span_s < INPUT_WINDOW_S {
-            return None;
-        }
-        let rate_hz = (n - self.start_frames) as f64 / span_s;
-        // Between two frames (the source's own clock), or since the last frame (this
-        // thread's view, to a solver tick) when the source has gone quiet.
-        let gap_s = c.take_longest_interval_s().max(t_s - self.changed_s);
-        self.start_s = Some(t_s);
-        self.start_frames = n;
-        Some((rate_hz, gap_s))
-    }
-
-    /// Logs the window's rate and longest gap once it spans [`INPUT_WINDOW_S`].
-    fn log(&mut self, rec: &::rerun::RecordingStream, stats: &RerunStats, t_s: f64) {
-        let Some((rate_hz, gap_s)) = self.measure(t_s) else {
+impl InputSeries {
+    /// Logs `p` (a window of this input) unless it was logged already, at the frame that
+    /// closed it; `t0_unix_s` is the `time` timeline's zero.
+    fn log(
+        &mut self,
+        rec: &::rerun::RecordingStream,
+        stats: &RerunStats,
+        p: &InputWindowPoint,
+        t0_unix_s: f64,
+    ) {
+        if self.logged_through.is_some_and(|f| p.frame <= f) {
             return;
-        };
-        let base = format!("inputs/{}", self.series.name);
+        }
+        self.logged_through = Some(p.frame);
+        rec.set_time_sequence("frame", p.frame as i64);
+        rec.set_duration_secs("time", (p.unix_s - t0_unix_s).max(0.0));
+        let base = &self.base;
         stats.check(rec.log(
             format!("{base}/packet_rate_hz"),
-            &::rerun::Scalars::single(rate_hz),
+            &::rerun::Scalars::single(p.rate_hz),
         ));
         stats.check(rec.log(
             format!("{base}/gap_ms"),
-            &::rerun::Scalars::single(gap_s * 1e3),
+            &::rerun::Scalars::single(p.gap_s * 1e3),
         ));
     }
 }
@@ -404,7 +363,7 @@ impl Logger {
         rec: ::rerun::RecordingStream,
         scene: Scene,
         opts: &RerunOptions,
-        inputs: Vec<InputSeries>,
+        inputs: Vec<String>,
         stats: Arc<RerunStats>,
     ) -> Self {
         stats.check(rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP()));
@@ -444,7 +403,13 @@ impl Logger {
             mesh_every: opts.mesh_every,
             control_mesh: opts.control_mesh,
             harmonic_field,
-            inputs: inputs.into_iter().map(InputWindow::new).collect(),
+            inputs: inputs
+                .into_iter()
+                .map(|name| InputSeries {
+                    base: format!("inputs/{name}"),
+                    logged_through: None,
+                })
+                .collect(),
             first_time_s: None,
             strips: Vec::new(),
             strip_colors: Vec::new(),
@@ -495,9 +460,6 @@ impl Logger {
                     ),
                 );
             }
-        }
-        for w in &mut self.inputs {
-            w.log(rec, stats, f.publish_time_s);
         }
         let present: Vec<usize> = (0..f.markers_m.len())
             .filter(|&k| f.markers_m[k].is_finite())
@@ -597,86 +559,17 @@ impl Logger {
                 &::rerun::Scalars::single(f64::from(n)),
             ));
         }
+        // Last: each window moves the timelines to the frame that closed it.
+        for p in &f.input_windows {
+            if let Some(series) = self.inputs.get_mut(p.input) {
+                series.log(rec, stats, p, t0);
+            }
+        }
     }
 
     fn finish(self) {
         if let Err(e) = self.rec.flush_blocking() {
             tracing::warn!("rerun: flushing the recording failed: {e}");
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::input::SourceCounters;
-
-    /// An input's series on a manual schedule: frames counted at their times, windows
-    /// measured at the loop's ticks (120 Hz publish times), all passed in.
-    struct Schedule {
-        window: InputWindow,
-        counters: Arc<SourceCounters>,
-    }
-
-    impl Schedule {
-        fn new() -> Self {
-            let counters = Arc::new(SourceCounters::default());
-            let series = InputSeries {
-                name: "0_replay".into(),
-                counters: Arc::clone(&counters),
-            };
-            Self {
-                window: InputWindow::new(series),
-                counters,
-            }
-        }
-
-        /// Ticks `from..to` (1/120 s apart); before each, the source's frames due by
-        /// then (`frame_s`, ascending, taken from the front). Returns the points logged.
-        fn run(&mut self, ticks: std::ops::Range<u32>, frame_s: &mut Vec<f64>) -> Vec<(f64, f64)> {
-            let mut points = Vec::new();
-            for k in ticks {
-                let t_s = f64::from(k) / 120.0;
-                while frame_s.first().is_some_and(|&f| f <= t_s + 1e-12) {
-                    self.counters.count_frame(frame_s.remove(0));
-                }
-                points.extend(self.window.measure(t_s));
-            }
-            points
-        }
-    }
-
-    /// A steady 120 Hz source reads 120 Hz in every quarter-second window (a frame
-    /// either way at a window's ends: ±4 Hz) and gaps of one frame (8.3 ms); a 100 ms
-    /// stall shows as a 100 ms gap in its window and a lower rate there; a source that
-    /// stops shows its silence growing, window after window, at a rate of 0.
-    #[test]
-    fn input_series_read_rate_and_gaps_on_a_manual_schedule() {
-        let mut s = Schedule::new();
-        // 2 s at 120 Hz.
-        let mut frames: Vec<f64> = (0..240).map(|i| f64::from(i) / 120.0).collect();
-        let steady = s.run(0..240, &mut frames);
-        assert_eq!(steady.len(), 7, "{steady:?}");
-        for (rate, gap) in &steady {
-            assert!((rate - 120.0).abs() <= 4.0 + 1e-9, "{steady:?}");
-            assert!((gap - 1.0 / 120.0).abs() < 1e-9, "{steady:?}");
-        }
-        // A stall: 12 frames (100 ms) missing, then 120 Hz again until 3 s.
-        let mut frames: Vec<f64> = (240..360)
-            .filter(|i| !(264..276).contains(i))
-            .map(|i| f64::from(i) / 120.0)
-            .collect();
-        let stalled = s.run(240..360, &mut frames);
-        let longest = stalled.iter().map(|p| p.1).fold(0.0, f64::max);
-        assert!((longest - 13.0 / 120.0).abs() < 1e-9, "{stalled:?}");
-        assert!(stalled.iter().any(|p| p.0 < 100.0), "{stalled:?}");
-        // Silence from 3 s: the window open then still holds the last frames; every
-        // later one reads no frame, and the gap grows by a window each time.
-        let silent = s.run(360..480, &mut Vec::new());
-        assert!(silent[1..].iter().all(|p| p.0 == 0.0), "{silent:?}");
-        assert!(
-            silent.windows(2).all(|w| w[1].1 >= w[0].1 + 0.25 - 1e-9),
-            "{silent:?}"
-        );
     }
 }
