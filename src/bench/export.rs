@@ -1,7 +1,8 @@
 //! The `export` suite: how fast `rigless replay --solve --export` turns a take into a
-//! point cache: the bundled hand finger play and body walk, solved off line at the take's
-//! rate without deadlines and written as PC2 (to a temporary file), three runs each, in
-//! one pass (one thread) and in a part per core.
+//! file: the bundled hand finger play and body walk, solved off line at the take's rate
+//! without deadlines, three runs each, written (to a temporary file) as a PC2 point cache
+//! in one pass (one thread) and in a part per core, and as a BVH (the posture alone) in a
+//! part per core.
 
 use super::BenchError;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
@@ -24,15 +25,15 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError>
     ];
     let dir = std::env::temp_dir().join(format!("rigless-bench-export-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let path = dir.join("take.pc2");
     let result = (|| {
         for (character, take, ch, params) in cases {
             let bytes = bundled(take)
                 .ok_or_else(|| BenchError::case(take, std::io::Error::other("not bundled")))?;
             let rec = Recording::from_c3d(take, bytes).map_err(|e| BenchError::case(take, e))?;
             let rig = Arc::new(Rig::bind(&ch, &params).map_err(|e| BenchError::case(take, e))?);
-            // One pass, then a part per core.
-            for threads in [1, 0] {
+            // The point cache in one pass, then in a part per core; the skeleton.
+            for (threads, format) in [(1, "pc2"), (0, "pc2"), (0, "bvh")] {
+                let path = dir.join(format!("take.{format}"));
                 let (s, fps) = runs(&rig, &rec, threads, &path, take)?;
                 let (lo, median, hi) = (fps[0], fps[RUNS / 2], fps[RUNS - 1]);
                 let bytes = std::fs::metadata(&path)?.len();
@@ -41,7 +42,7 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError>
                         out,
                         &serde_json::json!({
                             "suite": "export", "character": character, "take": take,
-                            "parts": s.parts, "frames": s.frames, "points": s.points,
+                            "format": format, "parts": s.parts, "frames": s.frames, "points": s.points,
                             "rate_hz": s.rate_hz, "frames_per_second_median": median,
                             "frames_per_second_min": lo, "frames_per_second_max": hi,
                             "bytes": bytes, "misfit_mm_rms": s.replay.residual_mm_rms,
@@ -50,7 +51,7 @@ pub fn suite(json: bool, out: &mut dyn std::io::Write) -> Result<(), BenchError>
                 } else {
                     writeln!(
                         out,
-                        "{character:<5} {take:<17} {} part(s), {} frames of {} vertices: {median:.0} frames/s ({lo:.0}–{hi:.0}), {:.1} times real time; {:.1} MB; misfit {:.1} mm RMS",
+                        "{character:<5} {take:<17} {format} {} part(s), {} frames of {} points: {median:.0} frames/s ({lo:.0}–{hi:.0}), {:.1} times real time; {:.1} MB; misfit {:.1} mm RMS",
                         s.parts,
                         s.frames,
                         s.points,

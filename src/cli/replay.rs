@@ -306,6 +306,17 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
         fps / summary.rate_hz,
         summary.parts
     );
+    if summary.posture_only {
+        // A skeleton format: the posture alone was fitted.
+        println!(
+            "labels fed {}, samples held {:.1} %, skeleton misfit {:.1} mm RMS ({:.1} max)",
+            r.labels_fed,
+            r.held_share * 100.0,
+            r.residual_mm_rms,
+            r.residual_mm_max
+        );
+        return Ok(());
+    }
     println!(
         "iterations {:.2} a frame on average, {} at most; {} frame(s) stopped at the iteration cap",
         r.iterations_mean, r.iterations_max, r.iteration_cap_stops

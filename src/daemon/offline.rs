@@ -35,6 +35,10 @@ pub struct OfflineOptions {
     /// starts), as live; else it runs until it converges or its iteration cap (an
     /// export, which has no clock to keep).
     pub deadline: bool,
+    /// Fit the skeleton's posture alone (a BVH or glTF export, which reads nothing
+    /// else): the ticks' vertices are not written (zero), and the misfit is the
+    /// skeleton's.
+    pub posture_only: bool,
 }
 
 impl Default for OfflineOptions {
@@ -43,6 +47,7 @@ impl Default for OfflineOptions {
             rate_hz: 120.0,
             marker_scale: 1.0,
             deadline: true,
+            posture_only: false,
         }
     }
 }
@@ -218,6 +223,9 @@ fn play(
     let (tx, rx) = crossbeam_channel::bounded(fed.len() * per_tick);
     let mut pipeline =
         Pipeline::new(solver, buffer, rx, Vec::new()).with_marker_scale(opts.marker_scale);
+    if opts.posture_only {
+        pipeline = pipeline.posture_only();
+    }
     let fed_markers: Vec<usize> = {
         let mut m: Vec<usize> = fed.iter().map(|f| f.1 as usize).collect();
         m.sort_unstable();
@@ -348,6 +356,9 @@ pub struct ExportSummary {
     pub points: usize,
     /// Parts of the take solved at once ([`ExportOptions::threads`]).
     pub parts: usize,
+    /// Whether only the skeleton's posture was fitted (a BVH or glTF export): then the
+    /// replay's misfit is the fitted skeleton's, and no ARAP iteration is counted.
+    pub posture_only: bool,
     /// The replay's figures over the take.
     pub replay: OfflineReport,
 }
@@ -380,6 +391,24 @@ pub const EXPORT_WARM_UP_SECS: f64 = 0.25;
 
 /// A part is at least this many times its warm-up long, else the take has fewer parts.
 const MIN_PART_WARM_UPS: usize = 4;
+
+/// The first frame of each of `parts` parts of a take of `frames` frames, then
+/// `frames`: every part after the first also solves `warm` warm-up frames, so the first
+/// is that much longer and all of them take the same time.
+pub fn part_bounds(frames: usize, parts: usize, warm: usize) -> Vec<usize> {
+    let parts = parts.max(1);
+    // Each part's work, warm-ups included: `share` frames.
+    let share = (frames + warm * (parts - 1)) / parts;
+    let mut bounds: Vec<usize> = (0..parts)
+        .map(|i| {
+            (i * share)
+                .saturating_sub(i.saturating_sub(1) * warm)
+                .min(frames)
+        })
+        .collect();
+    bounds.push(frames);
+    bounds
+}
 
 /// Where a part of a take goes.
 enum PartOut {
@@ -445,12 +474,15 @@ pub fn export_take(
     let parts = threads
         .min(frames / (warm * MIN_PART_WARM_UPS).max(1))
         .max(1);
-    let bounds: Vec<usize> = (0..=parts).map(|i| i * frames / parts).collect();
+    let bounds = part_bounds(frames, parts, warm);
     let outs = create_outputs(&rig, format, path, frames, 1.0 / rec.rate_hz, &bounds)?;
     let play_opts = OfflineOptions {
         rate_hz: rec.rate_hz,
         marker_scale: opts.marker_scale,
         deadline: false,
+        // The skeleton formats read the posture alone, which the skeleton step fits
+        // before (and without) the meshes.
+        posture_only: format != ExportFormat::Pc2,
     };
     let solved = solve_parts(&rig, params, rec, play_opts, &bounds, warm, outs, progress);
     let written = solved.and_then(|(tally, file)| {
@@ -484,6 +516,7 @@ pub fn export_take(
             ExportFormat::Bvh | ExportFormat::Glb => rig.skeleton.joints.len(),
         },
         parts,
+        posture_only: play_opts.posture_only,
         replay: tally.finish(),
     })
 }
@@ -696,5 +729,30 @@ fn finish_part(
             *file = Some(first);
             Ok(())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::part_bounds;
+
+    /// Parts cover the take once, in order, and each does the same work (its frames,
+    /// and its warm-up after the first) to within a frame per part.
+    #[test]
+    fn parts_share_the_work() {
+        for (frames, parts, warm) in [(1440, 2, 30), (1441, 3, 30), (500, 4, 30), (100, 1, 30)] {
+            let b = part_bounds(frames, parts, warm);
+            assert_eq!((b.len(), b[0], b[parts]), (parts + 1, 0, frames), "{b:?}");
+            let work: Vec<usize> = (0..parts)
+                .map(|i| b[i + 1] - b[i] + if i > 0 { warm } else { 0 })
+                .collect();
+            let (lo, hi) = (work.iter().min().unwrap(), work.iter().max().unwrap());
+            assert!(
+                hi - lo <= parts,
+                "{frames} frames in {parts}: {b:?}, work {work:?}"
+            );
+        }
+        // Two parts of the body walk: the first 15 frames longer than half.
+        assert_eq!(part_bounds(1440, 2, 30), vec![0, 735, 1440]);
     }
 }

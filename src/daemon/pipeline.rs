@@ -114,6 +114,8 @@ pub struct Pipeline {
     harmonic_field: bool,
     /// The inputs' rate windows ([`Self::with_input_rates`]).
     input_rates: InputRates,
+    /// Fit the posture alone ([`Self::posture_only`]).
+    posture_only: bool,
 }
 
 impl Pipeline {
@@ -153,6 +155,7 @@ impl Pipeline {
             control_mesh: false,
             harmonic_field: false,
             input_rates: InputRates::default(),
+            posture_only: false,
         }
     }
 
@@ -204,6 +207,14 @@ impl Pipeline {
         self
     }
 
+    /// Fits only the skeleton's posture each tick ([`Solver::solve_posture`]): for an
+    /// export of the posture alone, which reads neither mesh. The vertices are never
+    /// written (they stay zero) and there is no control mesh to read.
+    pub fn posture_only(mut self) -> Self {
+        self.posture_only = true;
+        self
+    }
+
     pub fn buffer(&self) -> &MarkerBuffer {
         &self.buffer
     }
@@ -216,8 +227,7 @@ impl Pipeline {
     /// The deformed control mesh of the newest frame (`None` with the harmonic method,
     /// which has none), metres.
     pub fn control_positions(&self) -> Option<&[DVec3]> {
-        self.solver
-            .has_control_mesh()
+        (self.solver.has_control_mesh() && !self.posture_only)
             .then(|| self.solver.control_positions())
     }
 
@@ -270,9 +280,12 @@ impl Pipeline {
                 self.solver.set_pins(&self.pins);
             }
         }
-        let solve = self
-            .solver
-            .solve(&self.markers, deadline, &mut self.vertices);
+        let solve = if self.posture_only {
+            self.solver.solve_posture(&self.markers)
+        } else {
+            self.solver
+                .solve(&self.markers, deadline, &mut self.vertices)
+        };
         // Off line (an export, a check) nothing reads the frame: it is not built.
         if !self.slots.is_empty() {
             self.publish(t_s, start, &solve, unix_now);

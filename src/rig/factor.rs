@@ -56,6 +56,8 @@ struct Simplicial {
     row_idx: Vec<u32>,
     fwd: Vec<u32>,
     inv: Vec<u32>,
+    /// `1 / L_jj` per column (the substitutions multiply rather than divide).
+    inv_diag: Vec<f64>,
 }
 
 /// Scratch memory for [`SparseCholesky::solve_in_place`], sized for `k` right-hand sides.
@@ -132,11 +134,17 @@ impl SparseCholesky {
                     None => ((0..n as u32).collect(), (0..n as u32).collect()),
                 };
                 let factor = sym.factor();
+                let col_ptr = to_u32(factor.col_ptr());
+                let inv_diag = col_ptr[..n]
+                    .iter()
+                    .map(|&a| 1.0 / values[a as usize])
+                    .collect();
                 Some(Simplicial {
-                    col_ptr: to_u32(factor.col_ptr()),
+                    col_ptr,
                     row_idx: to_u32(factor.row_idx()),
                     fwd,
                     inv,
+                    inv_diag,
                 })
             }
             _ => None,
@@ -169,33 +177,43 @@ impl SparseCholesky {
             }
             return;
         };
-        let (cp, ri, lv) = (&s.col_ptr, &s.row_idx, &self.values);
+        s.substitute3(&self.values, x, work);
+    }
+}
+
+impl Simplicial {
+    /// [`SparseCholesky::solve3`]'s substitutions, with the factor's values `lv`.
+    fn substitute3(&self, lv: &[f64], x: &mut [DVec3], work: &mut [DVec3]) {
+        let (s, n) = (self, self.inv_diag.len());
+        let (cp, ri) = (&s.col_ptr, &s.row_idx);
         for (w, &f) in work.iter_mut().zip(&s.fwd) {
             *w = x[f as usize];
         }
         // L y = P b: columns left to right, diagonal first in each column.
-        for j in 0..self.n {
+        for j in 0..n {
             let (a, b) = (cp[j] as usize, cp[j + 1] as usize);
-            let yj = work[j] / lv[a];
+            let yj = work[j] * s.inv_diag[j];
             work[j] = yj;
             for (&r, &l) in ri[a + 1..b].iter().zip(&lv[a + 1..b]) {
                 work[r as usize] -= yj * l;
             }
         }
         // Lᵀ z = y: columns right to left.
-        for j in (0..self.n).rev() {
+        for j in (0..n).rev() {
             let (a, b) = (cp[j] as usize, cp[j + 1] as usize);
             let mut acc = work[j];
             for (&r, &l) in ri[a + 1..b].iter().zip(&lv[a + 1..b]) {
                 acc -= work[r as usize] * l;
             }
-            work[j] = acc / lv[a];
+            work[j] = acc * s.inv_diag[j];
         }
         for (v, &i) in x.iter_mut().zip(&s.inv) {
             *v = work[i as usize];
         }
     }
+}
 
+impl SparseCholesky {
     /// Matrix dimension.
     pub fn n(&self) -> usize {
         self.n
