@@ -19,9 +19,13 @@
 //! Objective, with `h` the character height so that nothing changes with scale:
 //!
 //! ```text
-//! E(θ) = Σ_k ‖p_k(θ) − m_k‖² + (ε_rest h)² Σ_j ‖θ_j‖² + (ε_prev h)² Σ_j ‖θ_j − θ_j^prev‖²
+//! E(θ) = Σ_k c_k ‖p_k(θ) − m_k‖² + (ε_rest h)² Σ_j ‖θ_j‖² + (ε_prev h)² Σ_j ‖θ_j − θ_j^prev‖²
 //! p_k(θ) = P_J + Q_J (m_k^rest − r_J)        (marker k rigidly carried by its joint J)
 //! ```
+//!
+//! `c_k ∈ [0, 1]` ([`IkState::marker_weight`], 1 unless the caller says otherwise) is how
+//! far marker `k`'s position is trusted: the solver gives a predicted marker less weight
+//! the longer its gap.
 //!
 //! The rest prior picks the least bent posture among those that fit equally well (one
 //! marker on a three-joint finger leaves one degree of freedom free); the previous-frame
@@ -93,6 +97,8 @@ pub struct IkState {
     omega: Vec<[DVec3; 3]>,
     /// Current marker positions `p_k`.
     pub predicted: Vec<DVec3>,
+    /// Each marker's weight `c_k` in the fit, in `[0, 1]` (all 1 at first).
+    pub marker_weight: Vec<f64>,
     trial: Box<Trial>,
     hess: Vec<f64>,
     chol: Vec<f64>,
@@ -122,6 +128,13 @@ pub struct IkReport {
     pub iterations: usize,
     /// RMS distance between fitted and measured markers, metres.
     pub marker_rms_m: f64,
+}
+
+/// The markers' targets `m_k` (metres; non-finite: left out) and weights `c_k`.
+#[derive(Clone, Copy)]
+struct Targets<'a> {
+    positions: &'a [DVec3],
+    weight: &'a [f64],
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -178,6 +191,7 @@ impl IkModel {
             world_pos: self.rest.clone(),
             omega: vec![[DVec3::ZERO; 3]; nj],
             predicted: vec![DVec3::ZERO; nm],
+            marker_weight: vec![1.0; nm],
             trial: Box::new(trial),
             hess: vec![0.0; np * np],
             chol: vec![0.0; np * np],
@@ -260,13 +274,14 @@ impl IkModel {
         prev: &[f64],
         rest_scale: &[f64],
         predicted: &[DVec3],
-        m: &[DVec3],
+        m: Targets<'_>,
     ) -> f64 {
         let fit: f64 = predicted
             .iter()
-            .zip(m)
-            .filter(|(_, t)| t.is_finite())
-            .map(|(p, t)| (*p - *t).length_squared())
+            .zip(m.positions)
+            .zip(m.weight)
+            .filter(|((_, t), _)| t.is_finite())
+            .map(|((p, t), c)| c * (*p - *t).length_squared())
             .sum();
         let mut prior = 0.0;
         for d in &self.dofs {
@@ -343,7 +358,10 @@ impl IkModel {
             &st.prev_angles,
             &st.rest_scale,
             &st.predicted,
-            m,
+            Targets {
+                positions: m,
+                weight: &st.marker_weight,
+            },
         );
         let mut iterations = 0;
         st.mu = st.mu.clamp(1e-9, 1e3);
@@ -407,7 +425,10 @@ impl IkModel {
                     &st.prev_angles,
                     &st.rest_scale,
                     &t.predicted,
-                    m,
+                    Targets {
+                        positions: m,
+                        weight: &st.marker_weight,
+                    },
                 );
                 if c <= cost {
                     std::mem::swap(&mut st.angles, &mut t.angles);
@@ -456,12 +477,14 @@ impl IkModel {
             if !target.is_finite() {
                 continue;
             }
-            let r = st.predicted[k] - target;
+            let c = st.marker_weight[k];
+            let r = (st.predicted[k] - target) * c;
             self.marker_columns(st, k, &mut cols);
             for &(ix, cx) in cols.iter() {
                 st.grad[ix] += cx.dot(r);
+                let cxc = cx * c;
                 for &(iy, cy) in cols.iter() {
-                    st.hess[ix * np + iy] += cx.dot(cy);
+                    st.hess[ix * np + iy] += cxc.dot(cy);
                 }
             }
         }
@@ -710,6 +733,10 @@ mod tests {
         st.root_rot[0] = DQuat::from_scaled_axis(DVec3::new(0.2, -0.4, 0.3));
         st.root_pos[0] = DVec3::new(0.01, 0.02, -0.03);
         m.refresh(&mut st);
+        // Markers trusted unequally (one not at all), as predicted ones are.
+        for (k, c) in st.marker_weight.iter_mut().enumerate() {
+            *c = (k % 4) as f64 / 3.0;
+        }
         let targets: Vec<DVec3> = st
             .predicted
             .iter()
@@ -731,7 +758,10 @@ mod tests {
                     &s.prev_angles,
                     &s.rest_scale,
                     &s.predicted,
-                    &targets,
+                    Targets {
+                        positions: &targets,
+                        weight: &s.marker_weight,
+                    },
                 )
             };
             let fd = (e(&perturbed(&m, &st, i, h)) - e(&perturbed(&m, &st, i, -h))) / (2.0 * h);
