@@ -389,6 +389,11 @@ impl Default for ExportOptions {
 /// `EXPORT_WARM_UP_SECS` is set by the measured seam error (docs/benchmarks.md, Export).
 pub const EXPORT_WARM_UP_SECS: f64 = 0.25;
 
+/// Solved frames a glTF's skin is fitted to, at most: spread evenly over the first part
+/// of the take (the part written as it is solved), they cost well under a millisecond
+/// each.
+const SKIN_FIT_FRAMES: usize = 240;
+
 /// A part is at least this many times its warm-up long, else the take has fewer parts.
 const MIN_PART_WARM_UPS: usize = 4;
 
@@ -414,7 +419,8 @@ pub fn part_bounds(frames: usize, parts: usize, warm: usize) -> Vec<usize> {
 enum PartOut {
     Pc2(Pc2Writer),
     Bvh(BvhWriter),
-    Glb(Box<GlbWriter>),
+    /// The glTF file, and the frames between the solved meshes its skin is fitted to.
+    Glb(Box<GlbWriter>, usize),
     /// A later part of a skeleton export, kept until the parts before it are written:
     /// each frame's joint rotations and positions, `joints` per frame.
     Posture {
@@ -429,8 +435,11 @@ impl PartOut {
         match self {
             PartOut::Pc2(w) => w.push(t.vertices),
             PartOut::Bvh(w) => w.push(t.joint_rot, t.joint_pos),
-            PartOut::Glb(w) => {
+            PartOut::Glb(w, every) => {
                 w.push(t.joint_rot, t.joint_pos);
+                if t.index.is_multiple_of(*every) {
+                    w.fit_skin(t.joint_rot, t.joint_pos, t.vertices);
+                }
                 Ok(())
             }
             PartOut::Posture { rot, pos, .. } => {
@@ -480,9 +489,9 @@ pub fn export_take(
         rate_hz: rec.rate_hz,
         marker_scale: opts.marker_scale,
         deadline: false,
-        // The skeleton formats read the posture alone, which the skeleton step fits
-        // before (and without) the meshes.
-        posture_only: format != ExportFormat::Pc2,
+        // A BVH reads the posture alone, which the skeleton step fits before (and
+        // without) the meshes; a glTF's skin is fitted to the solved meshes.
+        posture_only: format == ExportFormat::Bvh,
     };
     let solved = solve_parts(&rig, params, rec, play_opts, &bounds, warm, outs, progress);
     let written = solved.and_then(|(tally, file)| {
@@ -611,7 +620,7 @@ fn solve_parts(
 fn finish_file(file: Option<PartOut>) -> Result<(), OfflineExportError> {
     match file {
         Some(PartOut::Bvh(w)) => w.finish()?,
-        Some(PartOut::Glb(w)) => w.finish()?,
+        Some(PartOut::Glb(w, _)) => w.finish()?,
         _ => {}
     }
     Ok(())
@@ -648,13 +657,16 @@ fn create_outputs(
             };
             PartOut::Bvh(BvhWriter::create(path, &skeleton, frames, frame_time_s)?)
         }
-        ExportFormat::Glb => PartOut::Glb(Box::new(GlbWriter::new(
-            path,
-            sk,
-            &rig.mesh_rest,
-            &rig.triangles,
-            frame_time_s,
-        ))),
+        ExportFormat::Glb => PartOut::Glb(
+            Box::new(GlbWriter::new(
+                path,
+                sk,
+                &rig.mesh_rest,
+                &rig.triangles,
+                frame_time_s,
+            )),
+            bounds[1].div_ceil(SKIN_FIT_FRAMES).max(1),
+        ),
     };
     let mut outs = vec![first];
     for w in bounds.windows(2).skip(1) {
@@ -719,7 +731,7 @@ fn finish_part(
             for (r, p) in rot.chunks(joints).zip(pos.chunks(joints)) {
                 match f {
                     PartOut::Bvh(w) => w.push(r, p)?,
-                    PartOut::Glb(w) => w.push(r, p),
+                    PartOut::Glb(w, _) => w.push(r, p),
                     PartOut::Pc2(_) | PartOut::Posture { .. } => {}
                 }
             }

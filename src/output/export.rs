@@ -4,6 +4,7 @@
 //! fitted skeleton's motion as BVH ([`crate::replay::bvh::encode_header`]), which any
 //! animation tool imports.
 
+use super::skin_fit::SkinFit;
 use crate::protocol::pc2::{encode_frame, encode_header, Pc2Header};
 use crate::replay::bvh::BvhSkeleton;
 use glam::{DQuat, DVec3};
@@ -293,16 +294,19 @@ impl BvhWriter {
 }
 
 /// Collects a take's fitted postures and writes them, on [`GlbWriter::finish`], as a
-/// binary glTF: the character's mesh at rest, skinned to its skeleton (each vertex
-/// wholly to the joint whose bone segment is nearest, as the bind divides the mesh), and
-/// one animation of every joint's rotation and the roots' translation, a key per frame.
-/// Any engine or DCC tool that reads glTF plays it.
+/// binary glTF: the character's mesh at rest, skinned to its skeleton (up to four joints
+/// a vertex, the weights fitted to the solved frames shown to [`GlbWriter::fit_skin`];
+/// with none, each vertex wholly to the joint whose bone segment is nearest, as the bind
+/// divides the mesh), and one animation of every joint's rotation and the roots'
+/// translation, a key per frame. Any engine or DCC tool that reads glTF plays it.
 pub struct GlbWriter {
     path: PathBuf,
     frame_time_s: f64,
     skeleton: crate::character::skeleton::Skeleton,
     vertices: Vec<DVec3>,
     triangles: Vec<[u32; 3]>,
+    /// The skin weights' fit.
+    skin: SkinFit,
     /// Per frame, every joint's rotation relative to its parent, then each root's
     /// position.
     rotations: Vec<Vec<DQuat>>,
@@ -325,9 +329,16 @@ impl GlbWriter {
             skeleton: skeleton.clone(),
             vertices: vertices.to_vec(),
             triangles: triangles.to_vec(),
+            skin: SkinFit::new(skeleton, vertices),
             rotations: Vec::new(),
             roots: Vec::new(),
         }
+    }
+
+    /// Shows the skin fit a solved frame: the posture (as [`Self::push`]) and the solved
+    /// mesh in the rest mesh's vertex order, metres.
+    pub fn fit_skin(&mut self, world_rot: &[DQuat], world_pos: &[DVec3], vertices: &[DVec3]) {
+        self.skin.add(world_rot, world_pos, vertices);
     }
 
     /// Adds a frame: every joint's world rotation from rest and world position.
@@ -429,8 +440,8 @@ impl GlbWriter {
         out
     }
 
-    /// The mesh at rest and its skin weights (each vertex wholly to the joint that owns
-    /// its nearest bone segment); returns the primitive.
+    /// The mesh at rest and its skin weights ([`SkinFit::weights`]); returns the
+    /// primitive.
     fn encode_mesh(&self, b: &mut GlbBuffers) -> serde_json::Value {
         use serde_json::json;
         let n = self.vertices.len();
@@ -455,29 +466,17 @@ impl GlbWriter {
             self.triangles.iter().flatten().flat_map(|i| i.to_le_bytes()).collect(),
             json!({"componentType": UNSIGNED_INT, "count": self.triangles.len() * 3, "type": "SCALAR"}),
         );
-        let segs = crate::rig::bind::segments(&self.skeleton);
-        let owners: Vec<u16> = self
-            .vertices
-            .iter()
-            .map(|&v| {
-                if segs.is_empty() {
-                    0
-                } else {
-                    crate::rig::bind::nearest_owner(&self.skeleton, &segs, v) as u16
-                }
-            })
-            .collect();
+        let skin = self.skin.weights();
         let joints_0 = b.add(
-            owners
-                .iter()
-                .flat_map(|&o| [o, 0, 0, 0])
+            skin.iter()
+                .flat_map(|(j, _)| *j)
                 .flat_map(u16::to_le_bytes)
                 .collect(),
             json!({"componentType": UNSIGNED_SHORT, "count": n, "type": "VEC4"}),
         );
         let weights_0 = b.add(
-            (0..n)
-                .flat_map(|_| [1.0f32, 0.0, 0.0, 0.0])
+            skin.iter()
+                .flat_map(|(_, w)| *w)
                 .flat_map(f32::to_le_bytes)
                 .collect(),
             json!({"componentType": FLOAT, "count": n, "type": "VEC4"}),
