@@ -27,6 +27,7 @@ sys.path.insert(0, os.path.join(ROOT, "protocols"))
 
 import vertex_stream_client as ref  # noqa: E402  (the reference client's decoder)
 import bpy  # noqa: E402
+import mathutils  # noqa: E402  (Blender's vectors)
 import numpy as np  # noqa: E402
 import rigless_live  # noqa: E402
 
@@ -128,8 +129,11 @@ def check_exports(binary, out_dir, port, scene):
         check(len(arm.data.bones) == summary["points"], f"{name}: {len(arm.data.bones)} bones, {summary['points']} joints")
         out[name] = {"bones": len(arm.data.bones), "frame_range": [first, last], "take_seconds": seconds,
                      "meshes": [len(o.data.vertices) for o in new if o.type == "MESH"]}
-    # The imported glTF mesh is a copy of the character: drive it from the stream.
+    # The imported glTF mesh is a copy of the character: first Blender's own skinning of
+    # it against the solved mesh of the same take (a point cache), then driven from the
+    # stream.
     mesh = next(o for o in bpy.data.objects if o.type == "MESH" and o.parent and o.parent.type == "ARMATURE")
+    out["glb_skin"] = skin_against_solve(binary, take, os.path.join(out_dir, "hand.pc2"), mesh, scene)
     scene.rigless_target = mesh
     rigless_live.connect("127.0.0.1", port)
     deadline, applied = time.time() + WAIT_S, 0
@@ -141,6 +145,34 @@ def check_exports(binary, out_dir, port, scene):
     rigless_live.disconnect()
     scene.rigless_target = None
     return out
+
+
+def skin_against_solve(binary, take, pc2_path, mesh, scene):
+    """Blender's skinning of the imported glTF at take frames, against the point cache
+    of the same take: mean and largest vertex distance, metres (in Blender's axes)."""
+    summary = export(binary, take, pc2_path)
+    data = open(pc2_path, "rb").read()
+    points, samples = struct.unpack("<i", data[16:20])[0], struct.unpack("<i", data[28:32])[0]
+    check(points == len(mesh.data.vertices), f"point cache of {points} points, mesh of {len(mesh.data.vertices)}")
+    fps = scene.render.fps / scene.render.fps_base
+    total, count, largest, frames = 0.0, 0, 0.0, []
+    for f in range(0, samples, samples // 5):
+        # The importer puts a key at time t on scene frame t * fps.
+        at = f / summary["rate_hz"] * fps
+        scene.frame_set(int(at), subframe=at - int(at))
+        evaluated = mesh.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        skinned = evaluated.to_mesh()
+        base = 32 + f * points * 12
+        solved = struct.unpack(f"<{points * 3}f", data[base:base + points * 12])
+        world = mesh.matrix_world
+        for i, v in enumerate(skinned.vertices):
+            x, y, z = solved[3 * i:3 * i + 3]
+            d = ((world @ v.co) - mathutils.Vector((x, -z, y))).length
+            total, count, largest = total + d, count + 1, max(largest, d)
+        evaluated.to_mesh_clear()
+        frames.append(f)
+    scene.frame_set(scene.frame_start)
+    return {"frames": frames, "mean_m": total / max(count, 1), "max_m": largest}
 
 
 INSTALL_CHECK = """
