@@ -57,14 +57,17 @@ fn the_blender_addon_applies_records_and_refuses_in_blender() {
         assert!((span - 479.8).abs() <= 1.0, "{kind}: {r}");
     }
     // Blender's own skinning of the imported glTF (its skin fitted to the solve) against
-    // the point cache of the same take at five frames spread over it: measured 1.3 mm
-    // mean (6.6 mm at worst) on the 0.2 m hand; over the whole take the skin fit strays
+    // the point cache of the same take at five frames from its first to its last:
+    // measured 1.0 mm mean (6.6 mm at worst) on the 0.2 m hand; over the whole take the skin fit strays
     // 1.1 mm and a rigid skin 1.9 mm (`tests/export.rs`); reading the keys one scene
     // frame late gave 3.5 mm.
     let skin = &r["glb_skin"];
     println!("Blender's skinning against the solve: {skin}");
     assert_eq!(skin["frames"].as_array().map(Vec::len), Some(5), "{r}");
-    assert!(n(&skin["mean_m"]) < 1.6e-3, "{r}");
+    assert!(
+        n(&skin["mean_m"]) < 1.6e-3 && n(&skin["max_m"]) < 10e-3,
+        "{r}"
+    );
     // The imported glTF mesh, the user's own copy, is driven: same count, same order.
     assert_eq!(n(&r["driven_import"]["vertices"]), 5001.0, "{r}");
     assert_eq!(n(&r["driven_import"]["frames_applied"]), 10.0, "{r}");

@@ -307,7 +307,7 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
         summary.parts
     );
     if summary.posture_only {
-        // A skeleton format: the posture alone was fitted.
+        // A BVH: the posture alone was fitted.
         println!(
             "labels fed {}, samples held {:.1} %, skeleton misfit {:.1} mm RMS ({:.1} max)",
             r.labels_fed,

@@ -13,6 +13,7 @@ use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::index::{LabelMap, MarkerIndex};
 use crate::markers::{FillState, MarkerSample};
 use crate::output::export::{BvhWriter, ExportFormat, GlbWriter, Pc2Writer};
+use crate::output::skin_fit::SkinFit;
 use crate::replay::bvh::BvhSkeleton;
 use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
@@ -35,7 +36,7 @@ pub struct OfflineOptions {
     /// starts), as live; else it runs until it converges or its iteration cap (an
     /// export, which has no clock to keep).
     pub deadline: bool,
-    /// Fit the skeleton's posture alone (a BVH or glTF export, which reads nothing
+    /// Fit the skeleton's posture alone (a BVH export, which reads nothing
     /// else): the ticks' vertices are not written (zero), and the misfit is the
     /// skeleton's.
     pub posture_only: bool,
@@ -356,7 +357,7 @@ pub struct ExportSummary {
     pub points: usize,
     /// Parts of the take solved at once ([`ExportOptions::threads`]).
     pub parts: usize,
-    /// Whether only the skeleton's posture was fitted (a BVH or glTF export): then the
+    /// Whether only the skeleton's posture was fitted (a BVH export): then the
     /// replay's misfit is the fitted skeleton's, and no ARAP iteration is counted.
     pub posture_only: bool,
     /// The replay's figures over the take.
@@ -389,9 +390,8 @@ impl Default for ExportOptions {
 /// `EXPORT_WARM_UP_SECS` is set by the measured seam error (docs/benchmarks.md, Export).
 pub const EXPORT_WARM_UP_SECS: f64 = 0.25;
 
-/// Solved frames a glTF's skin is fitted to, at most: spread evenly over the first part
-/// of the take (the part written as it is solved), they cost well under a millisecond
-/// each.
+/// Solved frames a glTF's skin is fitted to, at most: spread evenly over the take (each
+/// part takes its own and the fits add up), they cost well under a millisecond each.
 const SKIN_FIT_FRAMES: usize = 240;
 
 /// A part is at least this many times its warm-up long, else the take has fewer parts.
@@ -419,14 +419,17 @@ pub fn part_bounds(frames: usize, parts: usize, warm: usize) -> Vec<usize> {
 enum PartOut {
     Pc2(Pc2Writer),
     Bvh(BvhWriter),
-    /// The glTF file, and the frames between the solved meshes its skin is fitted to.
+    /// The glTF file, and the take frames between the solved meshes its skin is fitted
+    /// to.
     Glb(Box<GlbWriter>, usize),
     /// A later part of a skeleton export, kept until the parts before it are written:
-    /// each frame's joint rotations and positions, `joints` per frame.
+    /// each frame's joint rotations and positions, `joints` per frame; for a glTF, its
+    /// share of the skin fit and the take frames between the meshes it takes.
     Posture {
         joints: usize,
         rot: Vec<glam::DQuat>,
         pos: Vec<DVec3>,
+        skin: Option<(Box<SkinFit>, usize)>,
     },
 }
 
@@ -442,9 +445,14 @@ impl PartOut {
                 }
                 Ok(())
             }
-            PartOut::Posture { rot, pos, .. } => {
+            PartOut::Posture { rot, pos, skin, .. } => {
                 rot.extend_from_slice(t.joint_rot);
                 pos.extend_from_slice(t.joint_pos);
+                if let Some((fit, every)) = skin {
+                    if t.index.is_multiple_of(*every) {
+                        fit.add(t.joint_rot, t.joint_pos, t.vertices);
+                    }
+                }
                 Ok(())
             }
         }
@@ -641,6 +649,7 @@ fn create_outputs(
     bounds: &[usize],
 ) -> Result<Vec<PartOut>, crate::output::export::ExportError> {
     let sk = &rig.skeleton;
+    let skin_every = frames.div_ceil(SKIN_FIT_FRAMES).max(1);
     let first = match format {
         ExportFormat::Pc2 => {
             let parts = Pc2Writer::create_parts(path, rig.mesh_rest.len(), frames, bounds)?;
@@ -665,16 +674,19 @@ fn create_outputs(
                 &rig.triangles,
                 frame_time_s,
             )),
-            bounds[1].div_ceil(SKIN_FIT_FRAMES).max(1),
+            skin_every,
         ),
     };
     let mut outs = vec![first];
     for w in bounds.windows(2).skip(1) {
         let n = (w[1] - w[0]) * sk.joints.len();
+        let skin = (format == ExportFormat::Glb)
+            .then(|| (Box::new(SkinFit::new(sk, &rig.mesh_rest)), skin_every));
         outs.push(PartOut::Posture {
             joints: sk.joints.len(),
             rot: Vec::with_capacity(n),
             pos: Vec::with_capacity(n),
+            skin,
         });
     }
     Ok(outs)
@@ -726,7 +738,18 @@ fn finish_part(
 ) -> Result<(), crate::output::export::ExportError> {
     match (file.as_mut(), out) {
         (_, PartOut::Pc2(w)) => w.finish(),
-        (Some(f), PartOut::Posture { joints, rot, pos }) => {
+        (
+            Some(f),
+            PartOut::Posture {
+                joints,
+                rot,
+                pos,
+                skin,
+            },
+        ) => {
+            if let (PartOut::Glb(w, _), Some((fit, _))) = (&mut *f, &skin) {
+                w.merge_skin(fit);
+            }
             let joints = joints.max(1);
             for (r, p) in rot.chunks(joints).zip(pos.chunks(joints)) {
                 match f {

@@ -295,7 +295,8 @@ impl BvhWriter {
 
 /// Collects a take's fitted postures and writes them, on [`GlbWriter::finish`], as a
 /// binary glTF: the character's mesh at rest, skinned to its skeleton (up to four joints
-/// a vertex, the weights fitted to the solved frames shown to [`GlbWriter::fit_skin`];
+/// a vertex, the weights fitted to the solved frames shown to [`GlbWriter::fit_skin`]
+/// and [`GlbWriter::merge_skin`];
 /// with none, each vertex wholly to the joint whose bone segment is nearest, as the bind
 /// divides the mesh), and one animation of every joint's rotation and the roots'
 /// translation, a key per frame. Any engine or DCC tool that reads glTF plays it.
@@ -339,6 +340,11 @@ impl GlbWriter {
     /// mesh in the rest mesh's vertex order, metres.
     pub fn fit_skin(&mut self, world_rot: &[DQuat], world_pos: &[DVec3], vertices: &[DVec3]) {
         self.skin.add(world_rot, world_pos, vertices);
+    }
+
+    /// Adds what another fit of the same mesh took in (a later part of the take).
+    pub fn merge_skin(&mut self, fit: &SkinFit) {
+        self.skin.merge(fit);
     }
 
     /// Adds a frame: every joint's world rotation from rest and world position.

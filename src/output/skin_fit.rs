@@ -32,9 +32,13 @@ use glam::{DQuat, DVec3};
 pub const MAX_INFLUENCES: usize = 4;
 
 /// A larger set of joints is kept only if it lowers the vertex's squared residual by
-/// this share of its squared motion `Σ_f ‖x‖²` (far below the residual of any real
-/// bend, far above round-off).
-pub const MIN_GAIN: f64 = 1e-9;
+/// this share of `frames × size²` (`size`: the rest mesh's bounding box diagonal): far
+/// below the residual of any real bend, far above round-off, and the same wherever the
+/// take stands on the stage.
+pub const MIN_GAIN: f64 = 1e-12;
+
+/// Entries of a packed upper triangle of a `MAX_INFLUENCES`-square matrix.
+const PACKED: usize = MAX_INFLUENCES * (MAX_INFLUENCES + 1) / 2;
 
 /// Per-vertex normal equations of the weight fit, accumulated frame by frame.
 pub struct SkinFit {
@@ -45,10 +49,11 @@ pub struct SkinFit {
     /// Per vertex: candidate joints (nearest segment's owner first) and how many.
     candidates: Vec<[u16; MAX_INFLUENCES]>,
     count: Vec<u8>,
-    /// Per vertex: `G` (upper triangle, row by row), `h` and `Σ‖x‖²`.
-    gram: Vec<[f64; 10]>,
+    /// Per vertex: `G` (upper triangle, row by row) and `h`.
+    gram: Vec<[f64; PACKED]>,
     rhs: Vec<[f64; MAX_INFLUENCES]>,
-    motion: Vec<f64>,
+    /// The rest mesh's bounding box diagonal, squared (m²).
+    size2_m2: f64,
     frames: usize,
 }
 
@@ -91,14 +96,23 @@ impl SkinFit {
             count.push(n.max(1) as u8);
         }
         let nv = rest.len();
+        let (lo, hi) = rest.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let size2_m2 = if nv > 0 {
+            (hi - lo).length_squared()
+        } else {
+            0.0
+        };
         Self {
             rest: rest.to_vec(),
             joint_rest,
             candidates,
             count,
-            gram: vec![[0.0; 10]; nv],
+            gram: vec![[0.0; PACKED]; nv],
             rhs: vec![[0.0; MAX_INFLUENCES]; nv],
-            motion: vec![0.0; nv],
+            size2_m2,
             frames: 0,
         }
     }
@@ -130,14 +144,30 @@ impl SkinFit {
                 }
                 self.rhs[i][k] += a[k].dot(x);
             }
-            self.motion[i] += x.length_squared();
         }
         self.frames += 1;
     }
 
-    /// Each vertex's joints and weights (summing to 1, unused slots zero): the fit's
-    /// where it saw frames, else the nearest segment's owner alone.
+    /// Adds the frames another fit of the same mesh took in (a later part of a take).
+    /// A fit of another mesh is ignored.
+    pub fn merge(&mut self, other: &SkinFit) {
+        if other.rest.len() != self.rest.len() || other.candidates != self.candidates {
+            return;
+        }
+        for (g, o) in self.gram.iter_mut().zip(&other.gram) {
+            g.iter_mut().zip(o).for_each(|(a, b)| *a += b);
+        }
+        for (h, o) in self.rhs.iter_mut().zip(&other.rhs) {
+            h.iter_mut().zip(o).for_each(|(a, b)| *a += b);
+        }
+        self.frames += other.frames;
+    }
+
+    /// Each vertex's joints and weights (summing to 1; a joint it does not follow has
+    /// weight zero): the fit's where it saw frames, else the nearest segment's owner
+    /// alone.
     pub fn weights(&self) -> Vec<([u16; MAX_INFLUENCES], [f32; MAX_INFLUENCES])> {
+        let margin = MIN_GAIN * self.frames as f64 * self.size2_m2;
         (0..self.rest.len())
             .map(|i| {
                 let c = self.candidates[i];
@@ -146,12 +176,7 @@ impl SkinFit {
                     w[0] = 1.0;
                     w
                 } else {
-                    solve_simplex(
-                        &self.gram[i],
-                        &self.rhs[i],
-                        self.count[i] as usize,
-                        self.motion[i],
-                    )
+                    solve_simplex(&self.gram[i], &self.rhs[i], self.count[i] as usize, margin)
                 };
                 (c, w.map(|x| x as f32))
             })
@@ -160,12 +185,13 @@ impl SkinFit {
 }
 
 /// The weights `w ≥ 0`, `Σ w = 1` over the first `n` candidates minimising
-/// `wᵀ G w − 2 hᵀ w` (the residual less its constant `motion`), by trying every subset.
+/// `wᵀ G w − 2 hᵀ w` (the residual less its constant), by trying every subset; a
+/// larger subset must lower it by `margin` (m²).
 fn solve_simplex(
-    g: &[f64; 10],
+    g: &[f64; PACKED],
     h: &[f64; MAX_INFLUENCES],
     n: usize,
-    motion: f64,
+    margin: f64,
 ) -> [f64; MAX_INFLUENCES] {
     let gk = |k: usize, l: usize| g[upper(k.min(l), k.max(l))];
     let cost = |w: &[f64; MAX_INFLUENCES]| {
@@ -182,30 +208,31 @@ fn solve_simplex(
     best[0] = 1.0;
     let mut best_cost = cost(&best);
     let mut best_size = 1;
-    // Subsets by size: a larger one must gain MIN_GAIN of the motion over the best so far.
+    // Subsets by size: a larger one must gain `margin` over the best so far.
     for size in 1..=n {
         for mask in 1u32..(1 << n) {
             if mask.count_ones() as usize != size {
                 continue;
             }
-            let idx: Vec<usize> = (0..n).filter(|k| mask & (1 << k) != 0).collect();
-            let Some(w) = constrained_least_squares(&idx, &gk, h) else {
+            let mut idx = [0usize; MAX_INFLUENCES];
+            let mut m = 0;
+            for k in (0..n).filter(|k| mask & (1 << k) != 0) {
+                idx[m] = k;
+                m += 1;
+            }
+            let Some(w) = constrained_least_squares(&idx[..m], &gk, h) else {
                 continue;
             };
-            if w.iter().any(|&x| x < 0.0) {
+            if w[..m].iter().any(|&x| x < 0.0) {
                 continue;
             }
             let mut full = [0.0; MAX_INFLUENCES];
-            for (&k, &x) in idx.iter().zip(&w) {
+            for (&k, &x) in idx[..m].iter().zip(&w) {
                 full[k] = x;
             }
             let c = cost(&full);
-            let margin = if size > best_size {
-                MIN_GAIN * motion
-            } else {
-                0.0
-            };
-            if c < best_cost - margin {
+            let gain = if size > best_size { margin } else { 0.0 };
+            if c < best_cost - gain {
                 (best, best_cost, best_size) = (full, c, size);
             }
         }
@@ -214,13 +241,13 @@ fn solve_simplex(
 }
 
 /// `min wᵀ G w − 2 hᵀ w` over the candidates `idx` with `Σ w = 1`: the system
-/// `[G 1; 1ᵀ 0] [w; λ] = [h; 1]` by Gaussian elimination with partial pivoting; `None`
-/// where it is singular.
+/// `[G 1; 1ᵀ 0] [w; λ] = [h; 1]` by Gauss–Jordan elimination with partial pivoting
+/// (the weights in the first `idx.len()` entries); `None` where it is singular.
 fn constrained_least_squares(
     idx: &[usize],
     gk: &dyn Fn(usize, usize) -> f64,
     h: &[f64; MAX_INFLUENCES],
-) -> Option<Vec<f64>> {
+) -> Option<[f64; MAX_INFLUENCES]> {
     let m = idx.len() + 1;
     let mut a = [[0.0f64; MAX_INFLUENCES + 2]; MAX_INFLUENCES + 1];
     for (r, &k) in idx.iter().enumerate() {
@@ -250,7 +277,11 @@ fn constrained_least_squares(
             }
         }
     }
-    Some((0..idx.len()).map(|r| a[r][m] / a[r][r]).collect())
+    let mut w = [0.0; MAX_INFLUENCES];
+    for (r, x) in w.iter_mut().enumerate().take(idx.len()) {
+        *x = a[r][m] / a[r][r];
+    }
+    Some(w)
 }
 
 #[cfg(test)]
@@ -329,6 +360,69 @@ mod tests {
         // The third vertex follows joint a alone: b cannot lower its zero residual.
         let w = fit.weights()[2];
         assert_eq!((w.0[0], w.1[0]), (0, 1.0));
+    }
+
+    /// A star: a root with four limbs of two bones each, so a vertex near the root has
+    /// four candidates. Weights over three of them are recovered, the fourth at zero,
+    /// and two fits of halves of the frames, merged, equal one fit of all of them.
+    #[test]
+    fn four_candidates_and_merged_halves() {
+        let dirs = [DVec3::X, DVec3::NEG_X, DVec3::Z, DVec3::NEG_Z];
+        let mut joints = vec![Joint {
+            name: "root".into(),
+            parent: None,
+            rest: DVec3::ZERO,
+            limits: None,
+            bend_axis: DVec3::Z,
+        }];
+        for (k, d) in dirs.iter().enumerate() {
+            for (step, parent) in [(1.0, 0), (2.0, 1 + 2 * k)] {
+                joints.push(Joint {
+                    name: format!("limb{k}_{step}"),
+                    parent: Some(parent),
+                    rest: *d * step,
+                    limits: None,
+                    bend_axis: DVec3::Y,
+                });
+            }
+        }
+        let sk = Skeleton { joints };
+        let rest = vec![DVec3::new(0.2, 0.1, 0.15)];
+        let mut whole = SkinFit::new(&sk, &rest);
+        let (mut first, mut second) = (SkinFit::new(&sk, &rest), SkinFit::new(&sk, &rest));
+        let cands = whole.candidates[0];
+        assert_eq!(whole.count[0], 4, "{cands:?}");
+        let truth = [0.5, 0.3, 0.2, 0.0];
+        for f in 0..30 {
+            let t = f as f64 * 0.2;
+            let rot: Vec<DQuat> = (0..sk.joints.len())
+                .map(|j| {
+                    DQuat::from_rotation_y(0.3 * (t + j as f64).sin())
+                        * DQuat::from_rotation_x(0.2 * t.cos() * j as f64)
+                })
+                .collect();
+            let pos: Vec<DVec3> = sk
+                .joints
+                .iter()
+                .enumerate()
+                .map(|(j, jt)| jt.rest + DVec3::new(0.05 * (t * j as f64).sin(), 0.1 * t, 0.0))
+                .collect();
+            let x: DVec3 = (0..4)
+                .map(|k| {
+                    let j = cands[k] as usize;
+                    (rot[j] * (rest[0] - sk.joints[j].rest) + pos[j]) * truth[k]
+                })
+                .sum();
+            whole.add(&rot, &pos, &[x]);
+            if f < 15 { &mut first } else { &mut second }.add(&rot, &pos, &[x]);
+        }
+        first.merge(&second);
+        let (w, merged) = (whole.weights()[0].1, first.weights()[0].1);
+        for k in 0..4 {
+            assert!((f64::from(w[k]) - truth[k]).abs() < 1e-5, "{w:?}");
+            assert!((w[k] - merged[k]).abs() < 1e-6, "{w:?} {merged:?}");
+        }
+        assert_eq!(first.frames(), 30);
     }
 
     /// With no frame, every vertex follows its nearest segment's owner wholly.

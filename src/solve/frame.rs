@@ -435,7 +435,7 @@ impl Solver {
         // 1. Skeleton step.
         let ik_rep = self.skeleton_step(&rig, present);
         let t_ik = Instant::now();
-        if let Some(report) = self.deform_harmonic(&rig, vertices_out, &ik_rep, present, t0, t_ik) {
+        if let Some(report) = self.deform_harmonic(&rig, vertices_out, &ik_rep, t0, t_ik) {
             return report;
         }
         self.sample_targets(&rig);
@@ -476,7 +476,7 @@ impl Solver {
     }
 
     /// Step 1 alone, the skeleton step: the fitted posture ([`Self::joint_world`]) and
-    /// nothing else, for what reads only the posture (a BVH or glTF export). The posture
+    /// nothing else, for what reads only the posture (a BVH export). The posture
     /// is the one [`Self::solve`] fits on the same frames (the skeleton step reads
     /// nothing the later steps write); the control mesh and the full mesh stay as they
     /// were, so a solver is used one way or the other, not both. The report's marker
@@ -488,7 +488,7 @@ impl Solver {
         let present = self.take_targets(&rig, frame);
         let ik_rep = self.skeleton_step(&rig, present);
         let solve_ms = t0.elapsed().as_secs_f64() * 1e3;
-        self.skeleton_report(&rig, &ik_rep, present, solve_ms, solve_ms)
+        self.skeleton_report(&rig, &ik_rep, solve_ms, solve_ms)
     }
 
     /// The report of a frame that fitted the posture and nothing on a control mesh (the
@@ -499,11 +499,10 @@ impl Solver {
         &self,
         rig: &Rig,
         ik_rep: &IkReport,
-        present: usize,
         ik_ms: f64,
         solve_ms: f64,
     ) -> SolveReport {
-        let (sum2, max2) = self.skeleton_residuals(rig);
+        let (sum2, max2, counted) = self.skeleton_residuals(rig);
         SolveReport {
             trace: [0.0; TRACE_LEN],
             trace_len: 0,
@@ -515,7 +514,7 @@ impl Solver {
             rrms: 0.0,
             bone_length_error: 0.0,
             joint_limit_violation_deg: 0.0,
-            marker_residual_rms_mm: (sum2 / present.max(1) as f64).sqrt() * 1e3,
+            marker_residual_rms_mm: (sum2 / counted.max(1) as f64).sqrt() * 1e3,
             marker_residual_max_mm: max2.sqrt() * 1e3,
             solve_ms,
             gc_ms: 0.0,
@@ -524,17 +523,25 @@ impl Solver {
     }
 
     /// Sum and largest of the squared distances between the fitted skeleton's markers
-    /// and the present markers.
-    fn skeleton_residuals(&self, rig: &Rig) -> (f64, f64) {
-        let (mut sum2, mut max2) = (0.0f64, 0.0f64);
-        for k in 0..rig.n_markers {
-            if self.ik_targets[k].is_finite() {
-                let d2 = (self.ik.predicted[k] - self.ik_targets[k]).length_squared();
-                sum2 += d2;
-                max2 = max2.max(d2);
+    /// and the markers in view, and how many were counted: the fully trusted ones
+    /// (measured or rigidly filled; a prediction the fit rightly weighs little would
+    /// otherwise count as misfit), or every one in view when none is.
+    fn skeleton_residuals(&self, rig: &Rig) -> (f64, f64, usize) {
+        let mut out = (0.0f64, 0.0f64, 0usize);
+        for trusted_only in [true, false] {
+            for k in 0..rig.n_markers {
+                if self.ik_targets[k].is_finite()
+                    && (!trusted_only || self.marker_confidence[k] >= 1.0)
+                {
+                    let d2 = (self.ik.predicted[k] - self.ik_targets[k]).length_squared();
+                    out = (out.0 + d2, out.1.max(d2), out.2 + 1);
+                }
+            }
+            if out.2 > 0 {
+                break;
             }
         }
-        (sum2, max2)
+        out
     }
 
     /// Takes the frame's marker positions as the targets of the present markers (ARAP rows
@@ -557,10 +564,17 @@ impl Solver {
         }
         // Trust ranks the markers against each other: the posture priors are sized
         // against a fit of trusted markers, so when none is (every marker predicted)
-        // the best trusted counts as one, and the priors do not take over.
-        if most_trusted > 0.0 && most_trusted < 1.0 {
-            for w in &mut self.ik.marker_weight {
-                *w = (*w / most_trusted).min(1.0);
+        // the best trusted counts as one, and the priors do not take over (none
+        // trusted at all: all count alike).
+        if most_trusted < 1.0 {
+            for (w, t) in self.ik.marker_weight.iter_mut().zip(&self.ik_targets) {
+                if t.is_finite() {
+                    *w = if most_trusted > 0.0 {
+                        (*w / most_trusted).min(1.0)
+                    } else {
+                        1.0
+                    };
+                }
             }
         }
         present
@@ -593,7 +607,6 @@ impl Solver {
         rig: &Rig,
         vertices_out: &mut [DVec3],
         ik_rep: &IkReport,
-        present: usize,
         t0: Instant,
         t_ik: Instant,
     ) -> Option<SolveReport> {
@@ -613,7 +626,6 @@ impl Solver {
         Some(self.skeleton_report(
             rig,
             ik_rep,
-            present,
             (t_ik - t0).as_secs_f64() * 1e3,
             (t1 - t0).as_secs_f64() * 1e3,
         ))

@@ -156,7 +156,7 @@ def skin_against_solve(binary, take, pc2_path, mesh, scene):
     check(points == len(mesh.data.vertices), f"point cache of {points} points, mesh of {len(mesh.data.vertices)}")
     fps = scene.render.fps / scene.render.fps_base
     total, count, largest, frames = 0.0, 0, 0.0, []
-    for f in range(0, samples, samples // 5):
+    for f in [k * (samples - 1) // 4 for k in range(5)]:
         # The importer puts a key at time t on scene frame t * fps.
         at = f / summary["rate_hz"] * fps
         scene.frame_set(int(at), subframe=at - int(at))
