@@ -404,13 +404,14 @@ pub fn part_bounds(frames: usize, parts: usize, warm: usize) -> Vec<usize> {
     let parts = parts.max(1);
     // Each part's work, warm-ups included: `share` frames.
     let share = (frames + warm * (parts - 1)) / parts;
-    let mut bounds: Vec<usize> = (0..parts)
-        .map(|i| {
-            (i * share)
-                .saturating_sub(i.saturating_sub(1) * warm)
-                .min(frames)
-        })
-        .collect();
+    let mut bounds: Vec<usize> = Vec::with_capacity(parts + 1);
+    for i in 0..parts {
+        let b = (i * share)
+            .saturating_sub(i.saturating_sub(1) * warm)
+            .min(frames);
+        // Never before the previous bound (parts shorter than their warm-up).
+        bounds.push(b.max(bounds.last().copied().unwrap_or(0)));
+    }
     bounds.push(frames);
     bounds
 }
@@ -789,5 +790,12 @@ mod tests {
         }
         // Two parts of the body walk: the first 15 frames longer than half.
         assert_eq!(part_bounds(1440, 2, 30), vec![0, 735, 1440]);
+        // Parts shorter than their warm-up (which an export does not ask for): the
+        // bounds still never go back.
+        for (frames, parts) in [(28, 4), (10, 4), (0, 3), (50, 8)] {
+            let b = part_bounds(frames, parts, 30);
+            assert!(b.windows(2).all(|w| w[0] <= w[1]), "{b:?}");
+            assert_eq!((b[0], b[parts]), (0, frames), "{b:?}");
+        }
     }
 }
