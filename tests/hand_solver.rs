@@ -356,8 +356,8 @@ fn a_passed_deadline_stops_the_solve_after_one_iteration() {
     assert!(out.iter().all(|v| v.is_finite()));
 }
 
-/// Confidence ranks markers against each other: twelve frames of finger play solved with
-/// every marker trusted alike at 0.3, or with confidences the solver must clamp (NaN,
+/// Confidence ranks markers against each other: twelve frames of finger play whose frames
+/// trust every marker alike at 0.3, or carry confidences the solver must clamp (NaN,
 /// negative, above one), give the mesh of a solve with every marker measured, to the
 /// bit; one marker trusted at 0.5 among fully trusted ones changes it.
 #[test]
@@ -370,16 +370,13 @@ fn marker_confidence_ranks_markers_and_is_clamped() {
         let mut markers = vec![DVec3::ZERO; nm];
         let mut out = vec![DVec3::ZERO; ch.vertices.len()];
         let mut solver = Solver::new(Arc::clone(&rig), SolverParams::default());
-        solver.set_marker_confidence(confidence);
         for f in 0..12 {
             let t = 0.5 + f as f64 / 120.0;
             let pose = hand_pose(&ch.skeleton, HandMotion::FingerPlay, t);
             skin_pose(&ch, &pose, &mut truth, &mut markers);
-            solver.solve(
-                &MarkerFrame::all_present(t, markers.clone()),
-                far_deadline(),
-                &mut out,
-            );
+            let mut frame = MarkerFrame::all_present(t, markers.clone());
+            frame.confidence = confidence.to_vec();
+            solver.solve(&frame, far_deadline(), &mut out);
         }
         out
     };

@@ -280,7 +280,6 @@ impl Pipeline {
                 self.solver.set_pins(&self.pins);
             }
         }
-        self.solver.set_marker_confidence(self.buffer.confidence());
         let solve = if self.posture_only {
             self.solver.solve_posture(&self.markers)
         } else {

@@ -11,7 +11,8 @@
 //! 2. `predicted`: gaps up to `predict_max_gap_secs`: constant velocity (least-squares
 //!    slope over the last `velocity_window_secs`), with the velocity decaying as
 //!    `exp(-gap / prediction_decay_secs)`, so the marker coasts to a stop instead of
-//!    flying off; the frame's `confidence` is that same factor.
+//!    flying off; the frame's `confidence` ([`MarkerFrame::confidence`]) is that same
+//!    factor.
 //! 3. `held`: no information; the solver leaves the marker's bound point where its bone
 //!    takes it.
 //!
@@ -306,9 +307,6 @@ pub struct MarkerBuffer {
     source_at_s: f64,
     /// The receive time of the newest sample taken, daemon clock (−∞: none yet).
     received_at_s: f64,
-    /// Confidence of each marker in the last frame (1 measured, decay factor predicted,
-    /// 1 rigid-filled, 0 held).
-    confidence: Vec<f64>,
     /// Scratch for the rigid fill.
     scratch_ref: Vec<DVec3>,
     scratch_cur: Vec<DVec3>,
@@ -359,7 +357,6 @@ impl MarkerBuffer {
             source_time_s: 0.0,
             source_at_s: f64::NEG_INFINITY,
             received_at_s: f64::NEG_INFINITY,
-            confidence: vec![0.0; n],
             scratch_ref: Vec::with_capacity(widest),
             scratch_cur: Vec::with_capacity(widest),
         }
@@ -385,12 +382,6 @@ impl MarkerBuffer {
 
     pub fn counters(&self) -> &BufferCounters {
         &self.counters
-    }
-
-    /// Confidence of each marker in the last frame: 1 measured or rigid-filled, the
-    /// prediction's decay factor when predicted, 0 held.
-    pub fn confidence(&self) -> &[f64] {
-        &self.confidence
     }
 
     /// Forgets every sample (the reference layouts are kept).
@@ -507,11 +498,12 @@ impl MarkerBuffer {
     }
 
     /// Fills `out` (resized to the layout once, then reused) with every marker at time `t`
-    /// (daemon clock, seconds): positions and fill states.
+    /// (daemon clock, seconds): positions, fill states and confidences.
     pub fn sample_at(&mut self, t: f64, out: &mut MarkerFrame) {
         let n = self.tracks.len();
         out.positions.resize(n, DVec3::ZERO);
         out.states.resize(n, FillState::Held);
+        out.confidence.resize(n, 0.0);
         out.source_time_s = self.source_time_s;
         out.received_at_s = self.received_at_s;
         let cfg = &self.cfg;
@@ -531,7 +523,7 @@ impl MarkerBuffer {
             } else {
                 FillState::Held
             };
-            self.confidence[k] = if measured { 1.0 } else { 0.0 };
+            out.confidence[k] = if measured { 1.0 } else { 0.0 };
         }
         // Reference layouts from segments seen whole, at one instant (a stale sample
         // would bend the layout by the distance moved since).
@@ -567,7 +559,7 @@ impl MarkerBuffer {
                 ) {
                     out.positions[k] = p;
                     out.states[k] = FillState::RigidFilled;
-                    self.confidence[k] = 1.0;
+                    out.confidence[k] = 1.0;
                     continue;
                 }
             }
@@ -575,7 +567,7 @@ impl MarkerBuffer {
                 if let Some((p, c)) = tr.predict(t, cfg) {
                     out.positions[k] = p;
                     out.states[k] = FillState::Predicted;
-                    self.confidence[k] = c;
+                    out.confidence[k] = c;
                 }
             }
         }
@@ -586,7 +578,7 @@ impl MarkerBuffer {
                 self.counters.implausible_fills += 1;
                 out.states[k] = FillState::Held;
                 out.positions[k] = tr.newest().map_or(DVec3::ZERO, |(_, p)| p);
-                self.confidence[k] = 0.0;
+                out.confidence[k] = 0.0;
             }
         }
         self.counters.frames += 1;
@@ -740,12 +732,12 @@ mod tests {
         let tau = cfg.prediction_decay_secs;
         let expected = rest[4] + v * 0.19 + v * tau * (1.0 - (-gap / tau).exp());
         assert!((f.positions[4] - expected).length() < 1e-12);
-        assert!((b.confidence()[4] - (-gap / tau).exp()).abs() < 1e-12);
+        assert!((f.confidence[4] - (-gap / tau).exp()).abs() < 1e-12);
         // Past the longest predicted gap the marker is held at its last position.
         b.sample_at(0.19 + cfg.predict_max_gap_secs + 0.01, &mut f);
         assert_eq!(f.states[4], FillState::Held);
         assert!((f.positions[4] - (rest[4] + v * 0.19)).length() < 1e-12);
-        assert_eq!(b.confidence()[4], 0.0);
+        assert_eq!(f.confidence[4], 0.0);
     }
 
     #[test]
@@ -951,7 +943,7 @@ mod tests {
         b.sample_at(0.24, &mut f);
         assert_eq!(f.states[4], FillState::Held);
         assert_eq!(f.positions[4], start + v * 0.19);
-        assert_eq!(b.confidence()[4], 0.0);
+        assert_eq!(f.confidence[4], 0.0);
         assert_eq!(b.counters().implausible_fills, 1);
     }
 

@@ -77,17 +77,22 @@ pub struct MarkerFrame {
     pub positions: Vec<DVec3>,
     /// How each position was obtained.
     pub states: Vec<FillState>,
+    /// How far each position is trusted, in `[0, 1]`: 1 measured or rigidly filled, the
+    /// prediction's decay factor `exp(−gap/τ)` when predicted, 0 held.
+    pub confidence: Vec<f64>,
 }
 
 impl MarkerFrame {
     /// A frame where every marker is measured.
     pub fn all_present(source_time_s: f64, positions: Vec<DVec3>) -> Self {
         let states = vec![FillState::Measured; positions.len()];
+        let confidence = vec![1.0; positions.len()];
         Self {
             source_time_s,
             received_at_s: f64::NEG_INFINITY,
             positions,
             states,
+            confidence,
         }
     }
 
@@ -98,6 +103,7 @@ impl MarkerFrame {
             received_at_s: f64::NEG_INFINITY,
             positions: vec![DVec3::ZERO; n],
             states: vec![FillState::Held; n],
+            confidence: vec![0.0; n],
         }
     }
 

@@ -72,12 +72,9 @@ impl SkinFit {
         let mut ranked: Vec<(f64, usize)> = Vec::with_capacity(segs.len());
         for &p in rest {
             ranked.clear();
-            for &(a, b) in &segs {
-                let (pa, pb) = (joint_rest[a], joint_rest[b]);
-                let ab = pb - pa;
-                let t =
-                    ((p - pa).dot(ab) / ab.length_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
-                ranked.push(((p - (pa + ab * t)).length_squared(), a));
+            for &seg in &segs {
+                let d = crate::rig::bind::segment_distance2(skeleton, seg, p);
+                ranked.push((d, seg.0));
             }
             ranked.sort_by(|x, y| x.0.total_cmp(&y.0));
             let mut c = [0u16; MAX_INFLUENCES];

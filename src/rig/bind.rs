@@ -192,16 +192,22 @@ pub fn segments(sk: &Skeleton) -> Vec<(usize, usize)> {
 /// of the control mesh `p` belongs to.
 pub(crate) fn nearest_owner(sk: &Skeleton, segs: &[(usize, usize)], p: DVec3) -> u32 {
     let mut best = (f64::INFINITY, 0u32);
-    for &(a, b) in segs {
-        let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
-        let ab = pb - pa;
-        let t = ((p - pa).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
-        let d = (p - (pa + ab * t)).length_squared();
+    for &seg in segs {
+        let d = segment_distance2(sk, seg, p);
         if d < best.0 {
-            best = (d, a as u32);
+            best = (d, seg.0 as u32);
         }
     }
     best.1
+}
+
+/// Squared distance from `p` to the rest bone segment `(a, b)` (of [`segments`]; a
+/// zero-length one is its point).
+pub(crate) fn segment_distance2(sk: &Skeleton, (a, b): (usize, usize), p: DVec3) -> f64 {
+    let (pa, pb) = (sk.joints[a].rest, sk.joints[b].rest);
+    let ab = pb - pa;
+    let t = ((p - pa).dot(ab) / ab.length_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
+    (p - (pa + ab * t)).length_squared()
 }
 
 fn compatible(sk: &Skeleton, a: u32, b: u32) -> bool {

@@ -229,7 +229,8 @@ pub struct Solver {
     /// Each marker's last trusted target in its joint's frame (rest offset until first
     /// seen).
     held_local: Vec<DVec3>,
-    /// Each marker's confidence this frame, in `[0, 1]` ([`Self::set_marker_confidence`]).
+    /// Each marker's confidence this frame, in `[0, 1]` ([`MarkerFrame::confidence`],
+    /// clamped).
     marker_confidence: Vec<f64>,
     /// Joint angles imposed after the marker fit, one per posture parameter (radians,
     /// NaN: free; see [`Self::set_pins`]).
@@ -377,22 +378,6 @@ impl Solver {
         (&self.ik.world_rot, &self.ik.world_pos)
     }
 
-    /// How far each marker's position in the next frames is trusted, in `[0, 1]` (the
-    /// marker buffer's confidence: 1 measured or rigidly filled, decaying over a
-    /// predicted gap; 1 for every marker until set). A marker trusted less weighs less in
-    /// the posture fit, and its target on the mesh is drawn towards where its bone
-    /// carries it ([`Self::solve`], step 2). Out-of-range or non-finite values count
-    /// as 0.
-    pub fn set_marker_confidence(&mut self, confidence: &[f64]) {
-        for (c, &v) in self.marker_confidence.iter_mut().zip(confidence) {
-            *c = if v.is_finite() {
-                v.clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-        }
-    }
-
     /// Joint angles that override the marker fit from the next frame on: one entry per
     /// posture parameter (see [`crate::rig::ik_model::IkModel::angle_params`]), radians, NaN
     /// where the fit decides. The angles are clamped to the joint limits; the skeleton
@@ -421,7 +406,8 @@ impl Solver {
     /// Solves one frame, warm-started from the previous one, and writes the full-resolution
     /// vertices (file order, metres) into `vertices_out` (`len` = mesh vertex count).
     /// Held markers (see [`MarkerFrame::is_present`]) are left out of the posture fit and
-    /// their bound points follow their bones.
+    /// their bound points follow their bones; a marker trusted in part
+    /// ([`MarkerFrame::confidence`]) weighs less (see `trust`).
     pub fn solve(
         &mut self,
         frame: &MarkerFrame,
@@ -552,6 +538,13 @@ impl Solver {
         let mut present = 0;
         let mut most_trusted = 0.0f64;
         for k in 0..nm {
+            // Out of range or not finite counts as 0; a frame without confidences as 1.
+            let c = frame.confidence.get(k).copied().unwrap_or(1.0);
+            self.marker_confidence[k] = if c.is_finite() {
+                c.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
             if frame.is_present(k) {
                 self.st.targets[k] = frame.positions[k];
                 self.ik_targets[k] = frame.positions[k];
@@ -673,15 +666,16 @@ impl Solver {
         // knows better as the gap grows.
         for k in 0..nm {
             let j = rig.marker_joint[k];
-            let carried = wp[j] + wr[j] * self.held_local[k];
-            if !self.ik_targets[k].is_finite() {
-                self.st.targets[k] = carried;
-            } else if self.marker_confidence[k] >= 1.0 {
+            if self.ik_targets[k].is_finite() && self.marker_confidence[k] >= 1.0 {
                 self.held_local[k] = wr[j].conjugate() * (self.st.targets[k] - wp[j]);
-            } else {
-                let w = self.ik.marker_weight[k];
-                self.st.targets[k] = carried.lerp(self.st.targets[k], w);
+                continue;
             }
+            let carried = wp[j] + wr[j] * self.held_local[k];
+            self.st.targets[k] = if self.ik_targets[k].is_finite() {
+                carried.lerp(self.st.targets[k], self.ik.marker_weight[k])
+            } else {
+                carried
+            };
         }
     }
 
