@@ -187,8 +187,9 @@ fn a_killed_daemon_loses_at_most_one_flush_interval_of_its_session() {
     assert_eq!(rec.labels.len(), 8);
     assert_eq!(rec.rate_hz, 120.0);
     // The replay starts before the daemon prints its address, so it had played at least
-    // `killed_after` at the kill: what is lost is one flush interval (0.25 s) and the
-    // slack of a flush running late on a loaded 2-core machine (SLACK_S).
+    // `killed_after` at the kill: what is lost is one flush interval (0.25 s), the newest
+    // frame (held back until it is whole, 1/120 s) and the slack of a flush running late
+    // on a loaded 2-core machine (SLACK_S).
     const SLACK_S: f64 = 0.15;
     let lost = killed_after - span;
     println!("lost at most {lost:.3} s (flush interval 0.25 s)");
