@@ -7,7 +7,6 @@
 use crate::character::file::{load_character, CharacterError, LoadedCharacter};
 use crate::character::mesh::MeshPart;
 use crate::geom::shapes::subdivide_midpoint;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// `p` from the root (the character file is written elsewhere and reads its mesh path
@@ -114,25 +113,23 @@ pub fn makehuman_file(
         groups.join(", ")
     );
     for (name, parent, key) in &joints {
-        let _ = writeln!(t, "\n[[skeleton.joints]]\nname = {name:?}");
+        t.push_str(&format!("\n[[skeleton.joints]]\nname = {name:?}\n"));
         if let Some(p) = parent {
-            let _ = writeln!(t, "parent = {p:?}");
+            t.push_str(&format!("parent = {p:?}\n"));
         }
-        let _ = writeln!(t, "rest_vertices = {:?}", verts(key)?);
+        t.push_str(&format!("rest_vertices = {:?}\n", verts(key)?));
     }
     for s in ["L", "R"] {
-        let _ = writeln!(
-            t,
-            "\n[skeleton.limits.\"shin.{s}\"]\ntwist_deg = [-5, 5]\nbend_deg = [0, 120]\nside_deg = [-3, 3]\nbend_axis = [-1, 0, 0]"
-        );
-        let _ = writeln!(
-            t,
-            "\n[skeleton.limits.\"forearm.{s}\"]\ntwist_deg = [-60, 60]\nbend_deg = [0, 130]\nside_deg = [-3, 3]\nbend_axis = [0, 0, 1]"
-        );
+        t.push_str(&format!("\n[skeleton.limits.\"shin.{s}\"]\ntwist_deg = [-5, 5]\nbend_deg = [0, 120]\nside_deg = [-3, 3]\nbend_axis = [-1, 0, 0]\n"
+        ));
+        t.push_str(&format!("\n[skeleton.limits.\"forearm.{s}\"]\ntwist_deg = [-60, 60]\nbend_deg = [0, 130]\nside_deg = [-3, 3]\nbend_axis = [0, 0, 1]\n"
+        ));
     }
     for (name, _, _) in &joints {
         if !name.ends_with("_top") && !name.starts_with("hand_end") && !name.starts_with("toe") {
-            let _ = writeln!(t, "\n[[markers]]\nname = \"m_{name}\"\nbone = {name:?}");
+            t.push_str(&format!(
+                "\n[[markers]]\nname = \"m_{name}\"\nbone = {name:?}\n"
+            ));
         }
     }
     let path = dir.join("makehuman.toml");

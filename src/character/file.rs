@@ -1396,48 +1396,50 @@ pub fn write_character_files(
     bind: Option<&BindParams>,
     dir: &Path,
 ) -> std::io::Result<PathBuf> {
-    use std::fmt::Write as _;
+    use std::io::Write as _;
     std::fs::create_dir_all(dir)?;
-    let mut obj = String::with_capacity(ch.vertices.len() * 40 + ch.triangles.len() * 24);
-    let _ = writeln!(obj, "# {} (written by rigless)\no {}", ch.name, ch.name);
+    let create = |path: &Path| std::fs::File::create(path).map(std::io::BufWriter::new);
+    let mut obj = create(&dir.join(format!("{}.obj", ch.name)))?;
+    writeln!(obj, "# {} (written by rigless)\no {}", ch.name, ch.name)?;
     for v in &ch.vertices {
-        let _ = writeln!(obj, "v {:?} {:?} {:?}", v.x, v.y, v.z);
+        writeln!(obj, "v {:?} {:?} {:?}", v.x, v.y, v.z)?;
     }
     for t in &ch.triangles {
-        let _ = writeln!(obj, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+        writeln!(obj, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
     }
-    std::fs::write(dir.join(format!("{}.obj", ch.name)), obj)?;
-    let mut toml = String::new();
-    let _ = writeln!(
+    obj.flush()?;
+    let path = dir.join(format!("{}.toml", ch.name));
+    let mut toml = create(&path)?;
+    writeln!(
         toml,
         "# {} (written by rigless): metres, Y up.\nname = {:?}\n\n[mesh]\npath = \"{}.obj\"\nunits = \"m\"\nup = \"y\"\n",
         ch.name, ch.name, ch.name
-    );
+    )?;
     if let Some(b) = bind {
-        let _ = writeln!(
+        writeln!(
             toml,
             "[bind]\ncell_size_m = {:?}\nskeleton_step_m = {:?}\nw_shape = {:?}\nw_marker = {:?}\nw_skeleton = {:?}\nmax_marker_distance_m = {:?}\n",
             b.cell_size_m, b.skeleton_step_m, b.w_shape, b.w_marker, b.w_skeleton, b.max_marker_distance_m
-        );
+        )?;
     }
     // Every limit is written: a joint free here stays free, whatever its role.
-    let _ = writeln!(toml, "[skeleton]\nrole_limits = false\n");
+    writeln!(toml, "[skeleton]\nrole_limits = false\n")?;
     let sk = &ch.skeleton;
     for j in &sk.joints {
-        let _ = writeln!(toml, "[[skeleton.joints]]\nname = {:?}", j.name);
+        writeln!(toml, "[[skeleton.joints]]\nname = {:?}", j.name)?;
         if let Some(p) = j.parent {
-            let _ = writeln!(toml, "parent = {:?}", sk.joints[p].name);
+            writeln!(toml, "parent = {:?}", sk.joints[p].name)?;
         }
-        let _ = writeln!(
+        writeln!(
             toml,
             "rest_m = [{:?}, {:?}, {:?}]\n",
             j.rest.x, j.rest.y, j.rest.z
-        );
+        )?;
     }
     for j in &sk.joints {
         if let Some(l) = j.limits {
             let d = |(a, b): (f64, f64)| format!("[{:?}, {:?}]", a.to_degrees(), b.to_degrees());
-            let _ = writeln!(
+            writeln!(
                 toml,
                 "[skeleton.limits.{:?}]\ntwist_deg = {}\nbend_deg = {}\nside_deg = {}\nbend_axis = [{:?}, {:?}, {:?}]\n",
                 j.name,
@@ -1447,38 +1449,37 @@ pub fn write_character_files(
                 j.bend_axis.x,
                 j.bend_axis.y,
                 j.bend_axis.z
-            );
+            )?;
         }
     }
     for m in &ch.markers {
-        let _ = writeln!(toml, "[[markers]]\nname = {:?}", m.name);
+        writeln!(toml, "[[markers]]\nname = {:?}", m.name)?;
         match m.joint {
             Some(j) => {
                 let o = m.rest - sk.joints[j].rest;
-                let _ = writeln!(
+                writeln!(
                     toml,
                     "bone = {:?}\noffset_m = [{:?}, {:?}, {:?}]\n",
                     sk.joints[j].name, o.x, o.y, o.z
-                );
+                )?;
             }
             None => {
-                let _ = writeln!(
+                writeln!(
                     toml,
                     "position_m = [{:?}, {:?}, {:?}]\n",
                     m.rest.x, m.rest.y, m.rest.z
-                );
+                )?;
             }
         }
     }
     for c in &ch.correspondences {
-        let _ = writeln!(
+        writeln!(
             toml,
             "[[correspondences]]\njoint = {:?}\ntriangles = {:?}\n",
             sk.joints[c.joint].name, c.triangles
-        );
+        )?;
     }
-    let path = dir.join(format!("{}.toml", ch.name));
-    std::fs::write(&path, toml)?;
+    toml.flush()?;
     Ok(path)
 }
 

@@ -180,9 +180,13 @@ impl StreamServer {
     fn stop(&mut self, reason: &str) {
         self.shutdown.send_replace(Some(reason.to_owned()));
         if let Some(t) = self.thread.take() {
-            // The thread ends within GOODBYE_TIMEOUT_SECS; a panic there was already
-            // reported by the panic hook.
-            let _ = t.join();
+            // The thread ends within GOODBYE_TIMEOUT_SECS; a panic there printed its
+            // message through the panic hook, and here says what it cost.
+            if t.join().is_err() {
+                tracing::error!(
+                    "the stream server's thread panicked: clients were not told goodbye"
+                );
+            }
         }
     }
 }
@@ -327,13 +331,18 @@ impl Conn {
 
     async fn close(&mut self) {
         let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
-        let _ = match self {
-            Conn::Tcp(s) => tokio::time::timeout(limit, s.shutdown()).await.map(|_| ()),
+        let closed = match self {
+            Conn::Tcp(s) => matches!(tokio::time::timeout(limit, s.shutdown()).await, Ok(Ok(()))),
             // The WebSocket close handshake (the stream's own `close`, not `SinkExt::close`).
-            Conn::Ws(w) => tokio::time::timeout(limit, WebSocketStream::close(&mut **w, None))
-                .await
-                .map(|_| ()),
+            Conn::Ws(w) => matches!(
+                tokio::time::timeout(limit, WebSocketStream::close(&mut **w, None)).await,
+                Ok(Ok(()))
+            ),
         };
+        // The goodbye was written; a client that hung up before the close costs nothing.
+        if !closed {
+            tracing::debug!("a stream client's connection did not close within {limit:?}");
+        }
     }
 }
 
@@ -463,7 +472,9 @@ async fn serve(
             Arc::clone(&stats),
         );
         clients.spawn(async move {
-            let _ = sock.set_nodelay(true);
+            if let Err(e) = sock.set_nodelay(true) {
+                tracing::debug!("TCP_NODELAY not set on a stream client: {e}");
+            }
             let limit = Duration::from_secs_f64(WRITE_TIMEOUT_SECS);
             match Conn::accept(sock, websocket, viewer, limit).await {
                 Accepted::Client(conn) => serve_client(conn, topo, frames, shutdown, stats).await,
@@ -478,11 +489,19 @@ async fn serve(
         });
     }
     drop((tcp, ws, refusals));
-    let _ = dispatcher.await;
-    let _ = tokio::time::timeout(Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0), async {
+    if let Err(e) = dispatcher.await {
+        tracing::error!("the stream's frame dispatcher failed: {e}");
+    }
+    let goodbye_limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0);
+    let all_said = tokio::time::timeout(goodbye_limit, async {
         while clients.join_next().await.is_some() {}
     })
     .await;
+    if all_said.is_err() {
+        tracing::warn!(
+            "stream clients still being told goodbye after {goodbye_limit:?}; they are left"
+        );
+    }
 }
 
 /// Encodes each frame published to `slot` once and hands the bytes to every client,
@@ -537,8 +556,10 @@ async fn serve_client(
             _ = shutdown.changed() => break,
             r = frames.changed() => {
                 if r.is_err() {
-                    // The dispatcher has gone: the server is shutting down.
-                    let _ = shutdown.wait_for(Option::is_some).await;
+                    // The dispatcher has gone: the server is shutting down. Wait for
+                    // its reason (an error means the server itself has gone, which ends
+                    // the client all the same); the guard it returns is let go at once.
+                    drop(shutdown.wait_for(Option::is_some).await);
                     break;
                 }
                 let Some(f) = frames.borrow_and_update().clone() else { continue };
@@ -558,9 +579,12 @@ async fn serve_client(
         let reason = shutdown.borrow().clone().unwrap_or_default();
         buf.clear();
         encode_goodbye(&reason, &mut buf);
-        let _ = conn.send(&buf, GOODBYE_TIMEOUT_SECS).await;
-        conn.close().await;
-    } else {
+        ok = conn.send(&buf, GOODBYE_TIMEOUT_SECS).await;
+        if ok {
+            conn.close().await;
+        }
+    }
+    if !ok {
         stats.write_errors.fetch_add(1, Ordering::Relaxed);
     }
     stats.clients.fetch_sub(1, Ordering::Relaxed);

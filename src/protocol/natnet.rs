@@ -192,13 +192,12 @@ impl<'a> Rd<'a> {
     }
 }
 
-fn rigid_body(r: &mut Rd, v: Version) -> Result<RigidBody, NatNetError> {
+fn rigid_body(r: &mut Rd) -> Result<RigidBody, NatNetError> {
     let id = r.i32()?;
     let position_m = r.vec3()?;
     let rotation = [r.f32()?, r.f32()?, r.f32()?, r.f32()?];
     let mean_error_m = r.f32()?;
     let params = r.i16()?;
-    let _ = v;
     Ok(RigidBody {
         id,
         position_m,
@@ -237,7 +236,7 @@ fn frame(r: &mut Rd, v: Version) -> Result<MocapFrame, NatNetError> {
     r.section(v)?;
     let n = r.count(RIGID_BODY_LEN)?;
     for _ in 0..n {
-        f.rigid_bodies.push(rigid_body(r, v)?);
+        f.rigid_bodies.push(rigid_body(r)?);
     }
     r.section(v)?;
     let skeletons = r.count(8)?;
@@ -245,7 +244,7 @@ fn frame(r: &mut Rd, v: Version) -> Result<MocapFrame, NatNetError> {
         let _id = r.i32()?;
         let n = r.count(RIGID_BODY_LEN)?;
         for _ in 0..n {
-            f.rigid_bodies.push(rigid_body(r, v)?);
+            f.rigid_bodies.push(rigid_body(r)?);
         }
     }
     r.section(v)?;

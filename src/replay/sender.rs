@@ -375,7 +375,11 @@ impl Sink {
                         // Keep-alives and anything else: nothing to answer.
                         _ => continue,
                     };
-                    let _ = sock.send_to(reply, from);
+                    // A reply that fails costs only itself: the client repeats its
+                    // request until answered.
+                    if sock.send_to(reply, from).is_err() {
+                        continue;
+                    }
                 }
                 sock.send_to(bytes, *data)
             }
@@ -408,9 +412,13 @@ impl Sink {
                     }
                 }
                 for mut c in fresh {
-                    let _ = c.set_nodelay(true);
-                    let _ = c.set_write_timeout(Some(std::time::Duration::from_millis(100)));
-                    if c.set_nonblocking(false).is_ok() && c.write_all(greeting).is_ok() {
+                    // A client whose socket cannot be set up (a write timeout above all:
+                    // without it a stalled client would stall the replay) is dropped.
+                    let ready = c.set_nodelay(true).is_ok()
+                        && c.set_write_timeout(Some(std::time::Duration::from_millis(100)))
+                            .is_ok()
+                        && c.set_nonblocking(false).is_ok();
+                    if ready && c.write_all(greeting).is_ok() {
                         clients.push(VrpnClient {
                             tcp: c,
                             reader: Default::default(),
