@@ -151,7 +151,7 @@ fn cross_section_problems(c: &StageConfig, lines: &Lines, problems: &mut Vec<Str
     if c.calibration.write && c.character.path.is_none() {
         problems.push(lines.at(
             "calibration.write",
-            "writing the layout needs a character file (character.path); a procedural character has none",
+            "writing the layout needs a character file (character.path); a procedural character has none (`rigless export-character hand|body DIR` writes one)",
         ));
     }
 }

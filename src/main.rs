@@ -102,12 +102,16 @@ enum Command {
     /// reach and range of motion, as C3D with noise and occlusion gaps) into a folder; `replay/` in the source
     /// tree holds exactly what this writes.
     MakeSessions(cli::make_sessions::MakeSessionsArgs),
-    /// Write the procedural hand as an example character.
+    /// Write a procedural character (the hand or the body) as an example character.
     ///
-    /// Write the procedural hand as a mesh (OBJ) and a character file (TOML) into a
-    /// folder: a complete example of the character format to start from, ready for
-    /// `rigless bake DIR/hand.toml`.
-    ExportHand(cli::export_hand::ExportHandArgs),
+    /// Write the procedural hand or body as a mesh (OBJ) and a character file (TOML)
+    /// into a folder: a complete example of the character format to start from, ready
+    /// for `rigless bake DIR/hand.toml`, and a file `rigless calibrate DIR/body.toml
+    /// TAKE --write` can store a studio's marker layout in.
+    ExportCharacter(cli::export_character::ExportCharacterArgs),
+    /// The same as `export-character hand DIR`.
+    #[command(hide = true)]
+    ExportHand(cli::export_character::ExportHandArgs),
     /// Run a benchmark suite and print one line per case (a table, or JSON with --json).
     Bench(cli::bench::BenchArgs),
 }
@@ -129,7 +133,8 @@ fn main() -> std::process::ExitCode {
         Command::Info(a) => cli::info::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),
         Command::MakeSessions(a) => cli::make_sessions::run(a),
-        Command::ExportHand(a) => cli::export_hand::run(a),
+        Command::ExportCharacter(a) => cli::export_character::run(a),
+        Command::ExportHand(a) => cli::export_character::run_hand(a),
         Command::Bench(a) => cli::bench::run(a),
     };
     match result {

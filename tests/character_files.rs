@@ -1,10 +1,13 @@
-//! Character files end to end: the procedural hand written as OBJ + TOML loads back to
-//! the same character, bakes, caches, and tracks; bad files fail with errors that name
+//! Character files end to end: the procedural hand and body written as OBJ + TOML load
+//! back to the same characters, bake, cache, and track; bad files fail with errors that name
 //! what is wrong.
 
 use glam::DVec3;
 use rigless::bench::characters::{demo_hand, hand_bind_params};
-use rigless::character::file::{load_character, write_character_files};
+use rigless::character::bind_params::BindParams;
+use rigless::character::demo::{body_bind_params, demo_body};
+use rigless::character::file::{load_character, write_character_files, LoadedCharacter};
+use rigless::character::Character;
 use rigless::markers::MarkerFrame;
 use rigless::rig::bind::Rig;
 use rigless::rig::cache;
@@ -17,11 +20,10 @@ fn write_hand(dir: &Path) -> std::path::PathBuf {
     write_character_files(&demo_hand(), Some(&hand_bind_params()), dir).expect("write hand")
 }
 
-#[test]
-fn written_hand_loads_back_identically() {
+/// Writes `ch` with `bind` and checks that the file loads back to the same character.
+fn loads_back_identically(ch: &Character, bind: &BindParams) -> LoadedCharacter {
     let dir = tempfile::tempdir().unwrap();
-    let ch = demo_hand();
-    let path = write_hand(dir.path());
+    let path = write_character_files(ch, Some(bind), dir.path()).expect("write");
     let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
     let back = &loaded.character;
     assert_eq!(back.vertices.len(), ch.vertices.len());
@@ -40,11 +42,64 @@ fn written_hand_loads_back_identically() {
             assert!((a.bend_axis - b.bend_axis).length() < 1e-12, "{}", a.name);
         }
     }
+    assert_eq!(back.markers.len(), ch.markers.len());
     for (a, b) in back.markers.iter().zip(&ch.markers) {
         assert_eq!((&a.name, a.joint), (&b.name, b.joint));
         assert!((a.rest - b.rest).length() < 1e-15);
     }
-    assert_eq!(loaded.bind, hand_bind_params());
+    assert_eq!(back.correspondences, ch.correspondences);
+    assert_eq!(&loaded.bind, bind);
+    loaded
+}
+
+#[test]
+fn written_hand_loads_back_identically() {
+    loads_back_identically(&demo_hand(), &hand_bind_params());
+}
+
+/// `rigless export-character body` writes this: the file a studio's marker layout is
+/// calibrated into. Loaded back, it binds to the procedural body's control mesh and
+/// solves a frame to the same mesh (to rounding), once the procedural body's bend axes
+/// are made square to their bones as loading a file makes them (its clavicles' and
+/// hips' slant by up to 4°).
+#[test]
+fn written_body_loads_back_and_solves_as_the_procedural_body() {
+    let mut body = demo_body();
+    let slanted = body.skeleton.joints.clone();
+    assert!(body.skeleton.orthogonalize_bend_axes().is_empty());
+    let squared: Vec<&str> = (body.skeleton.joints.iter().zip(&slanted))
+        .filter(|(a, b)| (a.bend_axis - b.bend_axis).length() > 1e-12)
+        .map(|(a, _)| a.name.as_str())
+        .collect();
+    assert_eq!(squared, ["clavicle_l", "hip_l", "clavicle_r", "hip_r"]);
+    let loaded = loads_back_identically(&body, &body_bind_params());
+    let a_rig = Rig::bind(&body, &body_bind_params()).unwrap();
+    let b_rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
+    assert_eq!(a_rig.control.positions, b_rig.control.positions);
+    assert_eq!(a_rig.control.tets, b_rig.control.tets);
+    let markers: Vec<DVec3> = body
+        .markers
+        .iter()
+        .map(|m| m.rest + DVec3::new(0.01, -0.005, 0.008) * (m.rest.y * 7.0).sin())
+        .collect();
+    let frame = MarkerFrame::all_present(0.0, markers);
+    let far = Instant::now() + Duration::from_secs(60);
+    let mut a = vec![DVec3::ZERO; body.vertices.len()];
+    let mut b = a.clone();
+    let ra = Solver::new(Arc::new(a_rig), SolverParams::default()).solve(&frame, far, &mut a);
+    let rb = Solver::new(Arc::new(b_rig), SolverParams::default()).solve(&frame, far, &mut b);
+    // Markers are written as offsets from their bones and come back within 1e-15 m
+    // (checked above), so the meshes agree to rounding: 1e-12 m, a thousand times that.
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (*x - *y).length())
+        .fold(0.0, f64::max);
+    assert_eq!(ra.iterations, rb.iterations);
+    assert!(
+        worst < 1e-12,
+        "the written body solves differently: {worst:e} m"
+    );
 }
 
 #[test]
@@ -597,4 +652,43 @@ fn a_new_layout_gets_the_cell_its_file_would_choose() {
         again.cell_size_m,
         bare.bind.cell_size_m
     );
+}
+
+/// The path from a studio's take to a character file for the body, through the binary:
+/// `calibrate body TAKE --write` says how to get a file, `export-character body DIR`
+/// writes one, and `calibrate DIR/body.toml TAKE --write` stores the layout in it (the
+/// bundled range of motion: all 36 labels, the actor's scale 1 within 1 %, as the
+/// calibration tests measure it on the procedural body).
+#[test]
+fn export_character_body_gives_calibrate_a_file_to_write() {
+    let rigless = env!("CARGO_BIN_EXE_rigless");
+    let take = concat!(env!("CARGO_MANIFEST_DIR"), "/replay/body_rom.c3d");
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(rigless)
+            .args(args)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        (out.status.success(), text)
+    };
+    let (ok, text) = run(&["calibrate", "body", take, "--write"]);
+    assert!(
+        !ok && text.contains("rigless export-character body DIR"),
+        "{text}"
+    );
+    let out = dir.path().join("mine");
+    let (ok, text) = run(&["export-character", "body", out.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    let file = out.join("body.toml");
+    let (ok, text) = run(&["calibrate", file.to_str().unwrap(), take, "--write"]);
+    assert!(ok, "{text}");
+    let loaded = load_character(&file).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(loaded.character.markers.len(), 36);
+    let scale = loaded.marker_scale;
+    assert!((scale - 1.0).abs() < 0.01, "marker_scale {scale}");
+    // The older spelling still writes the hand.
+    let (ok, text) = run(&["export-hand", out.to_str().unwrap()]);
+    assert!(ok && out.join("hand.toml").is_file(), "{text}");
 }

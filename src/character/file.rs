@@ -1208,17 +1208,14 @@ fn finish_skeleton(joints: Vec<Joint>, problems: &mut Vec<CharacterProblem>) -> 
             return None;
         }
     };
-    for j in 0..s.len() {
-        let a = s.twist_axis(j);
-        let b = s.joints[j].bend_axis;
-        let p = b - a * b.dot(a);
-        if s.joints[j].limits.is_some() && p.length() < 1e-3 {
+    let given: Vec<DVec3> = s.joints.iter().map(|j| j.bend_axis).collect();
+    for j in s.orthogonalize_bend_axes() {
+        if s.joints[j].limits.is_some() {
             problems.push(CharacterProblem::BendAxisAlongBone {
                 joint: s.joints[j].name.clone(),
-                axis: b,
+                axis: given[j],
             });
         }
-        s.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
     }
     Some(s)
 }
@@ -1438,7 +1435,7 @@ pub fn write_character_files(
     }
     for j in &sk.joints {
         if let Some(l) = j.limits {
-            let d = |(a, b): (f64, f64)| format!("[{:?}, {:?}]", a.to_degrees(), b.to_degrees());
+            let d = |(a, b): (f64, f64)| format!("[{:?}, {:?}]", degrees_of(a), degrees_of(b));
             writeln!(
                 toml,
                 "[skeleton.limits.{:?}]\ntwist_deg = {}\nbend_deg = {}\nside_deg = {}\nbend_axis = [{:?}, {:?}, {:?}]\n",
@@ -1483,9 +1480,37 @@ pub fn write_character_files(
     Ok(path)
 }
 
+/// `radians` in degrees, as the value nearest `radians.to_degrees()` (within 8 ulps)
+/// that reads back to `radians` exactly through `to_radians`: a written limit loads
+/// back bit for bit (3° written as `to_degrees` alone reads back an ulp off).
+fn degrees_of(radians: f64) -> f64 {
+    let mut up = radians.to_degrees();
+    let mut down = up;
+    for _ in 0..=8 {
+        for d in [up, down] {
+            if d.to_radians() == radians {
+                return d;
+            }
+        }
+        (up, down) = (up.next_up(), down.next_down());
+    }
+    radians.to_degrees()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn limits_in_degrees_read_back_to_the_bit() {
+        for deg in [3.0f64, -3.0, 5.0, 10.0, 145.0, -70.0, 0.1, 33.3, 179.9] {
+            let r = deg.to_radians();
+            assert_eq!(degrees_of(r).to_radians(), r, "{deg}");
+        }
+        // A value of one ulp off 3° in radians also comes back exactly.
+        let r = 3.0f64.to_radians().next_up();
+        assert_eq!(degrees_of(r).to_radians(), r);
+    }
 
     #[test]
     fn a_stray_vertex_is_named_not_taken_for_a_huge_mesh() {

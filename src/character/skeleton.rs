@@ -130,6 +130,25 @@ impl Skeleton {
             .map(|(i, _)| i)
     }
 
+    /// Makes every bend axis a unit vector perpendicular to its joint's twist axis
+    /// (Gram–Schmidt), as [`decompose`] and [`compose`] assume: with `side = twist ×
+    /// bend` the three are an orthonormal frame and `compose` inverts `decompose`.
+    /// Returns the joints whose axis lay along the bone (its part perpendicular to the
+    /// bone under 1e-3), which were given an arbitrary perpendicular axis.
+    pub fn orthogonalize_bend_axes(&mut self) -> Vec<usize> {
+        let mut along = Vec::new();
+        for j in 0..self.len() {
+            let a = self.twist_axis(j);
+            let b = self.joints[j].bend_axis;
+            let p = b - a * b.dot(a);
+            if p.length() < 1e-3 {
+                along.push(j);
+            }
+            self.joints[j].bend_axis = p.normalize_or(a.any_orthonormal_vector());
+        }
+        along
+    }
+
     /// Rest twist axis of joint `j`: unit direction towards the mean of its children
     /// (or away from its parent for a leaf).
     pub fn twist_axis(&self, j: usize) -> DVec3 {
@@ -278,6 +297,38 @@ mod tests {
                     && (back.side - s).abs() < 1e-12,
                 "{back:?}"
             );
+        }
+    }
+
+    #[test]
+    fn an_axis_along_the_bone_is_reported_and_replaced() {
+        let joint = |name: &str, parent, rest, bend_axis| Joint {
+            name: String::from(name),
+            parent,
+            rest,
+            limits: None,
+            bend_axis,
+        };
+        let mut sk = Skeleton::new(vec![
+            joint("a", None, DVec3::ZERO, DVec3::X),
+            joint("b", Some(0), DVec3::Y, DVec3::new(1.0, 0.5, 0.0)),
+            joint("c", Some(1), DVec3::Y * 2.0, DVec3::Y),
+        ])
+        .unwrap();
+        // b's axis slants 27° off square to its bone: compose does not invert decompose.
+        let q = DQuat::from_scaled_axis(DVec3::new(0.3, -0.5, 0.4));
+        let round_trip = |sk: &Skeleton, j: usize| {
+            let (axis, bend) = (sk.twist_axis(j), sk.joints[j].bend_axis);
+            let back = compose(decompose(q, axis, bend), axis, bend);
+            (back - q).length().min((back + q).length())
+        };
+        assert!(round_trip(&sk, 1) > 0.01);
+        assert_eq!(sk.orthogonalize_bend_axes(), vec![2]);
+        assert!((sk.joints[1].bend_axis - DVec3::X).length() < 1e-12);
+        let c = sk.joints[2].bend_axis;
+        assert!((c.length() - 1.0).abs() < 1e-12 && c.dot(DVec3::Y).abs() < 1e-12);
+        for j in 0..3 {
+            assert!(round_trip(&sk, j) < 1e-12, "joint {j}");
         }
     }
 

@@ -210,7 +210,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     } = load(&a.character)?;
     if a.write && file.is_none() {
         bail!(
-            "--write needs a character file; the procedural {} has none (the layout is printed instead)",
+            "--write needs a character file; the procedural {0} has none (write one with `rigless export-character {0} DIR`, then calibrate DIR/{0}.toml)",
             a.character
         );
     }

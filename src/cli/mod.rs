@@ -6,7 +6,7 @@ pub mod bake;
 pub mod bench;
 pub mod calibrate;
 pub mod demo;
-pub mod export_hand;
+pub mod export_character;
 pub mod info;
 pub mod listen;
 pub mod make_sessions;
