@@ -1,7 +1,7 @@
-//! `rigless export-character hand|body DIR` (and its older spelling `export-hand DIR`):
-//! writes a procedural character as an OBJ mesh and a complete character file, a
-//! starting point for a user's own and the file `calibrate --write` stores a take's
-//! marker layout in.
+//! `rigless export-character hand|body DIR` (and `export-hand DIR`, a hidden alias of
+//! `export-character hand DIR`): writes a procedural character as an OBJ mesh and a
+//! complete character file, a starting point for a user's own and the file `calibrate
+//! --write` stores a take's marker layout in.
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;

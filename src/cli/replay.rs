@@ -237,6 +237,12 @@ fn send(a: &ReplayArgs, to: &str, target: Target) -> Result<()> {
             stats.packets, stats.bytes, stats.send_errors, stats.samples_dropped,
             stats.jitter_ms_p50, stats.jitter_ms_p99, stats.jitter_ms_max
         );
+        if stats.reply_errors > 0 {
+            println!(
+                "{} NatNet command replies could not be sent (the client asks again)",
+                stats.reply_errors
+            );
+        }
     }
     Ok(())
 }

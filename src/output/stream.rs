@@ -72,7 +72,7 @@ pub struct StreamStats {
     /// Frames a client skipped because it was slower than the loop, over all clients.
     pub frames_skipped: AtomicU64,
     /// Clients dropped on a write error or timeout (a client that hangs up is noticed
-    /// at the next write, so it counts here too).
+    /// at the next write, so it counts here too; so does one whose goodbye fails).
     pub write_errors: AtomicU64,
     /// WebSocket connections whose handshake failed or timed out (a request head that
     /// does not parse included).
@@ -341,7 +341,9 @@ impl Conn {
         };
         // The goodbye was written; a client that hung up before the close costs nothing.
         if !closed {
-            tracing::debug!("a stream client's connection did not close within {limit:?}");
+            tracing::debug!(
+                "a stream client's connection did not close cleanly (an error, or not within {limit:?})"
+            );
         }
     }
 }
@@ -498,8 +500,10 @@ async fn serve(
     })
     .await;
     if all_said.is_err() {
+        // Dropping the set aborts them.
         tracing::warn!(
-            "stream clients still being told goodbye after {goodbye_limit:?}; they are left"
+            "{} stream connections still open {goodbye_limit:?} after the goodbye; they are cut",
+            clients.len()
         );
     }
 }

@@ -111,6 +111,9 @@ pub struct ReplayStats {
     pub packets: u64,
     pub bytes: u64,
     pub send_errors: u64,
+    /// NatNet command replies (server info, model definitions) that could not be sent;
+    /// the client asks again.
+    pub reply_errors: u64,
     pub samples_dropped: u64,
     /// |actual − scheduled| send time per packet: median, 99th percentile, max, ms.
     pub jitter_ms_p50: f64,
@@ -268,6 +271,8 @@ enum Sink {
         data: SocketAddr,
         server_info: Vec<u8>,
         model_def: Vec<u8>,
+        /// Replies that could not be sent.
+        reply_errors: u64,
     },
 }
 
@@ -317,6 +322,7 @@ impl Sink {
                     data: *data,
                     server_info,
                     model_def,
+                    reply_errors: 0,
                 }
             }
             Target::Vrpn { device, bind } => {
@@ -362,6 +368,7 @@ impl Sink {
                 data,
                 server_info,
                 model_def,
+                reply_errors,
             } => {
                 use crate::protocol::natnet::{NAT_CONNECT, NAT_REQUEST_MODELDEF};
                 let mut request = [0u8; 1024];
@@ -378,7 +385,7 @@ impl Sink {
                     // A reply that fails costs only itself: the client repeats its
                     // request until answered.
                     if sock.send_to(reply, from).is_err() {
-                        continue;
+                        *reply_errors += 1;
                     }
                 }
                 sock.send_to(bytes, *data)
@@ -412,13 +419,20 @@ impl Sink {
                     }
                 }
                 for mut c in fresh {
-                    // A client whose socket cannot be set up (a write timeout above all:
-                    // without it a stalled client would stall the replay) is dropped.
-                    let ready = c.set_nodelay(true).is_ok()
-                        && c.set_write_timeout(Some(std::time::Duration::from_millis(100)))
-                            .is_ok()
-                        && c.set_nonblocking(false).is_ok();
-                    if ready && c.write_all(greeting).is_ok() {
+                    // Small messages go out at once where the socket allows.
+                    if let Err(e) = c.set_nodelay(true) {
+                        tracing::debug!("TCP_NODELAY not set on a VRPN replay client: {e}");
+                    }
+                    // Without a write timeout a stalled client would stall the replay: a
+                    // client whose socket cannot have one is dropped.
+                    let ready = c
+                        .set_write_timeout(Some(std::time::Duration::from_millis(100)))
+                        .and_then(|()| c.set_nonblocking(false));
+                    if let Err(e) = ready {
+                        tracing::warn!(
+                            "a VRPN replay client was dropped: its socket cannot be set up ({e})"
+                        );
+                    } else if c.write_all(greeting).is_ok() {
                         clients.push(VrpnClient {
                             tcp: c,
                             reader: Default::default(),
@@ -548,6 +562,9 @@ pub fn replay(
     stats.jitter_ms_p50 = q(0.5);
     stats.jitter_ms_p99 = q(0.99);
     stats.jitter_ms_max = q(1.0);
+    if let Sink::NatNet { reply_errors, .. } = sink {
+        stats.reply_errors = reply_errors;
+    }
     Ok(stats)
 }
 

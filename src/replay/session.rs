@@ -463,8 +463,6 @@ pub struct SessionWriter<W: Write> {
     buf: Vec<u8>,
     flush_interval_s: f64,
     last_flush_s: f64,
-    /// The sample time held back at the last interval (its frame may not have been whole).
-    waiting_time_s: Option<f64>,
     /// Samples written to the file so far.
     pub written: u64,
 }
@@ -487,51 +485,31 @@ impl<W: Write> SessionWriter<W> {
             buf,
             flush_interval_s,
             last_flush_s: now_s,
-            waiting_time_s: None,
             written: 0,
         })
     }
 
-    /// Queues samples; once the flush interval has passed, writes what is queued up to
-    /// the newest sample time, whose samples wait for the next write: samples arrive one
-    /// by one, so the newest frame may not be whole yet, and a file cut by a kill keeps
-    /// whole frames only. Samples that waited once are written at the next interval even
-    /// if no later time came (a source whose clock stands still is still recorded).
+    /// Queues samples; writes everything queued once the flush interval has passed.
     pub fn push(&mut self, samples: &[MarkerSample], now_s: f64) -> std::io::Result<()> {
         self.pending.extend_from_slice(samples);
         if now_s - self.last_flush_s >= self.flush_interval_s {
-            let newest = self.pending.last().map(|s| s.time_s);
-            let whole = if newest.is_some() && newest == self.waiting_time_s {
-                self.pending.len()
-            } else {
-                self.pending
-                    .iter()
-                    .rposition(|s| Some(s.time_s) != newest)
-                    .map_or(0, |i| i + 1)
-            };
-            self.waiting_time_s = newest.filter(|_| whole < self.pending.len());
-            self.write(whole, now_s)?;
+            self.flush(now_s)?;
         }
         Ok(())
     }
 
     /// Writes everything queued as one record and flushes it to the OS.
     pub fn flush(&mut self, now_s: f64) -> std::io::Result<()> {
-        self.write(self.pending.len(), now_s)
-    }
-
-    /// Writes the first `n` queued samples as one record and flushes it to the OS.
-    fn write(&mut self, n: usize, now_s: f64) -> std::io::Result<()> {
         self.last_flush_s = now_s;
-        if n == 0 {
+        if self.pending.is_empty() {
             return Ok(());
         }
         self.buf.clear();
-        encode_samples(&self.pending[..n], &mut self.buf);
+        encode_samples(&self.pending, &mut self.buf);
         self.out.write_all(&self.buf)?;
         self.out.flush()?;
-        self.written += n as u64;
-        self.pending.drain(..n);
+        self.written += self.pending.len() as u64;
+        self.pending.clear();
         Ok(())
     }
 
@@ -596,10 +574,9 @@ mod tests {
     }
 
     fn file(n_records: usize) -> Vec<u8> {
-        let mut w = SessionWriter::new(Vec::new(), &header(), f64::INFINITY, 0.0).unwrap();
+        let mut w = SessionWriter::new(Vec::new(), &header(), 0.0, 0.0).unwrap();
         for r in 0..n_records {
             w.push(&samples(3), r as f64).unwrap();
-            w.flush(r as f64).unwrap();
         }
         w.finish(99.0).unwrap()
     }
@@ -653,56 +630,13 @@ mod tests {
         assert_eq!(&s.samples[..3], &samples(3)[..]);
     }
 
-    /// `frames` frames of `markers` samples each, a frame's samples sharing its time.
-    fn frames(frames: usize, markers: usize) -> Vec<MarkerSample> {
-        (0..frames * markers)
-            .map(|i| MarkerSample {
-                marker: (i % markers) as u32,
-                time_s: (i / markers) as f64 / 120.0,
-                source_time_s: (i / markers) as f64 / 120.0,
-                position_m: DVec3::new(i as f64, 0.0, 0.0),
-                occluded: false,
-            })
-            .collect()
-    }
-
     #[test]
     fn flushes_only_at_the_interval() {
         let mut w = SessionWriter::new(Vec::new(), &header(), 0.5, 0.0).unwrap();
-        let f = frames(3, 2);
-        w.push(&f[..2], 0.2).unwrap();
+        w.push(&samples(2), 0.2).unwrap();
         assert_eq!(w.written, 0);
-        // At the interval the newest frame (time 2/120) waits: it may not be whole.
-        w.push(&f[2..], 0.5).unwrap();
+        w.push(&samples(2), 0.5).unwrap();
         assert_eq!(w.written, 4);
-        w.push(&[], 0.7).unwrap();
-        assert_eq!(w.written, 4);
-        // A frame that waited an interval is written though no later time came.
-        w.push(&[], 1.0).unwrap();
-        assert_eq!(w.written, 6);
-        assert_eq!(read_session(&w.finish(0.8).unwrap()).unwrap().samples, f);
-    }
-
-    proptest! {
-        /// Samples arrive one by one, so a flush can fall inside a frame: whatever the
-        /// split (a frame or more arriving between flushes, as at any capture rate over
-        /// 4 Hz with the default interval), a file cut after any write (a killed daemon)
-        /// holds whole frames only, and lacks at most the newest frame.
-        #[test]
-        fn a_killed_writer_leaves_whole_frames(steps in proptest::collection::vec(8usize..=20, 1..12)) {
-            let f = frames(30, 8);
-            let mut w = SessionWriter::new(Vec::new(), &header(), 0.25, 0.0).unwrap();
-            let mut from = 0;
-            for (k, step) in steps.iter().enumerate() {
-                let to = from + step;
-                w.push(&f[from..to], 0.25 * (k + 1) as f64).unwrap();
-                from = to;
-                let kept = read_session(&w.out).unwrap().samples;
-                prop_assert!(kept.len().is_multiple_of(8), "{} samples after {to}", kept.len());
-                prop_assert_eq!(&kept[..], &f[..kept.len()]);
-                prop_assert!(kept.len() + 8 >= to / 8 * 8, "{} of {to}", kept.len());
-            }
-        }
     }
 
     /// Bytes before the first samples record: magic, version and the header record.
