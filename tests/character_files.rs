@@ -696,3 +696,31 @@ fn export_character_body_gives_calibrate_a_file_to_write() {
     let (ok, text) = run(&["export-hand", out.to_str().unwrap()]);
     assert!(ok && out.join("hand.toml").is_file(), "{text}");
 }
+
+/// A mesh, a recording or any binary file given where a character file goes is named for
+/// what it is, with the way to a character file, not reported as bad TOML or bad UTF-8.
+#[test]
+fn a_mesh_or_a_take_given_as_the_character_says_what_to_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let glb = dir.path().join("CesiumMan.glb");
+    // The glTF binary header: not UTF-8 from byte 8 on.
+    std::fs::write(&glb, b"glTF\x02\x00\x00\x00\xa0\x86\x01\x00").unwrap();
+    let take = dir.path().join("take.c3d");
+    std::fs::write(&take, [2u8, 0x50, 0xff, 0xfe]).unwrap();
+    let fbx = dir.path().join("rig.FBX");
+    std::fs::write(&fbx, b"Kaydara FBX Binary  \x00").unwrap();
+    let binary = dir.path().join("stage.toml");
+    std::fs::write(&binary, b"name = \"x\"\n\xff\xfe").unwrap();
+    let err = |p: &Path| load_character(p).expect_err("refused").to_string();
+    let e = err(&glb);
+    assert!(
+        e.contains("a mesh, not a character file") && e.contains("path = \"CesiumMan.glb\""),
+        "{e}"
+    );
+    let e = err(&take);
+    assert!(e.contains("a recording, not a character file"), "{e}");
+    let e = err(&fbx);
+    assert!(e.contains("export it as glTF 2.0 (.glb) or OBJ"), "{e}");
+    let e = err(&binary);
+    assert!(e.contains("not UTF-8 text (byte 11 starts"), "{e}");
+}

@@ -304,6 +304,9 @@ pub enum CharacterError {
     Toml { path: String, problems: Vec<String> },
     #[error("{path}: {source}")]
     Mesh { path: String, source: MeshError },
+    /// A mesh or a recording given where a character file goes.
+    #[error("{path}: {what}")]
+    NotACharacterFile { path: String, what: String },
     #[error("{path}: {} problem{}:\n  - {}", .problems.len(), if .problems.len() == 1 { "" } else { "s" }, join_problems(.problems))]
     Invalid {
         path: String,
@@ -549,9 +552,33 @@ pub fn read_spec(text: &str) -> Result<CharacterFile, Vec<String>> {
     }
 }
 
+/// What a file given as a character file is instead, by its extension, and the way from
+/// it to a character file; `None` for anything else (read as TOML).
+fn not_a_character_file(path: &Path) -> Option<String> {
+    let ext = path.extension()?.to_string_lossy().to_lowercase();
+    let name = path.file_name()?.to_string_lossy();
+    match ext.as_str() {
+        "glb" | "gltf" | "obj" => Some(format!(
+            "a mesh, not a character file: a character file is TOML that names its mesh, as small as the two lines `[mesh]` and `path = {name:?}` in a file next to it (docs/character.md lists the keys)"
+        )),
+        "fbx" | "blend" | "dae" | "usd" | "usdz" => Some(
+            "a mesh rigless does not read: export it as glTF 2.0 (.glb) or OBJ, then name that in a character file (docs/character.md)"
+                .into(),
+        ),
+        "c3d" | "bvh" | "tsv" | "rlsession" => Some(
+            "a recording, not a character file: give the character (hand, body or a character file) first, then the take"
+                .into(),
+        ),
+        _ => None,
+    }
+}
+
 /// Loads and validates a character file.
 pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
     let shown = path.display().to_string();
+    if let Some(what) = not_a_character_file(path) {
+        return Err(CharacterError::NotACharacterFile { path: shown, what });
+    }
     let text = read_text_bounded(path, MAX_TEXT_BYTES).map_err(|source| CharacterError::Read {
         path: shown.clone(),
         source,

@@ -52,8 +52,15 @@ pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
 
 /// [`read_bounded`] as UTF-8 text (kind `InvalidData` when it is not).
 pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
-    String::from_utf8(read_bounded(path, max_bytes)?)
-        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e.utf8_error()))
+    String::from_utf8(read_bounded(path, max_bytes)?).map_err(|e| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "not UTF-8 text (byte {} starts an invalid sequence); a text file is expected here",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })
 }
 
 #[cfg(test)]
