@@ -52,6 +52,29 @@ fn loads_back_as(written: &Character, ch: &Character, bind: &BindParams) -> Load
     loaded
 }
 
+/// One frame solved with rigs `a` and `b` of `ch`: every marker at rest moved by
+/// `wiggle.0 · sin(wiggle.1 · y)`. Each side's iterations and mesh.
+fn solve_both(
+    ch: &Character,
+    wiggle: (DVec3, f64),
+    a: Rig,
+    b: Rig,
+) -> ((usize, Vec<DVec3>), (usize, Vec<DVec3>)) {
+    let markers: Vec<DVec3> = ch
+        .markers
+        .iter()
+        .map(|m| m.rest + wiggle.0 * (m.rest.y * wiggle.1).sin())
+        .collect();
+    let frame = MarkerFrame::all_present(0.0, markers);
+    let far = Instant::now() + Duration::from_secs(60);
+    let solve = |rig: Rig| {
+        let mut out = vec![DVec3::ZERO; ch.vertices.len()];
+        let r = Solver::new(Arc::new(rig), SolverParams::default()).solve(&frame, far, &mut out);
+        (r.iterations, out)
+    };
+    (solve(a), solve(b))
+}
+
 #[test]
 fn written_hand_loads_back_identically() {
     let hand = demo_hand();
@@ -78,17 +101,8 @@ fn written_body_loads_back_and_solves_as_the_procedural_body() {
     let b_rig = Rig::bind(&loaded.character, &loaded.bind).unwrap();
     assert_eq!(a_rig.control.positions, b_rig.control.positions);
     assert_eq!(a_rig.control.tets, b_rig.control.tets);
-    let markers: Vec<DVec3> = body
-        .markers
-        .iter()
-        .map(|m| m.rest + DVec3::new(0.01, -0.005, 0.008) * (m.rest.y * 7.0).sin())
-        .collect();
-    let frame = MarkerFrame::all_present(0.0, markers);
-    let far = Instant::now() + Duration::from_secs(60);
-    let mut a = vec![DVec3::ZERO; body.vertices.len()];
-    let mut b = a.clone();
-    let ra = Solver::new(Arc::new(a_rig), SolverParams::default()).solve(&frame, far, &mut a);
-    let rb = Solver::new(Arc::new(b_rig), SolverParams::default()).solve(&frame, far, &mut b);
+    let wiggle = (DVec3::new(0.01, -0.005, 0.008), 7.0);
+    let ((ia, a), (ib, b)) = solve_both(&body, wiggle, a_rig, b_rig);
     // Markers are written as offsets from their bones and come back within 1e-15 m
     // (checked above), the squared axes within rounding; the solve, deterministic, carries
     // these through 4 iterations: 4e-16 m was measured, and 1e-12 m allows a thousand
@@ -99,7 +113,7 @@ fn written_body_loads_back_and_solves_as_the_procedural_body() {
         .zip(&b)
         .map(|(x, y)| (*x - *y).length())
         .fold(0.0, f64::max);
-    assert_eq!(ra.iterations, rb.iterations);
+    assert_eq!(ia, ib);
     assert!(
         worst < 1e-12,
         "the written body solves differently: {worst:e} m"
@@ -126,19 +140,9 @@ fn bake_cache_round_trip_gives_the_same_solve() {
         Err(cache::CacheMiss::Stale)
     ));
     // Same solve, bit for bit, from the fresh and the cached rig.
-    let ch = &loaded.character;
-    let markers: Vec<DVec3> = ch
-        .markers
-        .iter()
-        .map(|m| m.rest + DVec3::new(0.004, -0.002, 0.003) * (m.rest.y * 20.0).sin())
-        .collect();
-    let frame = MarkerFrame::all_present(0.0, markers);
-    let far = Instant::now() + Duration::from_secs(60);
-    let mut a = vec![DVec3::ZERO; ch.vertices.len()];
-    let mut b = a.clone();
-    let ra = Solver::new(Arc::new(rig), SolverParams::default()).solve(&frame, far, &mut a);
-    let rb = Solver::new(Arc::new(cached), SolverParams::default()).solve(&frame, far, &mut b);
-    assert_eq!(ra.iterations, rb.iterations);
+    let wiggle = (DVec3::new(0.004, -0.002, 0.003), 20.0);
+    let ((ia, a), (ib, b)) = solve_both(&loaded.character, wiggle, rig, cached);
+    assert_eq!(ia, ib);
     assert_eq!(a, b, "cached rig solves differently");
 }
 
