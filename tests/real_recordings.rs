@@ -60,6 +60,48 @@ fn every_real_c3d_file_reads_with_its_known_figures() {
     }
 }
 
+/// The files' own word on which points are model outputs (POINT:ANGLES, FORCES, ...,
+/// MODELED_MARKERS: the data folder's README counts them), and a Qualisys take whose
+/// gaps are written as (0, 0, 0): read as gaps (its README: about 23 %).
+#[test]
+fn model_outputs_and_zero_gaps_are_read_as_what_they_are() {
+    if let Some(path) = data("c3d/real/pycgm_pig_movement_trial.c3d") {
+        let c = read_c3d(&std::fs::read(&path).unwrap()).unwrap();
+        let count = |g: &str| {
+            c.point_groups
+                .iter()
+                .filter(|x| x.as_deref() == Some(g))
+                .count()
+        };
+        assert_eq!(c.point_groups.len(), 239);
+        assert_eq!(
+            [
+                count("ANGLES"),
+                count("POWERS"),
+                count("FORCES"),
+                count("MOMENTS"),
+                count("MODELED_MARKERS")
+            ],
+            [26, 16, 20, 18, 2]
+        );
+        let k = c.labels.iter().position(|l| l == "LHipAngles").unwrap();
+        assert_eq!(c.point_groups[k].as_deref(), Some("ANGLES"));
+        let k = c.labels.iter().position(|l| l == "LASI").unwrap();
+        assert_eq!(c.point_groups[k], None);
+    }
+    if let Some(path) = data("c3d/real/numediart_03_rolling.c3d") {
+        let c = read_c3d(&std::fs::read(&path).unwrap()).unwrap();
+        let gaps = missing_share(&c.frames);
+        assert!((0.20..0.26).contains(&gaps), "gap share {gaps}");
+        assert!(c.frames.iter().flatten().all(|p| *p != glam::DVec3::ZERO));
+        assert!(
+            c.warnings.iter().any(|w| w.contains("(0, 0, 0)")),
+            "{:?}",
+            c.warnings
+        );
+    }
+}
+
 #[test]
 fn qualisys_first_sample_values() {
     let Some(path) = data("c3d/Qualisys.c3d") else {

@@ -43,6 +43,7 @@ fn recording(frames: usize) -> Recording {
             .collect(),
         warnings: Vec::new(),
         file_units: "m".into(),
+        point_groups: Vec::new(),
     }
 }
 

@@ -7,7 +7,7 @@
 
 use super::assets::{gltf_file, makehuman_file, webxr_hand_file};
 use super::{json_line, BenchError};
-use crate::calibrate::{calibrate, Calibration, CalibrationOptions};
+use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::bind_params::BindParams;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use crate::character::file::load_character;
@@ -46,6 +46,9 @@ pub struct CalibrationRecord {
     pub wrong_bones: Option<usize>,
     pub residual_mm_rms: f64,
     pub residual_mm_max: f64,
+    /// The calibration's verdict and its concerns.
+    pub verdict: Verdict,
+    pub concerns: Vec<String>,
     pub seconds_median: f64,
     pub seconds_min: f64,
     pub seconds_max: f64,
@@ -132,6 +135,8 @@ fn case(
         wrong_bones: against.map(|a| a.3),
         residual_mm_rms: cal.residual_mm_rms,
         residual_mm_max: cal.residual_mm_max,
+        verdict: cal.verdict(),
+        concerns: cal.concerns().iter().map(ToString::to_string).collect(),
         seconds_median: times[RUNS / 2],
         seconds_min: times[0],
         seconds_max: times[RUNS - 1],
@@ -173,10 +178,14 @@ fn print(r: &CalibrationRecord, json: bool, out: &mut dyn Write) -> Result<(), B
     };
     writeln!(
         out,
-        "{:<10} {:<22} {:>5.1} s  {:>2}/{:<2} placed {:>2} flagged  scale {:.4}  misfit {:.2} rms {:.2} max mm  {:.2} s ({:.2}–{:.2})  {known}",
+        "{:<10} {:<22} {:>5.1} s  {:>2}/{:<2} placed {:>2} flagged  scale {:.4}  misfit {:.2} rms {:.2} max mm  {:.2} s ({:.2}–{:.2})  {}  {known}",
         r.character, r.take, r.take_s, r.placed, r.labels, r.flagged, r.scale,
-        r.residual_mm_rms, r.residual_mm_max, r.seconds_median, r.seconds_min, r.seconds_max
+        r.residual_mm_rms, r.residual_mm_max, r.seconds_median, r.seconds_min, r.seconds_max,
+        r.verdict
     )?;
+    for c in &r.concerns {
+        writeln!(out, "{:<10} {c}", "")?;
+    }
     if let Some(p) = &r.replay {
         writeln!(
             out,

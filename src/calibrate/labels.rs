@@ -4,6 +4,7 @@
 //! solve picks the one the marker moves rigidly with).
 
 use super::marker_sets::{best_set, candidate_joints, normalise, MarkerSet, Placed};
+use super::points::NotAMarker;
 use crate::character::roles::Role;
 use crate::character::Character;
 use glam::DVec3;
@@ -50,6 +51,8 @@ pub struct LabelPlan {
 pub enum LeftOut {
     /// The take never sees it.
     NoSamples,
+    /// It is no marker on the actor (a model output, another subject, a prop...).
+    NotAMarker(NotAMarker),
     /// The table says it is on a prop, not the body.
     Prop { set: &'static str },
     /// The table or map gives a role no joint of this character has.
@@ -70,6 +73,7 @@ impl std::fmt::Display for LeftOut {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             LeftOut::NoSamples => f.write_str("no sample in the take"),
+            LeftOut::NotAMarker(why) => write!(f, "{why}"),
             LeftOut::Prop { set } => write!(f, "{set} puts it on a prop, not the body"),
             LeftOut::NoJointForRole { role } => {
                 write!(f, "no joint of the character has the role {role}")
@@ -181,16 +185,105 @@ pub struct Plan {
     pub left_out: Vec<(String, LeftOut)>,
     /// The table used and how many of the take's labels it knows.
     pub set: Option<(&'static MarkerSet, usize)>,
+    /// Labels with samples that may be markers: what a table's share is counted of.
+    pub markers: usize,
+    /// The table that knows most labels when it knows too few of them to be used
+    /// (under [`MIN_TABLE_SHARE`]), with how many it knows.
+    pub declined: Option<(&'static MarkerSet, usize)>,
+    /// A prefix every label shares (`L` of `LL_IAS`, `LR_FLE`) that the table lookups
+    /// strip, because the table knows more labels without it.
+    pub prefix: Option<String>,
+}
+
+/// Least share of a take's markers a table must know for its word to be taken when no
+/// table is named: with fewer, the labels it happens to know (a `LWR` among 64 labels
+/// of another set) are as likely another set's names.
+pub const MIN_TABLE_SHARE: f64 = 0.5;
+
+/// The longest prefix all `labels` share after [`normalise`] (none when it is empty or
+/// a whole label).
+fn common_prefix(labels: &[String]) -> Option<String> {
+    let norm: Vec<String> = labels.iter().map(|l| normalise(l)).collect();
+    let first = norm.first()?;
+    let mut n = first.len();
+    for l in &norm[1..] {
+        n = n.min(
+            first
+                .bytes()
+                .zip(l.bytes())
+                .take_while(|(a, b)| a == b)
+                .count(),
+        );
+    }
+    (n > 0 && norm.iter().all(|l| l.len() > n)).then(|| first[..n].to_owned())
+}
+
+/// A table and how many labels it knows.
+type Known = Option<(&'static MarkerSet, usize)>;
+/// [`choose_table`]'s answer: the table used, the best one declined, the prefix
+/// stripped.
+type TableChoice = (Known, Known, Option<String>);
+
+/// The table to use for `labels` (those that may be markers): the one named, or the
+/// one that knows most when it knows at least [`MIN_TABLE_SHARE`] of them, tried as
+/// written and with a shared prefix stripped. Returns the table and how many it knows,
+/// the declined best, and the prefix stripped.
+fn choose_table(labels: &[String], named: Option<&'static MarkerSet>) -> TableChoice {
+    let prefix = common_prefix(labels);
+    let stripped: Option<Vec<String>> = prefix.as_ref().map(|p| {
+        labels
+            .iter()
+            .map(|l| normalise(l)[p.len()..].to_owned())
+            .collect()
+    });
+    let count = |s: &'static MarkerSet| {
+        let raw = s.known(labels);
+        match &stripped {
+            Some(st) if s.known(st) > raw => (s.known(st), true),
+            _ => (raw, false),
+        }
+    };
+    let (set, strip) = match named {
+        Some(s) => {
+            let (n, strip) = count(s);
+            return (
+                Some((s, n)),
+                None,
+                strip.then(|| prefix.unwrap_or_default()),
+            );
+        }
+        None => {
+            let raw = best_set(labels);
+            let st = stripped.as_deref().and_then(best_set);
+            match (raw, st) {
+                (Some(r), Some(t)) if t.1 > r.1 => (Some(t), true),
+                (None, Some(t)) => (Some(t), true),
+                (r, _) => (r, false),
+            }
+        }
+    };
+    let enough = |n: usize| n as f64 >= MIN_TABLE_SHARE * labels.len() as f64;
+    match set {
+        Some((s, n)) if enough(n) => (
+            Some((s, n)),
+            None,
+            strip.then(|| prefix.unwrap_or_default()),
+        ),
+        other => (None, other, None),
+    }
 }
 
 /// Decides the candidate joints of every label of a take: the layout, then the map,
-/// then the table (`set`, or the one that knows most labels when `None`), then any joint
-/// with children. `present[k]` is how many frames have label `k`.
+/// then the table (`set`, or the one that knows most labels when `None` and it knows
+/// enough of them: [`choose_table`]), then any joint with children. `present[k]` is how
+/// many frames have label `k`; labels `excluded` are no markers (the caller reports
+/// them) and are skipped.
 pub fn plan(
     ch: &Character,
     roles: &[Option<Role>],
     labels: &[String],
     present: &[usize],
+    excluded: &[bool],
     map: &[MapEntry],
     set: Option<&'static MarkerSet>,
 ) -> Result<Plan, Vec<MapError>> {
@@ -208,9 +301,18 @@ pub fn plan(
     if !errors.is_empty() {
         return Err(errors);
     }
-    let set = match set {
-        Some(s) => Some((s, s.known(labels))),
-        None => best_set(labels),
+    let considered = |k: usize| !excluded.get(k).copied().unwrap_or(false) && present[k] > 0;
+    let markers: Vec<String> = (0..labels.len())
+        .filter(|&k| considered(k))
+        .map(|k| labels[k].clone())
+        .collect();
+    let (set, declined, prefix) = choose_table(&markers, set);
+    let table_label = |label: &str| match &prefix {
+        Some(p) => normalise(label)
+            .get(p.len()..)
+            .unwrap_or_default()
+            .to_owned(),
+        None => label.to_owned(),
     };
     let any_joint: Vec<usize> = (0..ch.skeleton.len())
         .filter(|&j| ch.skeleton.children(j).next().is_some())
@@ -219,8 +321,14 @@ pub fn plan(
         labels: Vec::new(),
         left_out: Vec::new(),
         set,
+        markers: markers.len(),
+        declined,
+        prefix: prefix.clone(),
     };
     for (k, label) in labels.iter().enumerate() {
+        if excluded.get(k).copied().unwrap_or(false) {
+            continue;
+        }
         if present[k] == 0 {
             out.left_out.push((label.clone(), LeftOut::NoSamples));
             continue;
@@ -239,7 +347,9 @@ pub fn plan(
             (Source::Layout, c, Some(m.rest))
         } else if let Some((e, js)) = mapped {
             (Source::Map(e.glob.clone()), js.clone(), None)
-        } else if let Some(placed) = set.and_then(|(s, _)| s.place(label).map(|p| (s, p))) {
+        } else if let Some(placed) =
+            set.and_then(|(s, _)| s.place(&table_label(label)).map(|p| (s, p)))
+        {
             match placed {
                 (s, Placed::Prop) => {
                     out.left_out
@@ -297,5 +407,45 @@ mod tests {
         assert!(glob_match("*", ""));
         assert!(glob_match("a*b*c", "aXXbYYc"));
         assert!(!glob_match("a*b*c", "aXXbYY"));
+    }
+
+    fn strings(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn a_table_is_used_only_when_it_knows_most_labels() {
+        use crate::calibrate::marker_sets::by_name;
+        // Plug-in Gait knows 4 of these 8 labels: half is enough.
+        let half = strings(&["LASI", "RASI", "LPSI", "RPSI", "Q1", "Q2", "Q3", "Q4"]);
+        let (set, declined, _) = choose_table(&half, None);
+        assert_eq!(set.map(|(s, n)| (s.name, n)), Some(("plug-in-gait", 4)));
+        assert!(declined.is_none());
+        // One label fewer known: declined, and said.
+        let fewer = strings(&["LASI", "RASI", "LPSI", "Q0", "Q1", "Q2", "Q3", "Q4"]);
+        let (set, declined, _) = choose_table(&fewer, None);
+        assert!(set.is_none());
+        assert_eq!(
+            declined.map(|(s, n)| (s.name, n)),
+            Some(("plug-in-gait", 3))
+        );
+        // A table the user names is used whatever it knows.
+        let named = by_name("plug-in-gait");
+        assert_eq!(choose_table(&fewer, named).0.map(|(_, n)| n), Some(3));
+    }
+
+    #[test]
+    fn a_prefix_every_label_shares_is_stripped_when_the_table_knows_more_without_it() {
+        // A subject written without a colon before ISB labels.
+        let labels = strings(&["LL_IAS", "LR_IAS", "LL_IPS", "LR_IPS", "LCV7", "LL_FLE"]);
+        assert_eq!(common_prefix(&labels).as_deref(), Some("L"));
+        let (set, _, prefix) = choose_table(&labels, None);
+        let (set, n) = set.expect("a table");
+        assert_eq!((set.name, n, prefix.as_deref()), ("isb", 6, Some("L")));
+        // A left-side take keeps its labels as they are when the table knows them so.
+        let left = strings(&["LASI", "LPSI", "LKNE", "LANK", "LTOE", "LHEE"]);
+        let (set, _, prefix) = choose_table(&left, None);
+        assert_eq!(set.map(|(s, n)| (s.name, n)), Some(("plug-in-gait", 6)));
+        assert_eq!(prefix, None);
     }
 }

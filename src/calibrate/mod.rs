@@ -1,6 +1,8 @@
 //! Fitting a take's marker layout onto a character: for every label, the joint whose
 //! segments carry it and its offset there, and the scale between actor and character.
 //!
+//! - [`points`]: which of the take's points are markers on the actor (model outputs,
+//!   unlabelled points, another subject, props and fixed points are not);
 //! - [`marker_sets`]: built-in tables (the humanoid part each label of the common optical
 //!   sets rides);
 //! - [`labels`]: each label's candidate joints and on whose word (layout, user map, table,
@@ -21,6 +23,7 @@ pub mod frames;
 pub mod labels;
 pub mod layout;
 pub mod marker_sets;
+pub mod points;
 pub mod solve;
 
 use crate::character::bind_params::BindParams;
@@ -34,6 +37,7 @@ use frames::{choose_frames, fit_heading, Heading, Turn};
 use glam::{DQuat, DVec3};
 use labels::{plan, LabelPlan, LeftOut, MapEntry, MapError, Source};
 use marker_sets::MarkerSet;
+use points::{screen_by_geometry, screen_by_name, PointFilter};
 use solve::{OffsetSolve, Parts, Skin, SolveParams, SolveReport};
 
 /// Frames a calibration uses unless told otherwise (MoSh uses 12; more cover more of
@@ -56,6 +60,8 @@ pub struct CalibrationOptions {
     pub marker_set: Option<&'static MarkerSet>,
     /// The user's label map, tried before the tables.
     pub map: Vec<MapEntry>,
+    /// The user's word on which labels are markers (`--exclude`, `--include`).
+    pub points: PointFilter,
     /// Whether the take's points are markers on the skin (an optical take) or joint
     /// centres inside the body (a BVH's joints): then each labelled point starts at its
     /// joint and the skin prior is off.
@@ -74,6 +80,7 @@ impl Default for CalibrationOptions {
             span_s: None,
             marker_set: None,
             map: Vec::new(),
+            points: PointFilter::default(),
             markers_on_skin: true,
             max_marker_distance_m: f64::INFINITY,
             solve: SolveParams::default(),
@@ -146,6 +153,152 @@ pub struct Calibration {
     pub residual_mm_rms: f64,
     pub residual_mm_max: f64,
     pub report: SolveReport,
+    /// Labels with samples that may be markers (the take's labels less those that are
+    /// no markers): the count the placed share is judged against.
+    pub markers: usize,
+    /// The table declined because it knows too few labels, with how many it knows.
+    pub declined_set: Option<(&'static str, usize)>,
+}
+
+/// How far a calibration can be trusted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Verdict {
+    Good,
+    /// Usable, with named concerns.
+    Doubtful,
+    /// Not to be used: nothing is written.
+    Failed,
+}
+
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Verdict::Good => "good",
+            Verdict::Doubtful => "doubtful",
+            Verdict::Failed => "failed",
+        })
+    }
+}
+
+/// Scales a calibration may find and still be good, character metres per take metre:
+/// an adult actor on an adult or child character, or the reverse. Outside, the take or
+/// the character is in other units, or the fit matched the wrong frames.
+pub const GOOD_SCALE: std::ops::RangeInclusive<f64> = 0.5..=2.0;
+/// Misfit RMS over which a calibration fails, take millimetres: markers 3 cm from where
+/// their bones put them are on the wrong bones or the wrong character.
+pub const FAILED_MISFIT_MM: f64 = 30.0;
+/// Misfit RMS over which a calibration is doubtful, take millimetres (optical takes
+/// fitted onto their own actor's character come out at 2 to 10 mm).
+pub const DOUBTFUL_MISFIT_MM: f64 = 15.0;
+
+/// What is wrong with a calibration, with the verdict it calls for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Concern {
+    /// The scale is outside [`GOOD_SCALE`].
+    Scale { scale: f64 },
+    /// The misfit is over [`DOUBTFUL_MISFIT_MM`] or [`FAILED_MISFIT_MM`].
+    Misfit { rms_mm: f64, limit_mm: f64 },
+    /// Fewer than half of the markers were placed.
+    FewPlaced { placed: usize, markers: usize },
+    /// Labels flagged as fitting badly, jumping or off the skin.
+    Flagged { labels: Vec<String> },
+}
+
+impl Concern {
+    /// The verdict this concern calls for.
+    pub fn verdict(&self) -> Verdict {
+        match self {
+            Concern::Scale { .. } | Concern::FewPlaced { .. } => Verdict::Failed,
+            Concern::Misfit { limit_mm, .. } if *limit_mm >= FAILED_MISFIT_MM => Verdict::Failed,
+            Concern::Misfit { .. } | Concern::Flagged { .. } => Verdict::Doubtful,
+        }
+    }
+}
+
+impl std::fmt::Display for Concern {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Concern::Scale { scale } => write!(
+                f,
+                "the scale {scale:.4} is outside {}..{} (the actor {:.2} times the character): \
+                 the take or the character is in other units (the take's POINT:UNITS, --bvh-scale, \
+                 the character's [mesh] units), or the frames fitted are not the actor standing \
+                 as the character does; try --frames START..END on a span where the actor stands \
+                 in the character's rest pose",
+                GOOD_SCALE.start(),
+                GOOD_SCALE.end(),
+                1.0 / scale
+            ),
+            Concern::Misfit { rms_mm, limit_mm } => write!(
+                f,
+                "the misfit {rms_mm:.1} mm RMS is over {limit_mm:.0} mm: labels on the wrong \
+                 bones, or a character unlike the actor; look at the flagged labels, name their \
+                 bones in [calibration.bones], leave them out with --exclude, or try --frames"
+            ),
+            Concern::FewPlaced { placed, markers } => write!(
+                f,
+                "only {placed} of the take's {markers} marker labels were placed: see why each \
+                 was left out; name their bones in [calibration.bones] or choose a table with \
+                 --marker-set"
+            ),
+            Concern::Flagged { labels } => write!(
+                f,
+                "{} label{} fit badly: {}",
+                labels.len(),
+                if labels.len() == 1 { "" } else { "s" },
+                labels.join(", ")
+            ),
+        }
+    }
+}
+
+impl Calibration {
+    /// Its concerns (none: good), worst first.
+    pub fn concerns(&self) -> Vec<Concern> {
+        let mut out = Vec::new();
+        if !GOOD_SCALE.contains(&self.scale) {
+            out.push(Concern::Scale { scale: self.scale });
+        }
+        if self.placed.len() * 2 < self.markers {
+            out.push(Concern::FewPlaced {
+                placed: self.placed.len(),
+                markers: self.markers,
+            });
+        }
+        let rms = self.residual_mm_rms;
+        if rms.is_nan() || rms > DOUBTFUL_MISFIT_MM {
+            let limit_mm = if rms > FAILED_MISFIT_MM || !rms.is_finite() {
+                FAILED_MISFIT_MM
+            } else {
+                DOUBTFUL_MISFIT_MM
+            };
+            out.push(Concern::Misfit {
+                rms_mm: rms,
+                limit_mm,
+            });
+        }
+        let flagged: Vec<String> = self
+            .placed
+            .iter()
+            .filter(|p| p.flag.is_some())
+            .map(|p| p.label.clone())
+            .collect();
+        if !flagged.is_empty() {
+            out.push(Concern::Flagged { labels: flagged });
+        }
+        out.sort_by_key(|c| std::cmp::Reverse(c.verdict()));
+        out
+    }
+
+    /// The verdict: the worst its concerns call for.
+    pub fn verdict(&self) -> Verdict {
+        self.concerns()
+            .iter()
+            .map(Concern::verdict)
+            .max()
+            .unwrap_or(Verdict::Good)
+    }
 }
 
 impl Calibration {
@@ -210,11 +363,18 @@ pub enum CalibrationError {
     #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
     Map(Vec<MapError>),
     #[error(
-        "{take}: only {known} of its {labels} labels have a bone on this character ({MIN_KNOWN_LABELS} \
+        "{take}: only {known} of its {labels} marker labels have a bone on this character ({MIN_KNOWN_LABELS} \
          are needed to align take and character); {}. Name their bones in the character \
          file's [calibration.bones] (globs to joints or roles) or choose a table with \
          --marker-set",
-        match best { Some((set, n)) => format!("the table that knows most of them, {set}, knows {n}"), None => "no built-in table knows any".into() }
+        match best {
+            Some((set, n)) => format!(
+                "the table that knows most of them, {set}, knows {n} ({:.0} %; a table is taken \
+                 unasked when it knows half)",
+                100.0 * *n as f64 / (*labels).max(1) as f64
+            ),
+            None => "no built-in table knows any".into(),
+        }
     )]
     TooFewKnown {
         take: String,
@@ -247,6 +407,9 @@ pub struct Take<'a> {
     pub rate_hz: f64,
     pub labels: &'a [String],
     pub frames: &'a [Vec<DVec3>],
+    /// For each label, the model-output group the file lists it under (empty when the
+    /// file says nothing: see [`crate::replay::recording::Recording::point_groups`]).
+    pub point_groups: &'a [Option<String>],
 }
 
 /// Calibrates take `rec` onto character `ch` (whose joints have `roles`).
@@ -283,8 +446,25 @@ pub fn calibrate(
     let present: Vec<usize> = (0..rec.labels.len())
         .map(|k| rec.frames.iter().filter(|f| f[k].is_finite()).count())
         .collect();
-    let mut plan = plan(ch, roles, rec.labels, &present, &opts.map, opts.marker_set)
-        .map_err(CalibrationError::Map)?;
+    let named = screen_by_name(rec.labels, rec.point_groups, &opts.points);
+    let excluded: Vec<bool> = named.iter().map(Option::is_some).collect();
+    let mut plan = plan(
+        ch,
+        roles,
+        rec.labels,
+        &present,
+        &excluded,
+        &opts.map,
+        opts.marker_set,
+    )
+    .map_err(CalibrationError::Map)?;
+    let not_markers: Vec<(String, LeftOut)> = named
+        .into_iter()
+        .enumerate()
+        .filter_map(|(k, why)| Some((rec.labels[k].clone(), LeftOut::NotAMarker(why?))))
+        .collect();
+    exclude_by_geometry(&mut plan, rec, &opts.points);
+    plan.left_out.splice(0..0, not_markers);
     let mut params = opts.solve;
     if !opts.markers_on_skin {
         // Joint centres: each starts at its joint (as a layout's rest position would),
@@ -308,8 +488,8 @@ pub fn calibrate(
         return Err(CalibrationError::TooFewKnown {
             take: rec.name.to_owned(),
             known: known.len(),
-            labels: rec.labels.len(),
-            best: marker_sets::best_set(rec.labels).map(|(s, n)| (s.name, n)),
+            labels: plan.markers,
+            best: plan.declined.or(plan.set).map(|(s, n)| (s.name, n)),
         });
     }
     if ch.skeleton.is_empty() {
@@ -364,6 +544,24 @@ pub fn calibrate(
     best.map(|b| b.0).ok_or_else(|| CalibrationError::NoFrames {
         take: rec.name.to_owned(),
     })
+}
+
+/// Moves the labels of `plan` that no table, map or layout places and that the take's
+/// geometry shows are no markers on the actor ([`screen_by_geometry`]) to its left-out
+/// labels.
+fn exclude_by_geometry(plan: &mut labels::Plan, rec: Take, filter: &PointFilter) {
+    let (known, unknown): (Vec<&LabelPlan>, Vec<&LabelPlan>) =
+        plan.labels.iter().partition(|l| l.source != Source::Motion);
+    let known: Vec<usize> = known.iter().map(|l| l.take_index).collect();
+    let unknown: Vec<usize> = unknown.iter().map(|l| l.take_index).collect();
+    let keep: Vec<bool> = rec.labels.iter().map(|l| filter.included(l)).collect();
+    let out = screen_by_geometry(rec.frames, &known, &unknown, &keep, RIGID_SPREAD_M);
+    plan.markers -= out.len().min(plan.markers);
+    for (k, why) in out {
+        plan.labels.retain(|l| l.take_index != k);
+        plan.left_out
+            .push((rec.labels[k].clone(), LeftOut::NotAMarker(why)));
+    }
 }
 
 /// Everything a solve from one first guess needs.
@@ -847,47 +1045,10 @@ impl<'a> Fit<'a> {
     }
 }
 
-/// Groups of labels that keep their mutual distances over `frames` (within
-/// [`RIGID_SPREAD_M`] RMS): each label's group number (labels never seen together are
-/// apart).
-fn rigid_groups(frames: &[Vec<DVec3>], labels: &[usize]) -> Vec<usize> {
-    let n = labels.len();
-    let mut group: Vec<usize> = (0..n).collect();
-    fn root(g: &mut [usize], mut i: usize) -> usize {
-        while g[i] != i {
-            g[i] = g[g[i]];
-            i = g[i];
-        }
-        i
-    }
-    for a in 0..n {
-        for b in a + 1..n {
-            let d: Vec<f64> = frames
-                .iter()
-                .filter_map(|f| {
-                    let (p, q) = (f[labels[a]], f[labels[b]]);
-                    (p.is_finite() && q.is_finite()).then(|| (p - q).length())
-                })
-                .collect();
-            if d.len() < 3 {
-                continue;
-            }
-            let mean = d.iter().sum::<f64>() / d.len() as f64;
-            let spread =
-                (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
-            if spread < RIGID_SPREAD_M {
-                let (ra, rb) = (root(&mut group, a), root(&mut group, b));
-                group[ra] = rb;
-            }
-        }
-    }
-    (0..n).map(|i| root(&mut group, i)).collect()
-}
-
 /// How much two markers on one segment may change their distance (RMS over the frames
 /// used), metres: noise and skin sliding; two segments' markers change theirs by
 /// centimetres as soon as the joint between them moves.
-const RIGID_SPREAD_M: f64 = 0.003;
+pub const RIGID_SPREAD_M: f64 = 0.003;
 
 /// The candidate of `candidates` whose skin point `c` is: the joint whose bones pass
 /// nearest to it, or the candidate next to it in the tree (a point at a joint's crease
@@ -913,12 +1074,12 @@ fn on_candidate(
 }
 
 impl Fit<'_> {
-    /// Moves every label of a rigid group ([`rigid_groups`]) to the joint most of the
+    /// Moves every label of a rigid group ([`points::rigid_groups`]) to the joint most of the
     /// group chose (on a tie, the one voted for last), with its mean position there as
     /// offset.
     fn agree_within_rigid_groups(&self, solve: &OffsetSolve, placed: &mut [Placing]) {
         let labels: Vec<usize> = placed.iter().map(|p| p.plan.take_index).collect();
-        let groups = rigid_groups(self.frames, &labels);
+        let groups = points::rigid_groups(self.frames, &labels, RIGID_SPREAD_M);
         for g in 0..placed.len() {
             let members: Vec<usize> = (0..placed.len()).filter(|&i| groups[i] == g).collect();
             if members.len() < 2 {
@@ -1035,5 +1196,7 @@ fn finish(
         residual_mm_rms: (sum / n.max(1) as f64).sqrt() * 1e3,
         residual_mm_max: max * 1e3,
         report,
+        markers: plan.markers,
+        declined_set: plan.declined.map(|(s, n)| (s.name, n)),
     }
 }

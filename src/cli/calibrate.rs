@@ -6,7 +6,8 @@ use anyhow::{bail, Context, Result};
 use glam::DVec3;
 use rigless::calibrate::labels::{map_entries, MapEntry};
 use rigless::calibrate::marker_sets::{by_name, MARKER_SETS};
-use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, DEFAULT_FRAMES};
+use rigless::calibrate::points::PointFilter;
+use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict, DEFAULT_FRAMES};
 use rigless::character::bind_params::BindParams;
 use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use rigless::character::file::{load_character, LoadedCharacter};
@@ -58,6 +59,16 @@ pub struct CalibrateArgs {
     /// dfki-hand, rigless-body, rigless-hand).
     #[arg(long, default_value = "auto")]
     marker_set: String,
+    /// Labels that are no markers on the actor, as globs (`*` any run, `?` one
+    /// character, any case; comma-separated or the option repeated): a prop, another
+    /// actor, a reference marker. Model outputs, unlabelled points, segment axes, other
+    /// subjects, fixed points and props are left out without it, each with its reason.
+    #[arg(long, value_name = "GLOBS", value_delimiter = ',')]
+    exclude: Vec<String>,
+    /// Labels to take whatever the rules and --exclude say (globs as for --exclude);
+    /// with `--exclude '*'`, the only ones taken.
+    #[arg(long, value_name = "GLOBS", value_delimiter = ',')]
+    include: Vec<String>,
     /// Write the layout (`[[markers]]`, replacing the file's) and the scale
     /// (`[calibration] marker_scale`) into the character file, keeping the old file as
     /// FILE.bak.
@@ -224,6 +235,10 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         span_s,
         marker_set,
         map,
+        points: PointFilter {
+            exclude: a.exclude.clone(),
+            include: a.include.clone(),
+        },
         markers_on_skin: !is_bvh,
         max_marker_distance_m: bind.max_marker_distance_m,
         ..CalibrationOptions::default()
@@ -241,9 +256,11 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
     let mut cal = calibrate(&ch, &roles, rec.as_take(), &opts)?;
     let seconds = t0.elapsed().as_secs_f64();
+    let verdict = cal.verdict();
     // What is written or checked binds: labels the bind refuses are left out first.
     let bind = loaded.map_or(bind, |l| l.bind_for(&cal.layout(&ch)));
-    let rig = if a.check || a.write {
+    let binds = (a.check || a.write) && verdict != Verdict::Failed;
+    let rig = if binds {
         Some(Arc::new(
             cal.bind(&ch, &bind, &mut |_, _| {})
                 .context("binding the calibrated layout")?,
@@ -251,10 +268,12 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     } else {
         None
     };
+    // Labels the bind refused may change the verdict.
+    let verdict = cal.verdict();
     if !a.json {
         print_table(&cal, &rec, seconds);
     }
-    let checked = match rig.filter(|_| a.check) {
+    let checked = match rig.filter(|_| a.check && verdict != Verdict::Failed) {
         Some(rig) => {
             if !a.json {
                 eprintln!("replaying the take with this layout at 120 Hz ...");
@@ -267,8 +286,23 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         let mut v = json(&cal, &rec, seconds);
         v["check"] = serde_json::to_value(&checked)?;
         println!("{}", serde_json::to_string(&v)?);
-    } else if let Some(r) = &checked {
-        print_check(r);
+    } else {
+        if let Some(r) = &checked {
+            print_check(r);
+        }
+        print_verdict(&cal, a.write);
+    }
+    if verdict == Verdict::Failed {
+        bail!(
+            "{}: the calibration failed ({}); nothing was written",
+            a.take,
+            cal.concerns()
+                .iter()
+                .filter(|c| c.verdict() == Verdict::Failed)
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
     }
     if let (true, Some(path)) = (a.write, &file) {
         write_layout(path, &cal)?;
@@ -283,6 +317,19 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The verdict and its reasons, last, where a reader looks.
+fn print_verdict(cal: &Calibration, write: bool) {
+    let concerns = cal.concerns();
+    println!();
+    println!("verdict      {}", cal.verdict());
+    for c in &concerns {
+        println!("  {}: {c}", c.verdict());
+    }
+    if cal.verdict() == Verdict::Doubtful && write {
+        println!("  written all the same: look at the labels named above before a session");
+    }
 }
 
 /// The take: a file, or what a live input URL sent in `--seconds`; and whether it is a
@@ -344,7 +391,11 @@ fn backup_path(path: &Path) -> PathBuf {
 fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
     serde_json::json!({
         "take": rec.name,
+        "verdict": cal.verdict(),
+        "concerns": cal.concerns().iter().map(|c| serde_json::json!({"verdict": c.verdict(), "why": c.to_string()})).collect::<Vec<_>>(),
+        "markers": cal.markers,
         "marker_set": cal.marker_set.map(|(s, n)| serde_json::json!({"name": s, "labels_known": n})),
+        "marker_set_declined": cal.declined_set.map(|(s, n)| serde_json::json!({"name": s, "labels_known": n})),
         "scale": cal.scale,
         "frames": cal.frames,
         "residual_mm_rms": cal.residual_mm_rms,
@@ -393,13 +444,27 @@ fn print_check(r: &OfflineReport) {
 
 /// The calibration as a table.
 fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
-    match cal.marker_set {
-        Some((name, n)) => println!(
-            "marker set   {name} (knows {n} of the take's {} labels)",
-            rec.labels.len()
+    let share = |n: usize| 100.0 * n as f64 / cal.markers.max(1) as f64;
+    match (cal.marker_set, cal.declined_set) {
+        (Some((name, n)), _) => println!(
+            "marker set   {name} (knows {n} of the take's {} marker labels, {:.0} %)",
+            cal.markers,
+            share(n)
         ),
-        None => println!("marker set   none knows these labels"),
+        (None, Some((name, n))) => println!(
+            "marker set   none: the nearest, {name}, knows {n} of {} marker labels ({:.0} %), \
+             too few to trust (--marker-set {name} takes it)",
+            cal.markers,
+            share(n)
+        ),
+        (None, None) => println!("marker set   none knows these labels"),
     }
+    println!(
+        "labels       {} in the take: {} may be markers, {} placed",
+        rec.labels.len(),
+        cal.markers,
+        cal.placed.len()
+    );
     let span = |f: &usize| *f as f64 / rec.rate_hz;
     println!(
         "frames       {} used, from {:.2} s to {:.2} s",
@@ -439,8 +504,24 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
                 .unwrap_or_default()
         );
     }
+    // Labels left out for the same reason share a line.
+    let mut reasons: Vec<(String, Vec<&str>)> = Vec::new();
     for (label, why) in &cal.left_out {
-        println!("{label:<12} left out: {why}");
+        let why = why.to_string();
+        match reasons.iter_mut().find(|(w, _)| *w == why) {
+            Some((_, labels)) => labels.push(label),
+            None => reasons.push((why, vec![label])),
+        }
+    }
+    for (why, labels) in &reasons {
+        match labels.as_slice() {
+            [one] => println!("{one:<12} left out: {why}"),
+            many => println!(
+                "{} labels left out: {why}:\n    {}",
+                many.len(),
+                many.join(" ")
+            ),
+        }
     }
 }
 

@@ -221,6 +221,7 @@ impl TakeBuilder {
             frames,
             warnings,
             file_units: "m".into(),
+            point_groups: Vec::new(),
         })
     }
 }

@@ -10,7 +10,7 @@ use crate::calibrate::config::LiveCalibrationConfig;
 use crate::calibrate::labels::MapEntry;
 use crate::calibrate::layout::{write_into, LayoutError};
 use crate::calibrate::marker_sets::by_name;
-use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions};
+use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Verdict};
 use crate::character::bind_params::BindParams;
 use crate::character::roles::Role;
 use crate::character::{Character, MarkerDef};
@@ -41,6 +41,24 @@ pub enum LiveCalibrationError {
     Write {
         path: String,
         source: Box<LayoutError>,
+    },
+    #[error(
+        "calibrating {seconds} s of live input onto {character} failed: {concerns}; the stage \
+         does not start with it (stand in the character's rest pose at the start, or \
+         calibrate a take with `rigless calibrate` and write it into the character file)"
+    )]
+    Failed {
+        seconds: f64,
+        character: String,
+        concerns: String,
+    },
+    #[error(
+        "the calibrated layout was not written into {path}: the file with it would not load \
+         ({source}); the file is unchanged"
+    )]
+    Refused {
+        path: String,
+        source: Box<crate::character::file::CharacterError>,
     },
     #[error("writing the calibrated layout into {path}: {source}")]
     Io {
@@ -156,6 +174,19 @@ pub fn calibrate_live(
             character: ch.name.clone(),
             source,
         })?;
+    if cal.verdict() == Verdict::Failed {
+        return Err(LiveCalibrationError::Failed {
+            seconds,
+            character: ch.name.clone(),
+            concerns: cal
+                .concerns()
+                .iter()
+                .filter(|c| c.verdict() == Verdict::Failed)
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join("; "),
+        });
+    }
     if let (true, Some(path)) = (cfg.write, target.file) {
         write_layout(path, &cal)?;
         out.written = Some(path.to_path_buf());
@@ -176,8 +207,21 @@ pub fn write_layout(path: &Path, cal: &Calibration) -> Result<(), LiveCalibratio
         path: shown.clone(),
         source: Box::new(source),
     })?;
+    // The new file is loaded as a stage would load it before it replaces the old one
+    // (beside it, so its mesh path resolves alike): nothing the loader refuses is
+    // written.
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    let trial = path.with_file_name(format!(".{stem}.rigless-new.toml"));
+    std::fs::write(&trial, &new).map_err(io)?;
+    if let Err(source) = crate::character::file::load_character(&trial) {
+        std::fs::remove_file(&trial).map_err(io)?;
+        return Err(LiveCalibrationError::Refused {
+            path: shown,
+            source: Box::new(source),
+        });
+    }
     let mut bak = path.as_os_str().to_owned();
     bak.push(".bak");
     std::fs::write(PathBuf::from(bak), &text).map_err(io)?;
-    std::fs::write(path, new).map_err(io)
+    std::fs::rename(&trial, path).map_err(io)
 }

@@ -201,6 +201,7 @@ mod tests {
                 .collect(),
             warnings: Vec::new(),
             file_units: "m".into(),
+            point_groups: Vec::new(),
         };
         let names = vec!["a".to_string(), "b".to_string()];
         let map = LabelMap::new(&rec.labels, &MarkerIndex::fixed(&names));

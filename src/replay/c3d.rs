@@ -115,7 +115,23 @@ pub struct C3d {
     pub processor: Processor,
     /// Things the reader tolerated (header and parameters disagreeing, a cut file).
     pub warnings: Vec<String>,
+    /// For each label, the POINT parameter that lists it as a model output rather than a
+    /// marker (`ANGLES`, `FORCES`, `MOMENTS`, `POWERS`, `SCALARS`, `REACTIONS`,
+    /// `MODELED_MARKERS`, or any group POINT:TYPE_GROUPS names); `None` for the rest.
+    pub point_groups: Vec<Option<String>>,
 }
+
+/// POINT parameters that list model outputs stored as points (Vicon's Plug-in Gait and
+/// Nexus write them; POINT:TYPE_GROUPS may name more).
+pub const MODEL_OUTPUT_GROUPS: [&str; 7] = [
+    "ANGLES",
+    "FORCES",
+    "MOMENTS",
+    "POWERS",
+    "SCALARS",
+    "REACTIONS",
+    "MODELED_MARKERS",
+];
 
 /// Why a file is not C3D data the reader can use.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -560,6 +576,46 @@ fn point_labels(params: &Params, points: usize) -> Vec<String> {
     labels
 }
 
+/// For each label, the model-output group that lists it ([`C3d::point_groups`]): the
+/// groups of [`MODEL_OUTPUT_GROUPS`] and those POINT:TYPE_GROUPS names (pairs of a
+/// parameter and its kind, `ANGLES`, `ANGLE`, ...: every name that is a POINT parameter
+/// listing labels counts). A label matches as written or without its `Subject:` prefix.
+fn point_type_groups(params: &Params, labels: &[String]) -> Vec<Option<String>> {
+    let mut groups: Vec<String> = MODEL_OUTPUT_GROUPS.iter().map(|g| g.to_string()).collect();
+    if let Some(p) = params.get("POINT", "TYPE_GROUPS") {
+        for g in p.strings(64) {
+            let g = g.to_ascii_uppercase();
+            if !g.is_empty() && !groups.contains(&g) && !is_point_setting(&g) {
+                groups.push(g);
+            }
+        }
+    }
+    let bare = |l: &str| l.rsplit(':').next().unwrap_or(l).trim().to_owned();
+    let mut out: Vec<Option<String>> = vec![None; labels.len()];
+    for g in &groups {
+        let Some(p) = params.get("POINT", g) else {
+            continue;
+        };
+        let listed: Vec<String> = p.strings(labels.len()).iter().map(|l| bare(l)).collect();
+        for (k, l) in labels.iter().enumerate() {
+            if out[k].is_none() && listed.iter().any(|x| !x.is_empty() && *x == bare(l)) {
+                out[k] = Some(g.clone());
+            }
+        }
+    }
+    out
+}
+
+/// POINT parameters that are settings, never lists of labels.
+fn is_point_setting(name: &str) -> bool {
+    matches!(
+        name,
+        "USED" | "FRAMES" | "SCALE" | "RATE" | "DATA_START" | "UNITS" | "LABELS" | "DESCRIPTIONS"
+    ) || name.starts_with("LABELS")
+        || name.ends_with("_UNITS")
+        || name.ends_with("_SCREEN")
+}
+
 /// POINT:UNITS (`mm` when absent) and metres per unit.
 fn point_units(params: &Params, warnings: &mut Vec<String>) -> (String, f64) {
     let units = params
@@ -664,6 +720,7 @@ fn read_frames(
         n_frames = whole;
     }
     // A frame of `frame_len` bytes holds the points' `points * point_len` bytes first.
+    let mut zeros = 0usize;
     let frames = data
         .chunks_exact(frame_len.max(1))
         .take(n_frames)
@@ -671,10 +728,26 @@ fn read_frames(
             frame
                 .chunks_exact(point_len)
                 .take(points)
-                .map(|v| read_point(v, d))
+                .map(|v| {
+                    let p = read_point(v, d);
+                    // Some writers (Qualisys, Motion Analysis, older Vicon) store a gap as
+                    // the origin with a residual of zero; a marker never sits on the
+                    // origin to the last bit in all three coordinates.
+                    if p == DVec3::ZERO {
+                        zeros += 1;
+                        DVec3::NAN
+                    } else {
+                        p
+                    }
+                })
                 .collect()
         })
         .collect();
+    if zeros > 0 {
+        warnings.push(format!(
+            "{zeros} samples at exactly (0, 0, 0) read as gaps (a writer's way of storing one)"
+        ));
+    }
     Ok(frames)
 }
 
@@ -695,6 +768,7 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
     let (first_frame, n_frames) = frame_range(&params, &h, &mut warnings);
     let analog = analog_samples_per_frame(&params, &h, rate_hz, &mut warnings)?;
     let labels = point_labels(&params, points);
+    let point_groups = point_type_groups(&params, &labels);
     let (units, metres_per_unit) = point_units(&params, &mut warnings);
     let y_up = params
         .string("POINT", "Y_SCREEN")
@@ -725,6 +799,7 @@ pub fn read_c3d(b: &[u8]) -> Result<C3d, C3dError> {
         units,
         processor: proc,
         warnings,
+        point_groups,
     })
 }
 

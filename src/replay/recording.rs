@@ -55,6 +55,10 @@ pub struct Recording {
     pub warnings: Vec<String>,
     /// Length unit the file stores (`mm`, `m`, ...), before conversion to metres.
     pub file_units: String,
+    /// For each label, the group a C3D file lists it under as a model output (angles,
+    /// forces, ... stored as points: [`crate::replay::c3d::C3d::point_groups`]); empty
+    /// when the file says nothing of it.
+    pub point_groups: Vec<Option<String>>,
 }
 
 /// Why a recording cannot be played.
@@ -103,6 +107,7 @@ impl Recording {
             rate_hz: self.rate_hz,
             labels: &self.labels,
             frames: &self.frames,
+            point_groups: &self.point_groups,
         }
     }
 
@@ -119,6 +124,7 @@ impl Recording {
             frames: c.frames,
             warnings: c.warnings,
             file_units: c.units,
+            point_groups: c.point_groups,
         })
         .and_then(Self::nonempty)
     }
@@ -166,6 +172,7 @@ impl Recording {
             frames: t.frames,
             warnings: Vec::new(),
             file_units: "mm".into(),
+            point_groups: Vec::new(),
         })
     }
 
@@ -197,6 +204,7 @@ impl Recording {
             frames: b.positions,
             warnings: Vec::new(),
             file_units: format!("BVH units ({bvh_metres_per_unit} m each)"),
+            point_groups: Vec::new(),
         })
     }
 
@@ -270,6 +278,7 @@ impl Recording {
             frames,
             warnings: s.warnings,
             file_units: "m".into(),
+            point_groups: Vec::new(),
         })
     }
 
@@ -450,6 +459,7 @@ mod tests {
             ],
             warnings: vec![],
             file_units: "mm".into(),
+            point_groups: Vec::new(),
         };
         let s = rec.summary();
         assert_eq!((s.markers, s.frames, s.duration_secs), (2, 4, 0.08));
