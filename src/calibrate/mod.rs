@@ -40,6 +40,15 @@ use marker_sets::MarkerSet;
 use points::{screen_by_geometry, screen_by_name, PointFilter};
 use solve::{OffsetSolve, Parts, Skin, SolveParams, SolveReport};
 
+/// Seconds either side of the rest-like frame a calibration fits first, before the
+/// whole take ([`Problem::solve_from`]).
+pub const NEAR_REST_S: f64 = 1.0;
+/// How much worse the whole span may fit than the frames near rest before the layout
+/// near rest is kept (the issue's bound on `--frames` beating the default: 20 %).
+pub const WHOLE_SPAN_WORSE: f64 = 1.2;
+/// And by more than this, take millimetres: a few millimetres more over more poses is
+/// skin sliding, not poses the character cannot take.
+pub const WHOLE_SPAN_SLACK_MM: f64 = 5.0;
 /// Frames a calibration uses unless told otherwise (MoSh uses 12; more cover more of
 /// the range of motion at a linear cost).
 pub const DEFAULT_FRAMES: usize = 20;
@@ -158,6 +167,11 @@ pub struct Calibration {
     pub markers: usize,
     /// The table declined because it knows too few labels, with how many it knows.
     pub declined_set: Option<(&'static str, usize)>,
+    /// The take's rest-like frame (the actor nearest the character's rest pose).
+    pub rest_frame: usize,
+    /// When the layout was fitted on the frames near the rest-like frame alone because
+    /// the whole span fitted far worse: the whole span's misfit RMS, take millimetres.
+    pub whole_span_mm: Option<f64>,
 }
 
 /// How far a calibration can be trusted.
@@ -203,6 +217,8 @@ pub enum Concern {
     FewPlaced { placed: usize, markers: usize },
     /// Labels flagged as fitting badly, jumping or off the skin.
     Flagged { labels: Vec<String> },
+    /// The layout was fitted near the rest-like frame; the whole span fits it far worse.
+    WholeSpan { near_mm: f64, whole_mm: f64 },
 }
 
 impl Concern {
@@ -211,7 +227,9 @@ impl Concern {
         match self {
             Concern::Scale { .. } | Concern::FewPlaced { .. } => Verdict::Failed,
             Concern::Misfit { limit_mm, .. } if *limit_mm >= FAILED_MISFIT_MM => Verdict::Failed,
-            Concern::Misfit { .. } | Concern::Flagged { .. } => Verdict::Doubtful,
+            Concern::Misfit { .. } | Concern::Flagged { .. } | Concern::WholeSpan { .. } => {
+                Verdict::Doubtful
+            }
         }
     }
 }
@@ -241,6 +259,12 @@ impl std::fmt::Display for Concern {
                 "only {placed} of the take's {markers} marker labels were placed: see why each \
                  was left out; name their bones in [calibration.bones] or choose a table with \
                  --marker-set"
+            ),
+            Concern::WholeSpan { near_mm, whole_mm } => write!(
+                f,
+                "fitted on the frames within {NEAR_REST_S} s of the rest-like frame ({near_mm:.1} mm \
+                 RMS): over the whole take it fits at {whole_mm:.1} mm, poses the character's \
+                 joint limits do not reach or markers that slide; a replay misfits there"
             ),
             Concern::Flagged { labels } => write!(
                 f,
@@ -286,6 +310,12 @@ impl Calibration {
             .collect();
         if !flagged.is_empty() {
             out.push(Concern::Flagged { labels: flagged });
+        }
+        if let Some(whole_mm) = self.whole_span_mm {
+            out.push(Concern::WholeSpan {
+                near_mm: self.residual_mm_rms,
+                whole_mm,
+            });
         }
         out.sort_by_key(|c| std::cmp::Reverse(c.verdict()));
         out
@@ -578,14 +608,74 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    /// The calibration from `guess`, with the solve's final objective.
+    /// The calibration from `guess`, with the solve's final objective: over the whole
+    /// span. When that fits worse than a calibration can be good
+    /// ([`DOUBTFUL_MISFIT_MM`]), a far pose may have led the fit astray (a CMU take's
+    /// whole range from its rest-like frame stuck at 59 mm RMS; its first second alone
+    /// fits at 6 mm): the frames within [`NEAR_REST_S`] of the rest-like frame are
+    /// fitted first, where the poses differ least from rest, and the whole span again
+    /// from there; the better of the two whole-span fits wins, unless both fit far worse
+    /// than the frames near rest ([`WHOLE_SPAN_WORSE`], [`WHOLE_SPAN_SLACK_MM`]): then
+    /// the layout near rest is kept, the whole span's misfit and flags said.
     fn solve_from(&self, guess: FirstGuess) -> Result<(Calibration, f64), CalibrationError> {
+        let whole = self.solve_over(guess.clone(), self.span.clone(), None)?;
+        let rate = self.rec.rate_hz;
+        let reach = if rate.is_finite() && rate > 0.0 {
+            (NEAR_REST_S * rate).round().min(self.span.len() as f64) as usize
+        } else {
+            self.span.len()
+        };
+        let near = guess.frame.saturating_sub(reach).max(self.span.start)
+            ..(guess.frame + reach + 1).min(self.span.end);
+        if whole.0.residual_mm_rms <= DOUBTFUL_MISFIT_MM || near.len() >= self.span.len() {
+            return Ok(whole);
+        }
+        let (mut local, local_cost) = self.solve_over(guess.clone(), near, None)?;
+        let seeded = self.solve_over(guess, self.span.clone(), Some(&local))?;
+        tracing::debug!(
+            whole_mm = whole.0.residual_mm_rms,
+            near_mm = local.residual_mm_rms,
+            seeded_mm = seeded.0.residual_mm_rms,
+            "the whole span, near rest, and the whole span from there"
+        );
+        let best = if seeded.0.residual_mm_rms < whole.0.residual_mm_rms {
+            seeded
+        } else {
+            whole
+        };
+        if best.0.residual_mm_rms <= WHOLE_SPAN_WORSE * local.residual_mm_rms + WHOLE_SPAN_SLACK_MM
+        {
+            return Ok(best);
+        }
+        // Poses the character's limits do not reach, or markers that slide, would bend
+        // the offsets: the layout near rest is kept; what the whole span shows of each
+        // label (a swap partway, a label that fits badly away from rest) is said.
+        local.whole_span_mm = Some(best.0.residual_mm_rms);
+        for p in local.placed.iter_mut().filter(|p| p.flag.is_none()) {
+            p.flag = best
+                .0
+                .placed
+                .iter()
+                .find(|w| w.label == p.label)
+                .and_then(|w| w.flag.clone());
+        }
+        Ok((local, local_cost))
+    }
+
+    /// The calibration over frames of `span` from `guess`, each label started where
+    /// `seed` placed it when given (else where the rest-like frame puts it).
+    fn solve_over(
+        &self,
+        guess: FirstGuess,
+        span: std::ops::Range<usize>,
+        seed: Option<&Calibration>,
+    ) -> Result<(Calibration, f64), CalibrationError> {
         let (ch, plan, rec) = (self.ch, self.plan, self.rec);
         let used: Vec<usize> = plan.labels.iter().map(|l| l.take_index).collect();
         let chosen = choose_frames(
             rec.frames,
             &used,
-            self.span.clone(),
+            span,
             self.opts.frames.max(1),
             Some(guess.frame),
         );
@@ -604,14 +694,25 @@ impl Problem<'_> {
             params: self.params,
             hold,
         };
-        // Every label where the rest-like frame puts it, on the nearest candidate bone.
+        // Every label where the seed placed it, or where the rest-like frame puts it, on
+        // the nearest candidate bone.
+        let seeded = |l: &LabelPlan| {
+            let p = seed?.placed.iter().find(|p| p.label == l.label)?;
+            Some(Placing {
+                plan: l.clone(),
+                joint: p.joint,
+                offset: p.offset_m,
+                guess: Some(ch.skeleton.joints[p.joint].rest + p.offset_m),
+            })
+        };
         let (mut placed, mut moving): (Vec<Placing>, Vec<Placing>) = plan
             .labels
             .iter()
-            .map(|l| fit.initial_placing(l, &first))
+            .map(|l| seeded(l).unwrap_or_else(|| fit.initial_placing(l, &first)))
             .partition(|p| p.plan.source != Source::Motion);
-        let start = headings(ch, &placed, &frames, first.scale, self.stance);
-        let mut solve = fit.problem(&placed, &start, first.scale, None);
+        let scale = seed.map_or(first.scale, |c| c.scale);
+        let start = headings(ch, &placed, &frames, scale, self.stance);
+        let mut solve = fit.problem(&placed, &start, scale, None);
         for _ in 0..3 {
             solve.alternate();
         }
@@ -637,7 +738,16 @@ impl Problem<'_> {
                 take: rec.name.to_owned(),
             });
         }
-        let cal = finish(ch, &solve, &placed, plan.clone(), chosen, report, self.opts);
+        let rest_frame = chosen.get(first.frame).copied().unwrap_or(0);
+        let cal = finish(
+            ch,
+            &solve,
+            &placed,
+            plan.clone(),
+            (chosen, rest_frame),
+            report,
+            self.opts,
+        );
         Ok((cal, report.cost_end))
     }
 }
@@ -696,6 +806,7 @@ fn anchor(ch: &Character, j: usize) -> DVec3 {
 
 /// The first guess: the frame whose similarity fit to the known labels' anchors is best
 /// (the actor nearest the character's rest pose), its heading and scale.
+#[derive(Clone)]
 struct FirstGuess {
     /// Index into the frames used.
     frame: usize,
@@ -736,6 +847,26 @@ fn anchor_pairs(ch: &Character, known: &[&LabelPlan], frame: &[DVec3]) -> Vec<(D
 
 /// What the first guess charges for all labels off their skin, as misfit in metres.
 const OFF_SKIN_COST_M: f64 = 0.02;
+
+/// How far the fit onto the skin may take a frame's scale from the ratio of the
+/// spreads of the markers and of their bones' anchors (a factor either way): the
+/// markers lie outside the body, the anchors inside, and a pose folds some of them
+/// (tens of per cent); a frame whose fit runs farther has collapsed onto one spot of the
+/// skin, where every marker pairs with one point at no cost (a CMU take onto the body
+/// went to a scale of 5e-6 so).
+const ICP_SCALE_BAND: f64 = 3.0;
+
+/// RMS distance of `points` from their centroid.
+fn rms_spread(points: &[DVec3]) -> f64 {
+    let n = points.len().max(1) as f64;
+    let c = points.iter().sum::<DVec3>() / n;
+    (points
+        .iter()
+        .map(|p| (*p - c).length_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt()
+}
 
 /// Frames of the span the first guess compares (evenly spaced).
 const GUESS_CANDIDATES: usize = 60;
@@ -829,6 +960,15 @@ fn refine_on_skin(
     let sk = &ch.skeleton;
     let mut rms = f64::INFINITY;
     let mut on_skin = Vec::new();
+    // The character's size the frame's markers span at scale 1: the spread of their
+    // bones' anchors over the spread of the markers.
+    let (anchors, seen): (Vec<DVec3>, Vec<DVec3>) = known
+        .iter()
+        .filter(|l| frame[l.take_index].is_finite())
+        .map(|l| (anchor(ch, l.candidates[0]), frame[l.take_index]))
+        .unzip();
+    let size_ratio = rms_spread(&anchors) / rms_spread(&seen);
+    let band = (size_ratio / ICP_SCALE_BAND)..=(size_ratio * ICP_SCALE_BAND);
     // How far from the skin a marker may lie and still pair with it: loose while the
     // guess is rough, then what a marker on the skin can be (its centre within 3 cm).
     let mut reach = 0.1 * height;
@@ -862,6 +1002,11 @@ fn refine_on_skin(
             good.iter().chain(&rough).copied().collect()
         };
         let (h, s, r) = fit_heading(&pairs, None, 0.05 * height, stance.turn)?;
+        if !band.contains(&s) {
+            // Collapsed: markers shrunk onto one spot of the skin pair with it and
+            // fit there at no cost. This frame gives no guess.
+            return None;
+        }
         let settled = (s - scale).abs() < 1e-5 * scale && reach <= 0.03;
         reach = (reach * 0.85).max(0.03);
         // Labels off their skin or out of view count against the frame: all of them as
@@ -1130,7 +1275,7 @@ fn finish(
     solve: &OffsetSolve,
     placed: &[Placing],
     plan: labels::Plan,
-    frames: Vec<usize>,
+    (frames, rest_frame): (Vec<usize>, usize),
     report: SolveReport,
     opts: &CalibrationOptions,
 ) -> Calibration {
@@ -1198,5 +1343,7 @@ fn finish(
         report,
         markers: plan.markers,
         declined_set: plan.declined.map(|(s, n)| (s.name, n)),
+        rest_frame,
+        whole_span_mm: None,
     }
 }

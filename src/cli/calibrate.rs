@@ -398,6 +398,8 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
         "marker_set_declined": cal.declined_set.map(|(s, n)| serde_json::json!({"name": s, "labels_known": n})),
         "scale": cal.scale,
         "frames": cal.frames,
+        "rest_frame": cal.rest_frame,
+        "whole_span_mm_rms": cal.whole_span_mm,
         "residual_mm_rms": cal.residual_mm_rms,
         "residual_mm_max": cal.residual_mm_max,
         "iterations": cal.report.iterations,
@@ -467,10 +469,17 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
     );
     let span = |f: &usize| *f as f64 / rec.rate_hz;
     println!(
-        "frames       {} used, from {:.2} s to {:.2} s",
+        "frames       {} used, from {:.2} s to {:.2} s; the actor stands most like the character's rest pose at {:.2} s{}",
         cal.frames.len(),
         cal.frames.first().map_or(0.0, span),
-        cal.frames.last().map_or(0.0, span)
+        cal.frames.last().map_or(0.0, span),
+        span(&cal.rest_frame),
+        match cal.whole_span_mm {
+            Some(mm) => format!(
+                " (fitted near it: the whole take fits at {mm:.1} mm RMS)"
+            ),
+            None => String::new(),
+        }
     );
     println!(
         "scale        the actor is {:.3} times the character (marker_scale {:.5})",
