@@ -334,8 +334,7 @@ pub fn screen_by_geometry(
     };
     // Props first (a bat's far end would otherwise go alone as far from the body).
     let rest: Vec<usize> = unknown.iter().copied().filter(|k| !keep[*k]).collect();
-    let owned: Vec<Vec<DVec3>> = sampled.iter().map(|f| (*f).clone()).collect();
-    let groups = rigid_groups(&owned, &rest, rigid_spread_m);
+    let groups = rigid_groups(&sampled, &rest, rigid_spread_m);
     for g in 0..rest.len() {
         let members: Vec<usize> = (0..rest.len())
             .filter(|&i| groups[i] == g)
@@ -345,7 +344,7 @@ pub fn screen_by_geometry(
             continue;
         }
         let d = distance_of(&members);
-        let extent = extent_of(&owned, &members);
+        let extent = extent_of(&sampled, &members);
         if d > spread || (d > 0.5 * spread && extent > 0.75 * spread) {
             for &k in &members {
                 out.push((
@@ -382,7 +381,7 @@ pub fn screen_by_geometry(
 
 /// The largest distance between two of `members` (median over the frames that see
 /// them all).
-fn extent_of(frames: &[Vec<DVec3>], members: &[usize]) -> f64 {
+fn extent_of(frames: &[&Vec<DVec3>], members: &[usize]) -> f64 {
     let mut per_frame: Vec<f64> = frames
         .iter()
         .filter(|f| members.iter().all(|&k| f[k].is_finite()))
@@ -427,7 +426,11 @@ fn body_spread(frames: &[&Vec<DVec3>], known: &[usize], unknown: &[usize]) -> f6
 /// Groups of `labels` (indices into `frames[f]`) that keep their mutual distances over
 /// `frames` within `spread_m` RMS: each label's group number, the index in `labels` of
 /// its group's root (labels never seen together three times are apart).
-pub fn rigid_groups(frames: &[Vec<DVec3>], labels: &[usize], spread_m: f64) -> Vec<usize> {
+pub fn rigid_groups<F: AsRef<[DVec3]>>(
+    frames: &[F],
+    labels: &[usize],
+    spread_m: f64,
+) -> Vec<usize> {
     let n = labels.len();
     let mut group: Vec<usize> = (0..n).collect();
     fn root(g: &mut [usize], mut i: usize) -> usize {
@@ -442,6 +445,7 @@ pub fn rigid_groups(frames: &[Vec<DVec3>], labels: &[usize], spread_m: f64) -> V
             let d: Vec<f64> = frames
                 .iter()
                 .filter_map(|f| {
+                    let f = f.as_ref();
                     let (p, q) = (f[labels[a]], f[labels[b]]);
                     (p.is_finite() && q.is_finite()).then(|| (p - q).length())
                 })
