@@ -385,7 +385,8 @@ fn read_words(w: &[String], zero_based_fingers: bool) -> Said {
 /// a metacarpal without a digit word takes its child's digit, limb words alone go by
 /// their order along the limb (legs: upper leg, lower leg, foot, toes; arms of three:
 /// upper arm, lower arm, hand, of four: the shoulder first; a lone `Leg` is a lower leg
-/// and a lone `Arm` an upper arm, as in Mixamo), a part claimed twice on one side keeps
+/// and a lone `Arm` an upper arm, as in Mixamo, unless its child names the part after
+/// another: `Left leg` over `Left knee` is an upper leg), a part claimed twice on one side keeps
 /// the surer claim and then the joint nearer the root (a limb's second claim that is the
 /// first's child is its split segment), and with no joint named the hips
 /// a root with two children or more is the hips.
@@ -521,10 +522,22 @@ fn chain_roles(
         {
             chain.push(next);
         }
+        // A lone limb word is the part before the one its child names (`Left leg` over
+        // `Left knee` is the thigh; Mixamo's `LeftLeg` over `LeftFoot` the shin).
+        let next = children[i].iter().find_map(|&c| match said[c] {
+            Said::Part(p, _) if side[c] == side[i] => Some(p),
+            _ => None,
+        });
+        let lone = match (leg, next) {
+            (true, Some(Part::LowerLeg)) => Part::UpperLeg,
+            (true, _) => Part::LowerLeg,
+            (false, Some(Part::Hand)) => Part::LowerArm,
+            (false, Some(Part::UpperArm)) => Part::Shoulder,
+            (false, _) => Part::UpperArm,
+        };
         let parts: &[Part] = match (leg, chain.len()) {
-            (true, 1) => &[Part::LowerLeg],
+            (_, 1) => std::slice::from_ref(&lone),
             (true, _) => &[Part::UpperLeg, Part::LowerLeg, Part::Foot, Part::Toes],
-            (false, 1) => &[Part::UpperArm],
             (false, 4..) => &[Part::Shoulder, Part::UpperArm, Part::LowerArm, Part::Hand],
             (false, _) => &[Part::UpperArm, Part::LowerArm, Part::Hand],
         };
@@ -1353,6 +1366,47 @@ mod tests {
             ("left_foot_index", "leftFoot"),
             ("EyeBall_L", "-"),
             ("J_Sec_L_SkirtBack0_01", "-"),
+        ] {
+            assert_eq!(role_of(&joints, &roles, name), want, "{name}");
+        }
+    }
+
+    /// Names written as words with spaces, dots and underscores: MMD-style English names
+    /// (`Left leg` is the thigh, `Left knee` the shin, as VRM exports of MMD models
+    /// name them) and the VRM add-on's Blender names (`upper_arm.L`, `lower_leg.R`).
+    #[test]
+    fn names_written_as_words_get_their_roles() {
+        let joints = names_tree(&[
+            ("Hips", None),
+            ("Spine", Some("Hips")),
+            ("Left leg", Some("Hips")),
+            ("Left knee", Some("Left leg")),
+            ("Left ankle", Some("Left knee")),
+            ("Left toe", Some("Left ankle")),
+            ("Right leg", Some("Hips")),
+            ("Right knee", Some("Right leg")),
+            ("Right ankle", Some("Right knee")),
+            ("Left arm", Some("Spine")),
+            ("Left elbow", Some("Left arm")),
+            ("Left wrist", Some("Left elbow")),
+            ("upper_arm.R", Some("Spine")),
+            ("lower_arm.R", Some("upper_arm.R")),
+            ("hand.R", Some("lower_arm.R")),
+        ]);
+        let roles = recognise(&joints, &[]);
+        for (name, want) in [
+            ("Left leg", "leftUpperLeg"),
+            ("Left knee", "leftLowerLeg"),
+            ("Left ankle", "leftFoot"),
+            ("Left toe", "leftToes"),
+            ("Right leg", "rightUpperLeg"),
+            ("Right knee", "rightLowerLeg"),
+            ("Left arm", "leftUpperArm"),
+            ("Left elbow", "leftLowerArm"),
+            ("Left wrist", "leftHand"),
+            ("upper_arm.R", "rightUpperArm"),
+            ("lower_arm.R", "rightLowerArm"),
+            ("hand.R", "rightHand"),
         ] {
             assert_eq!(role_of(&joints, &roles, name), want, "{name}");
         }
