@@ -290,6 +290,48 @@ pub enum MeshWarning {
         longest_m: f64,
         up: UpAxis,
     },
+    /// The skeleton's hips-to-head line leans far from the declared up axis.
+    #[error("the skeleton's hips-to-head line leans {lean_deg:.0}° from up: it looks lying down for up = \"{up}\"; check [mesh] up")]
+    TrunkLyingDown { lean_deg: f64, up: UpAxis },
+}
+
+/// How far a skeleton's trunk (hips to head, or to the neck) leans from up, degrees;
+/// `None` without joints of those roles.
+fn trunk_lean_deg(sk: &Skeleton, roles: &[Option<Role>]) -> Option<f64> {
+    use super::roles::Part;
+    let find = |part: Part| {
+        (0..sk.len()).find(|&j| {
+            roles
+                .get(j)
+                .copied()
+                .flatten()
+                .is_some_and(|r| r.part == part)
+        })
+    };
+    let hips = find(Part::Hips)?;
+    let top = find(Part::Head).or_else(|| find(Part::Neck))?;
+    let v = sk.joints[top].rest - sk.joints[hips].rest;
+    let len = v.length();
+    (len > 0.0).then(|| (v.y / len).clamp(-1.0, 1.0).acos().to_degrees())
+}
+
+/// The lying-down warning: by the skeleton's trunk when it has one (leaning over 60°
+/// from up; a half-body avatar with wide arms is wider than tall and stands all the
+/// same), else by the mesh's height against its longest extent.
+fn lying_down(
+    lean_deg: Option<f64>,
+    height_m: f64,
+    longest_m: f64,
+    up: UpAxis,
+) -> Option<MeshWarning> {
+    match lean_deg {
+        Some(lean_deg) => (lean_deg > 60.0).then_some(MeshWarning::TrunkLyingDown { lean_deg, up }),
+        None => (height_m > 0.0 && height_m < 0.5 * longest_m).then_some(MeshWarning::LyingDown {
+            height_m,
+            longest_m,
+            up,
+        }),
+    }
 }
 
 /// Errors loading a character file.
@@ -765,12 +807,11 @@ pub fn build(
         _ => None,
     };
     let mut warnings = warnings;
-    if height > 0.0 && height < 0.5 * size_m && problems.is_empty() {
-        warnings.push(MeshWarning::LyingDown {
-            height_m: height,
-            longest_m: size_m,
-            up: spec.mesh.up,
-        });
+    let lean_deg = skeleton
+        .as_ref()
+        .and_then(|s| trunk_lean_deg(s, &joint_roles));
+    if problems.is_empty() {
+        warnings.extend(lying_down(lean_deg, height, size_m, spec.mesh.up));
     }
     let params = bind_params(&spec.bind, size_m, cell_choice.as_ref(), &mut problems);
     if let Some(v) = spec.calibration.marker_scale {
@@ -1529,6 +1570,34 @@ fn degrees_of(radians: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Lying down is judged by the trunk: a half-body avatar with wide arms is wider
+    /// than tall and stands; a trunk along the floor lies whatever the extents say.
+    #[test]
+    fn lying_down_is_judged_by_the_trunk_when_there_is_one() {
+        let body = crate::character::demo::demo_body();
+        let roles = recognise(&body.skeleton.joints, &[]);
+        let upright = trunk_lean_deg(&body.skeleton, &roles).expect("hips and head");
+        assert!(upright < 5.0, "{upright}");
+        let mut joints = body.skeleton.joints.clone();
+        for j in &mut joints {
+            j.rest = y_up_from_z_up(j.rest);
+        }
+        let lying = Skeleton::new(joints).expect("a skeleton");
+        let lean = trunk_lean_deg(&lying, &roles).expect("hips and head");
+        assert!(lean > 85.0, "{lean}");
+        assert!(lying_down(Some(upright), 0.8, 1.7, UpAxis::Y).is_none());
+        assert!(matches!(
+            lying_down(Some(lean), 1.7, 1.7, UpAxis::Z),
+            Some(MeshWarning::TrunkLyingDown { .. })
+        ));
+        // No trunk (a hand): the mesh's extents.
+        assert!(matches!(
+            lying_down(None, 0.3, 1.7, UpAxis::Y),
+            Some(MeshWarning::LyingDown { .. })
+        ));
+        assert!(lying_down(None, 1.7, 1.7, UpAxis::Y).is_none());
+    }
 
     #[test]
     fn limits_in_degrees_read_back_to_the_bit() {
