@@ -5,7 +5,7 @@
 //!
 //! ```toml
 //! [mesh]
-//! path = "right.glb"          # .glb, .gltf or .obj, relative to this file
+//! path = "right.glb"          # .glb, .gltf, .vrm or .obj, relative to this file
 //! units = "m"                 # m, dm, cm, mm or in
 //! up = "y"                    # y or z
 //!
@@ -290,6 +290,9 @@ pub enum MeshWarning {
         longest_m: f64,
         up: UpAxis,
     },
+    /// Skin joints that sat on their parents, merged into them (name, parent).
+    #[error("{} joint{} of the skin sat on {} parent{} (bones of no length) and {} merged into {}: {}", .merged.len(), if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "its" } else { "their" }, if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "was" } else { "were" }, if .merged.len() == 1 { "it" } else { "them" }, .merged.iter().map(|(j, p)| format!("{j} into {p}")).collect::<Vec<_>>().join(", "))]
+    ZeroLengthBones { merged: Vec<(String, String)> },
     /// The skeleton's hips-to-head line leans far from the declared up axis.
     #[error("the skeleton's hips-to-head line leans {lean_deg:.0}° from up: it looks lying down for up = \"{up}\"; check [mesh] up")]
     TrunkLyingDown { lean_deg: f64, up: UpAxis },
@@ -375,7 +378,9 @@ pub enum CharacterProblem {
     #[error("calibration.marker_scale must be {MIN_MARKER_SCALE} to {MAX_MARKER_SCALE} (character metres per take metre), got {value:?}")]
     MarkerScale { value: f64 },
     /// `mesh.path` has an extension that is not a mesh format.
-    #[error("mesh.path {path:?}: unknown mesh format {extension:?} (use .glb, .gltf or .obj)")]
+    #[error(
+        "mesh.path {path:?}: unknown mesh format {extension:?} (use .glb, .gltf, .vrm or .obj)"
+    )]
     UnknownMeshFormat { path: PathBuf, extension: String },
     /// A vertex is NaN or infinite (in the world frame); `position` as the file gives it.
     #[error("mesh vertex {vertex} is not finite: {position:?}")]
@@ -600,7 +605,7 @@ fn not_a_character_file(path: &Path) -> Option<String> {
     let ext = path.extension()?.to_string_lossy().to_lowercase();
     let name = path.file_name()?.to_string_lossy();
     match ext.as_str() {
-        "glb" | "gltf" | "obj" => Some(format!(
+        "glb" | "gltf" | "vrm" | "obj" => Some(format!(
             "a mesh, not a character file: a character file is TOML that names its mesh, as small as the two lines `[mesh]` and `path = {name:?}` in a file next to it (docs/character.md lists the keys)"
         )),
         "fbx" | "blend" | "dae" | "usd" | "usdz" => Some(
@@ -643,7 +648,8 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         .unwrap_or_default();
     let mesh = match ext.as_str() {
         "obj" => parse_obj(&mesh_bytes, &spec.mesh.groups),
-        "glb" | "gltf" => parse_gltf_file(&mesh_bytes, &mesh_path),
+        // A VRM file is a binary glTF with VRM's extensions.
+        "glb" | "gltf" | "vrm" => parse_gltf_file(&mesh_bytes, &mesh_path),
         other => {
             return Err(CharacterError::Invalid {
                 path: shown,
@@ -773,8 +779,9 @@ pub fn build(
         Vec::new()
     };
     let sk = &spec.skeleton;
+    let mut merged = Vec::new();
     let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
-        skin_joints(sk, &mesh, frame, &mut problems)
+        skin_joints(sk, &mesh, frame, &mut problems, &mut merged)
     } else {
         listed_joints(sk, &mesh, frame, &mut problems)
     };
@@ -807,6 +814,9 @@ pub fn build(
         _ => None,
     };
     let mut warnings = warnings;
+    if !merged.is_empty() {
+        warnings.push(MeshWarning::ZeroLengthBones { merged });
+    }
     let lean_deg = skeleton
         .as_ref()
         .and_then(|s| trunk_lean_deg(s, &joint_roles));
@@ -989,13 +999,15 @@ fn check_surface(mesh: &MeshData, vertices: &[DVec3], weld_tol: f64) -> Vec<Mesh
 }
 
 /// The joints of the glTF skin, parents first (`skeleton.parents` overriding the file's
-/// hierarchy), at their bind-pose positions; with each joint's bind-pose X axis in the
-/// world frame (the default bend axis).
+/// hierarchy), at their bind-pose positions, zero-length bones merged
+/// ([`merge_zero_length_bones`], into `merged`); with each joint's bind-pose X axis in
+/// the world frame (the default bend axis).
 fn skin_joints(
     sk: &SkeletonSpec,
     mesh: &MeshData,
     frame: WorldFrame,
     problems: &mut Vec<CharacterProblem>,
+    merged: &mut Vec<(String, String)>,
 ) -> (Vec<Joint>, Vec<Option<DVec3>>) {
     if mesh.skin_joints.is_empty() {
         problems.push(CharacterProblem::NoSkin);
@@ -1046,7 +1058,47 @@ fn skin_joints(
             frame.direction(m.x_axis.truncate()).normalize_or_zero(),
         ));
     }
-    (joints, skin_x_axis)
+    merge_zero_length_bones(joints, skin_x_axis, merged)
+}
+
+/// `joints` (parents first) with every joint that sits on its parent (within a
+/// millionth of the skeleton's extent: a file's root node above its first bone, an
+/// armature's origin on the hips) merged into it: its children hang from the parent,
+/// and `merged` gets (its name, the parent's). A glTF skin has such joints, and a bone
+/// of no length has no direction to pose.
+fn merge_zero_length_bones(
+    joints: Vec<Joint>,
+    axes: Vec<Option<DVec3>>,
+    merged: &mut Vec<(String, String)>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    let origin = joints.first().map_or(DVec3::ZERO, |j| j.rest);
+    let extent = joints
+        .iter()
+        .map(|j| (j.rest - origin).length())
+        .filter(|d| d.is_finite())
+        .fold(0.0, f64::max);
+    let tol = (1e-6 * extent).max(1e-9);
+    // Each joint's kept stand-in (itself, or the ancestor it merged into), and the kept
+    // joints' new indices.
+    let mut kept_as = vec![usize::MAX; joints.len()];
+    let mut new_index = vec![usize::MAX; joints.len()];
+    let (mut out, mut out_axes) = (Vec::with_capacity(joints.len()), Vec::new());
+    for (i, (j, axis)) in joints.iter().zip(&axes).enumerate() {
+        let parent = j.parent.filter(|&p| p < i).map(|p| kept_as[p]);
+        if let Some(p) = parent.filter(|&p| (joints[p].rest - j.rest).length() <= tol) {
+            kept_as[i] = p;
+            merged.push((j.name.clone(), joints[p].name.clone()));
+            continue;
+        }
+        kept_as[i] = i;
+        new_index[i] = out.len();
+        out.push(Joint {
+            parent: parent.map(|p| new_index[p]),
+            ..j.clone()
+        });
+        out_axes.push(*axis);
+    }
+    (out, out_axes)
 }
 
 /// The joints in the order of passes over them in index order, each pass placing every
@@ -1570,6 +1622,42 @@ fn degrees_of(radians: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A skin's root node sitting on its first bone (the Khronos Fox's) is merged into
+    /// it, and the bones below hang from it; a real bone stays.
+    #[test]
+    fn zero_length_bones_are_merged_into_their_parents() {
+        let joint = |name: &str, parent: Option<usize>, y: f64| Joint {
+            name: name.into(),
+            parent,
+            rest: DVec3::new(0.0, y, 0.0),
+            limits: None,
+            bend_axis: DVec3::X,
+        };
+        let joints = vec![
+            joint("root", None, 1.0),
+            joint("b_Root_00", Some(0), 1.0 + 1e-9),
+            joint("b_Spine", Some(1), 1.3),
+            joint("b_Hip_L", Some(1), 0.9),
+            joint("b_Spine_end", Some(2), 1.3),
+        ];
+        let axes = vec![Some(DVec3::X); joints.len()];
+        let mut merged = Vec::new();
+        let (out, axes) = merge_zero_length_bones(joints, axes, &mut merged);
+        let names: Vec<&str> = out.iter().map(|j| j.name.as_str()).collect();
+        assert_eq!(names, ["root", "b_Spine", "b_Hip_L"]);
+        let parents: Vec<Option<usize>> = out.iter().map(|j| j.parent).collect();
+        assert_eq!(parents, [None, Some(0), Some(0)]);
+        assert_eq!(axes.len(), 3);
+        assert_eq!(
+            merged,
+            [
+                ("b_Root_00".to_string(), "root".to_string()),
+                ("b_Spine_end".to_string(), "b_Spine".to_string())
+            ]
+        );
+        assert!(Skeleton::new(out).is_ok());
+    }
 
     /// Lying down is judged by the trunk: a half-body avatar with wide arms is wider
     /// than tall and stands; a trunk along the floor lies whatever the extents say.
