@@ -83,6 +83,33 @@ pub struct ExerciseReport {
     pub green_ms_p50: f64,
 }
 
+/// Largest excess over a joint limit the exercise lets pass, degrees: the posture fit
+/// clamps to the limits within half a degree, and a marker's pull may stretch a joint a
+/// few degrees past them; more is a joint the solve does not hold.
+pub const LIMIT_OVERSHOOT_DEG: f64 = 5.0;
+
+impl ExerciseReport {
+    /// What the exercise found wrong: control tets inverted in any frame (the mesh folds
+    /// through itself there), and joints past their limits by more than
+    /// [`LIMIT_OVERSHOOT_DEG`]. Empty when it went well.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.inverted_tets_max > 0 {
+            out.push(format!(
+                "{} control tets inverted in one frame: the mesh folds through itself there (a finer [bind] cell_size_m, or tighter limits on the joint)",
+                self.inverted_tets_max
+            ));
+        }
+        if self.joint_limit_violation_deg_max > LIMIT_OVERSHOOT_DEG {
+            out.push(format!(
+                "a joint went {:.1}° past its limit (over {LIMIT_OVERSHOOT_DEG}°): the solve does not hold it; check its [skeleton.limits] and bend axis",
+                self.joint_limit_violation_deg_max
+            ));
+        }
+        out
+    }
+}
+
 /// Joints the exercise moves one at a time: those with children, the root apart (it
 /// moves the whole character rigidly, in the combined part).
 fn moving_joints(sk: &Skeleton) -> Vec<usize> {
@@ -331,6 +358,16 @@ mod tests {
             r.frame_ms_p50 > 0.0 && r.frame_ms_p99 >= r.frame_ms_p50,
             "{r:?}"
         );
+        assert!(r.problems().is_empty(), "{:?}", r.problems());
+        // What the summary calls a problem: one inverted tet, a joint 6° past its limit
+        // (5° is let pass).
+        let mut bad = r.clone();
+        bad.inverted_tets_max = 1;
+        assert_eq!(bad.problems().len(), 1);
+        bad.joint_limit_violation_deg_max = 5.0;
+        assert_eq!(bad.problems().len(), 1);
+        bad.joint_limit_violation_deg_max = 6.0;
+        assert_eq!(bad.problems().len(), 2, "{:?}", bad.problems());
     }
 
     /// A character without markers is exercised with one marker per bone.

@@ -128,6 +128,7 @@ fn exercise(loaded: &LoadedCharacter, json: bool) -> Result<()> {
         let mut v = serde_json::to_value(&r)?;
         v["roles"] = serde_json::to_value(&loaded.roles)?;
         v["warnings"] = loaded.warnings.iter().map(ToString::to_string).collect();
+        v["problems"] = r.problems().into();
         println!("{v}");
         return Ok(());
     }
@@ -157,5 +158,12 @@ fn exercise(loaded: &LoadedCharacter, json: bool) -> Result<()> {
         100.0 * r.bone_length_error_max,
         r.marker_residual_mm_max
     );
+    let problems = r.problems();
+    if problems.is_empty() {
+        println!("problems       none");
+    }
+    for p in &problems {
+        println!("PROBLEM        {p}");
+    }
     Ok(())
 }
