@@ -275,9 +275,14 @@ fn bad_files_are_clear_errors() {
     ] {
         assert!(e.contains(want), "missing {want:?} in:\n{e}");
     }
-    let e = broken(|t| t.replacen("[mesh]\n", "[mesh]\nscale = 2\n", 1), same);
+    let e = broken(|t| t.replacen("[mesh]\n", "[mesh]\nscale = 0\n", 1), same);
     assert!(
-        e.contains("unknown field `scale`") && e.contains("line"),
+        e.contains("mesh.scale must be 0.001 to 1000, got 0.0"),
+        "{e}"
+    );
+    let e = broken(|t| t.replacen("[mesh]\n", "[mesh]\nscaling = 2\n", 1), same);
+    assert!(
+        e.contains("unknown field `scaling`") && e.contains("line"),
         "{e}"
     );
     // A joint with no bone: a skeleton of one joint.

@@ -13,6 +13,7 @@ pub mod export;
 pub mod gapfill;
 pub mod live;
 pub mod replay;
+pub mod truth;
 
 use crate::runtime::stats::percentile;
 use std::io::Write;
@@ -38,6 +39,9 @@ pub enum Suite {
     Calibration,
     /// `rigless replay --export`'s speed: takes solved off line into a point cache.
     Export,
+    /// Known truth on real assets: their own animations through their own skinning,
+    /// a marker set on the skin, calibrated and solved, held against the skinned mesh.
+    Truth,
 }
 
 /// How the suites run.
@@ -93,6 +97,7 @@ pub fn run_suite(suite: Suite, opts: &BenchOptions, out: &mut dyn Write) -> Resu
         Suite::Replay => replay::suite(opts.seconds, opts.json, out),
         Suite::Calibration => calibration::suite(&opts.data, opts.json, out),
         Suite::Export => export::suite(opts.json, out),
+        Suite::Truth => truth::suite(&opts.data, opts.json, out),
     }
 }
 

@@ -28,7 +28,7 @@ pub mod solve;
 
 use crate::character::bind_params::BindParams;
 use crate::character::mesh::welded_outward;
-use crate::character::roles::Role;
+use crate::character::roles::{Part, Role};
 use crate::character::{Character, MarkerDef};
 use crate::geom::winding::WindingNumber;
 use crate::rig::bind::{BindError, BindStage, Rig};
@@ -172,6 +172,9 @@ pub struct Calibration {
     /// When the layout was fitted on the frames near the rest-like frame alone because
     /// the whole span fitted far worse: the whole span's misfit RMS, take millimetres.
     pub whole_span_mm: Option<f64>,
+    /// The character's standing height, metres, when it stands on legs and has a head
+    /// (the actor's is this over the scale).
+    pub standing_height_m: Option<f64>,
 }
 
 /// How far a calibration can be trusted.
@@ -219,7 +222,15 @@ pub enum Concern {
     Flagged { labels: Vec<String> },
     /// The layout was fitted near the rest-like frame; the whole span fits it far worse.
     WholeSpan { near_mm: f64, whole_mm: f64 },
+    /// The actor the scale implies (a standing character's height over the scale) is
+    /// outside [`HUMAN_HEIGHT_M`]: the markers' sizes and distances from the skin, which
+    /// the fit takes as a person's, do not hold.
+    ActorSize { height_m: f64 },
 }
+
+/// Heights of a person wearing markers, metres (a small child to a tall adult); a
+/// standing character's take whose actor comes out outside it is doubtful.
+pub const HUMAN_HEIGHT_M: std::ops::RangeInclusive<f64> = 0.9..=2.5;
 
 impl Concern {
     /// The verdict this concern calls for.
@@ -227,9 +238,10 @@ impl Concern {
         match self {
             Concern::Scale { .. } | Concern::FewPlaced { .. } => Verdict::Failed,
             Concern::Misfit { limit_mm, .. } if *limit_mm >= FAILED_MISFIT_MM => Verdict::Failed,
-            Concern::Misfit { .. } | Concern::Flagged { .. } | Concern::WholeSpan { .. } => {
-                Verdict::Doubtful
-            }
+            Concern::Misfit { .. }
+            | Concern::Flagged { .. }
+            | Concern::WholeSpan { .. }
+            | Concern::ActorSize { .. } => Verdict::Doubtful,
         }
     }
 }
@@ -265,6 +277,15 @@ impl std::fmt::Display for Concern {
                 "fitted on the frames within {NEAR_REST_S} s of the rest-like frame ({near_mm:.1} mm \
                  RMS): over the whole take it fits at {whole_mm:.1} mm, poses the character's \
                  joint limits do not reach or markers that slide; a replay misfits there"
+            ),
+            Concern::ActorSize { height_m } => write!(
+                f,
+                "the actor would be {height_m:.2} m tall, outside {}..{} m: a person's markers \
+                 on a character this size are too big and too far from its skin for a fit to \
+                 be trusted; give the character its real size ([mesh] scale or units) or check the \
+                 take's units",
+                HUMAN_HEIGHT_M.start(),
+                HUMAN_HEIGHT_M.end()
             ),
             Concern::Flagged { labels } => write!(
                 f,
@@ -310,6 +331,11 @@ impl Calibration {
             .collect();
         if !flagged.is_empty() {
             out.push(Concern::Flagged { labels: flagged });
+        }
+        if let Some(height_m) = self.standing_height_m.map(|h| h / self.scale) {
+            if !HUMAN_HEIGHT_M.contains(&height_m) && GOOD_SCALE.contains(&self.scale) {
+                out.push(Concern::ActorSize { height_m });
+            }
         }
         if let Some(whole_mm) = self.whole_span_mm {
             out.push(Concern::WholeSpan {
@@ -571,7 +597,13 @@ pub fn calibrate(
             best = Some((cal, (on_skin, cost)));
         }
     }
-    best.map(|b| b.0).ok_or_else(|| CalibrationError::NoFrames {
+    let has_head = roles.iter().flatten().any(|r| r.part == Part::Head);
+    let standing = (stance.turn == Turn::Yaw && has_head).then_some(stance.height);
+    best.map(|b| Calibration {
+        standing_height_m: standing,
+        ..b.0
+    })
+    .ok_or_else(|| CalibrationError::NoFrames {
         take: rec.name.to_owned(),
     })
 }
@@ -1345,5 +1377,6 @@ fn finish(
         declined_set: plan.declined.map(|(s, n)| (s.name, n)),
         rest_frame,
         whole_span_mm: None,
+        standing_height_m: None,
     }
 }

@@ -134,6 +134,14 @@ impl Units {
     }
 }
 
+/// Smallest and largest `mesh.scale`.
+pub const MIN_MESH_SCALE: f64 = 1e-3;
+pub const MAX_MESH_SCALE: f64 = 1e3;
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
 /// Up axis of a mesh file.
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
 #[serde(rename_all = "lowercase")]
@@ -163,6 +171,11 @@ pub struct MeshSpec {
     /// Length unit of the mesh file.
     #[serde(default)]
     pub units: Units,
+    /// Multiplies the mesh (and its skeleton) after its units: a character modelled at
+    /// another size than it is meant to have (a person exported 0.2 m tall: 8.5), from
+    /// [`MIN_MESH_SCALE`] to [`MAX_MESH_SCALE`].
+    #[serde(default = "unit_scale")]
+    pub scale: f64,
     /// Up axis of the mesh file.
     #[serde(default)]
     pub up: UpAxis,
@@ -374,6 +387,9 @@ fn join_problems(problems: &[CharacterProblem]) -> String {
 /// triangle numbers are 0-based in the mesh file's order.
 #[derive(Debug, PartialEq, thiserror::Error)]
 pub enum CharacterProblem {
+    /// `mesh.scale` is out of range.
+    #[error("mesh.scale must be {MIN_MESH_SCALE} to {MAX_MESH_SCALE}, got {value:?}")]
+    MeshScale { value: f64 },
     /// `calibration.marker_scale` is out of range.
     #[error("calibration.marker_scale must be {MIN_MARKER_SCALE} to {MAX_MARKER_SCALE} (character metres per take metre), got {value:?}")]
     MarkerScale { value: f64 },
@@ -755,6 +771,10 @@ pub fn build(
     mesh: MeshData,
 ) -> Result<Built, Vec<CharacterProblem>> {
     let mut problems = Vec::new();
+    let scale = spec.mesh.scale;
+    if !(scale.is_finite() && (MIN_MESH_SCALE..=MAX_MESH_SCALE).contains(&scale)) {
+        problems.push(CharacterProblem::MeshScale { value: scale });
+    }
     let frame = WorldFrame::of(&spec.mesh);
     let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
     // Settings scale with the character's size (its longest extent), not its height: a
@@ -869,8 +889,13 @@ struct WorldFrame {
 impl WorldFrame {
     /// The frame `[mesh]` describes.
     fn of(mesh: &MeshSpec) -> Self {
+        let scale = if mesh.scale.is_finite() && mesh.scale > 0.0 {
+            mesh.scale
+        } else {
+            1.0
+        };
         WorldFrame {
-            metres: mesh.units.metres(),
+            metres: mesh.units.metres() * scale,
             up: mesh.up,
         }
     }

@@ -29,6 +29,10 @@ pub struct MeshData {
     pub source_positions: Vec<DVec3>,
     /// Joints of the first skin (glTF), parents before children.
     pub skin_joints: Vec<SkinJoint>,
+    /// When the skinned vertices were posed at rest (a glTF file whose rest pose is not
+    /// its bind pose): every vertex as the file stores it, skinned ones in bind space.
+    /// Empty otherwise.
+    pub bind_positions: Vec<DVec3>,
     /// The file's parts, in output order: every glTF triangle primitive, or every run of
     /// an OBJ file's faces under one group.
     pub parts: Vec<MeshPart>,
@@ -288,6 +292,9 @@ pub enum SkinProblem {
     },
     #[error("{joints} joints but {matrices} inverse bind matrices")]
     MatrixCount { joints: usize, matrices: usize },
+    /// A skinned primitive's joints or weights, which posing it at rest needs.
+    #[error("{at}: {detail}")]
+    Weights { at: PrimitiveAt, detail: String },
 }
 
 /// A primitive of a mesh, as errors name it.
@@ -474,6 +481,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
         triangles,
         source_positions: positions,
         skin_joints: Vec::new(),
+        bind_positions: Vec::new(),
         parts,
     })
 }
@@ -559,6 +567,53 @@ pub fn parse_gltf(bytes: &[u8], base: Option<&Path>) -> Result<MeshData, MeshErr
 
 /// [`parse_gltf`], naming the file as `file` in a [`MeshError::Panicked`].
 fn parse_glb_or_gltf(bytes: &[u8], base: Option<&Path>, file: &str) -> Result<MeshData, MeshError> {
+    parse_document(bytes, base, file).map(|(_, _, mesh)| mesh)
+}
+
+/// A glTF file opened for its scene graph, skins and animations
+/// ([`crate::character::animation`] plays them): the `gltf` crate's document and each
+/// buffer's bytes, after every check of [`parse_gltf`], and the mesh as [`read_gltf`]
+/// reads it.
+pub struct GltfSource {
+    /// Validated, its indices in range (checked here before the crate's types are used).
+    pub document: gltf::Document,
+    /// Distinct buffer sources, and which one each buffer uses.
+    data: Vec<Vec<u8>>,
+    source: Vec<usize>,
+    pub mesh: MeshData,
+}
+
+impl GltfSource {
+    /// Buffer `b`'s bytes.
+    pub fn buffer(&self, b: usize) -> Option<&[u8]> {
+        self.data.get(*self.source.get(b)?).map(Vec::as_slice)
+    }
+}
+
+/// Opens the glTF file at `path` as [`read_gltf`] reads it, keeping its document and
+/// buffers.
+pub fn open_gltf(path: &Path) -> Result<GltfSource, MeshError> {
+    let bytes = read_bounded(path, MAX_DATA_BYTES).map_err(|source| MeshError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let file = path.display().to_string();
+    let (root, buffers, mesh) = parse_document(&bytes, path.parent(), &file)?;
+    let Buffers { data, source, .. } = buffers;
+    Ok(GltfSource {
+        document: gltf::Document::from_json_without_validation(root),
+        data: data.into_iter().map(std::borrow::Cow::into_owned).collect(),
+        source,
+        mesh,
+    })
+}
+
+/// The checked document, its buffers and its mesh ([`parse_gltf`]'s steps).
+fn parse_document<'a>(
+    bytes: &'a [u8],
+    base: Option<&Path>,
+    file: &str,
+) -> Result<(gltf::json::Root, Buffers<'a>, MeshData), MeshError> {
     let (json, bin) = if bytes.starts_with(b"glTF") {
         split_glb(bytes).map_err(|problem| MeshError::Glb { problem })?
     } else {
@@ -584,10 +639,17 @@ fn parse_glb_or_gltf(bytes: &[u8], base: Option<&Path>, file: &str) -> Result<Me
         .iter()
         .filter(|n| n.mesh.is_some())
         .find_map(|n| n.skin);
-    if let Some(skin) = first_skin {
-        out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest)?;
+    let bind_positions = out.positions.clone();
+    let posed = pose_at_rest(&root, &layouts, &buffers, &world, &mut out)?;
+    if posed {
+        out.source_positions = out.positions.clone();
+        out.bind_positions = bind_positions;
     }
-    Ok(out)
+    if let Some(skin) = first_skin {
+        let world = posed.then_some(world.as_slice());
+        out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest, world)?;
+    }
+    Ok((root, buffers, out))
 }
 
 /// Runs a call into the `gltf` crate, turning a panic into [`MeshError::Panicked`]. The
@@ -1760,22 +1822,235 @@ fn read_meshes(
     Ok(out)
 }
 
-/// The joints of skin `s`, parents first (by depth among the joints, the skin's order
-/// among equals), each with the nearest ancestor that is a joint as its parent.
-fn read_skin(
+/// Largest difference of a skinning matrix at rest from the identity that still counts
+/// as the identity: on its rotation and scale entries, and on its translation as a share
+/// of the mesh's extent (float rounding in exporters stays below 1e-5).
+const REST_IS_BIND: f64 = 1e-4;
+
+/// Poses every skinned primitive of `out` by its skin's joints at their rest transforms
+/// (glTF 2.0 §3.7.3: `Σ_k w_k · world_k · inverse_bind_k · v`, what a viewer shows of the
+/// file unanimated), when that differs from the bind pose the positions are stored in:
+/// an armature carrying a unit scale and an axis turn above its joints (Mixamo exports
+/// through Blender: a 0.01 scale and Z up), or a rest pose other than the bind pose.
+/// Whether any was posed (then the skeleton is read at rest too).
+fn pose_at_rest(
+    root: &gltf::json::Root,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    world: &[DMat4],
+    out: &mut MeshData,
+) -> Result<bool, MeshError> {
+    let (lo, hi) = out.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), p| (a.min(*p), b.max(*p)),
+    );
+    let extent = (hi - lo).max_element().max(f64::MIN_POSITIVE);
+    let off_bind = |m: &DMat4| {
+        let d = *m - DMat4::IDENTITY;
+        let linear = (0..3).flat_map(|c| (0..3).map(move |r| (c, r)));
+        linear.map(|(c, r)| d.col(c)[r].abs()).fold(0.0, f64::max) > REST_IS_BIND
+            || d.w_axis.truncate().abs().max_element() > REST_IS_BIND * extent
+    };
+    let mut skinning: Vec<Option<Vec<DMat4>>> = Vec::with_capacity(root.skins.len());
+    for s in 0..root.skins.len() {
+        let ibm = inverse_binds(root, s, layouts, buffers)?;
+        let m: Vec<DMat4> = root.skins[s]
+            .joints
+            .iter()
+            .zip(&ibm)
+            .map(|(j, ibm)| world.get(j.value()).copied().unwrap_or(DMat4::IDENTITY) * *ibm)
+            .collect();
+        skinning.push(m.iter().any(off_bind).then_some(m));
+    }
+    if skinning.iter().all(Option::is_none) {
+        return Ok(false);
+    }
+    let mut part = 0;
+    let mut posed = false;
+    let mut joints: Vec<[u32; 4]> = Vec::new();
+    let mut weights: Vec<[f64; 4]> = Vec::new();
+    for node in &root.nodes {
+        let Some((m, mesh)) = node
+            .mesh
+            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
+        else {
+            continue;
+        };
+        for (p, prim) in mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_triangles(p))
+        {
+            let Some(range) = out
+                .parts
+                .get(part)
+                .map(|q| q.first_vertex as usize..(q.first_vertex + q.vertex_count) as usize)
+            else {
+                continue;
+            };
+            part += 1;
+            let Some(Some(mats)) = node
+                .skin
+                .map(|s| skinning.get(s.value()).cloned().flatten())
+            else {
+                continue;
+            };
+            let at = PrimitiveAt {
+                mesh: m,
+                name: mesh.name.clone(),
+                primitive: p,
+            };
+            let skin = node.skin.map_or(0, |s| s.value());
+            let err = |detail: String| MeshError::Skin {
+                skin,
+                problem: SkinProblem::Weights {
+                    at: at.clone(),
+                    detail,
+                },
+            };
+            // A skinned primitive without joints or weights (against the specification)
+            // stays as stored.
+            let has = |sem| {
+                use gltf::json::validation::Checked;
+                prim.attributes.contains_key(&Checked::Valid(sem))
+            };
+            use gltf::json::mesh::Semantic;
+            if !(has(Semantic::Joints(0)) && has(Semantic::Weights(0))) {
+                continue;
+            }
+            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(&err)?;
+            if joints.len() != range.len() || weights.len() != range.len() {
+                return Err(err(format!(
+                    "{} vertices but {} JOINTS_0 and {} WEIGHTS_0",
+                    range.len(),
+                    joints.len(),
+                    weights.len()
+                )));
+            }
+            for (k, v) in range.enumerate() {
+                let (j, w) = (joints[k], weights[k]);
+                let sum: f64 = w.iter().sum();
+                if sum.is_nan() || sum <= 0.0 {
+                    return Err(err(format!("vertex {k} has no positive weight")));
+                }
+                let mut x = DVec3::ZERO;
+                for c in 0..4 {
+                    if w[c] > 0.0 {
+                        let m = mats.get(j[c] as usize).ok_or_else(|| {
+                            err(format!("vertex {k} names joint {} of {}", j[c], mats.len()))
+                        })?;
+                        x += w[c] / sum * m.transform_point3(out.positions[v]);
+                    }
+                }
+                out.positions[v] = x;
+            }
+            posed = true;
+        }
+    }
+    Ok(posed)
+}
+
+/// A primitive's `JOINTS_0` (unsigned bytes or shorts) and `WEIGHTS_0` (floats, or
+/// normalised unsigned bytes or shorts), non-finite and negative weights read as 0.
+fn read_influences(
+    prim: &gltf::json::mesh::Primitive,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    joints: &mut Vec<[u32; 4]>,
+    weights: &mut Vec<[f64; 4]>,
+) -> Result<(), String> {
+    use gltf::json::accessor::{ComponentType, Type};
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked;
+    let get = |sem: Semantic, what: &str| -> Result<(usize, &Layout), String> {
+        let a = prim
+            .attributes
+            .get(&Checked::Valid(sem))
+            .ok_or_else(|| format!("no {what}"))?
+            .value();
+        let l = layouts.get(a).ok_or_else(|| format!("no {what}"))?;
+        if l.kind != Type::Vec4 {
+            return Err(format!(
+                "{what} accessors[{a}] is {}, not VEC4",
+                type_name(l.kind)
+            ));
+        }
+        Ok((a, l))
+    };
+    let (ja, jl) = get(Semantic::Joints(0), "JOINTS_0")?;
+    let (wa, wl) = get(Semantic::Weights(0), "WEIGHTS_0")?;
+    let jsize = match jl.component {
+        ComponentType::U8 => 1,
+        ComponentType::U16 => 2,
+        c => {
+            return Err(format!(
+                "JOINTS_0 accessors[{ja}] has componentType {}",
+                c.as_gl_enum()
+            ))
+        }
+    };
+    joints.clear();
+    weights.clear();
+    read_accessor(
+        jl,
+        ja,
+        buffers,
+        |b| std::array::from_fn(|k| le_uint(b.get(k * jsize..).unwrap_or(&[]), jsize)),
+        joints,
+    )
+    .map_err(|e| e.to_string())?;
+    let clean = |x: f64| if x.is_finite() && x > 0.0 { x } else { 0.0 };
+    let decoded = match wl.component {
+        ComponentType::F32 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| std::array::from_fn(|k| clean(le_f32(b, k).into())),
+            weights,
+        ),
+        ComponentType::U8 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| std::array::from_fn(|k| f64::from(*b.get(k).unwrap_or(&0)) / 255.0),
+            weights,
+        ),
+        ComponentType::U16 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| {
+                std::array::from_fn(|k| {
+                    f64::from(le_uint(b.get(2 * k..).unwrap_or(&[]), 2)) / 65535.0
+                })
+            },
+            weights,
+        ),
+        c => {
+            return Err(format!(
+                "WEIGHTS_0 accessors[{wa}] has componentType {}",
+                c.as_gl_enum()
+            ))
+        }
+    };
+    decoded.map_err(|e| e.to_string())
+}
+
+/// Skin `s`'s inverse bind matrices (identities when it gives none).
+fn inverse_binds(
     root: &gltf::json::Root,
     s: usize,
     layouts: &[Layout],
     buffers: &Buffers,
-    forest: &Forest,
-) -> Result<Vec<SkinJoint>, MeshError> {
+) -> Result<Vec<DMat4>, MeshError> {
     use gltf::json::accessor::{ComponentType, Type};
     let Some(skin) = root.skins.get(s) else {
         return Ok(Vec::new());
     };
     let err = |problem| MeshError::Skin { skin: s, problem };
-    let joints: Vec<usize> = skin.joints.iter().map(|j| j.value()).collect();
-    let ibm: Vec<DMat4> = match skin.inverse_bind_matrices.map(|a| a.value()) {
+    let joints = skin.joints.len();
+    Ok(match skin.inverse_bind_matrices.map(|a| a.value()) {
         Some(a) => {
             let layout = &layouts[a];
             if layout.kind != Type::Mat4 || layout.component != ComponentType::F32 {
@@ -1785,20 +2060,39 @@ fn read_skin(
                     component_type: layout.component.as_gl_enum(),
                 }));
             }
-            if layout.count != joints.len() {
+            if layout.count != joints {
                 return Err(err(SkinProblem::MatrixCount {
-                    joints: joints.len(),
+                    joints,
                     matrices: layout.count,
                 }));
             }
             let matrix =
                 |b: &[u8]| DMat4::from_cols_array(&std::array::from_fn(|k| le_f32(b, k).into()));
-            let mut m = Vec::with_capacity(joints.len());
+            let mut m = Vec::with_capacity(joints);
             read_accessor(layout, a, buffers, matrix, &mut m)?;
             m
         }
-        None => vec![DMat4::IDENTITY; joints.len()],
+        None => vec![DMat4::IDENTITY; joints],
+    })
+}
+
+/// The joints of skin `s`, parents first (by depth among the joints, the skin's order
+/// among equals), each with the nearest ancestor that is a joint as its parent; placed
+/// by the inverse bind matrices, or by the nodes' rest transforms `posed_at` when the
+/// mesh was posed at rest ([`pose_at_rest`]).
+fn read_skin(
+    root: &gltf::json::Root,
+    s: usize,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    forest: &Forest,
+    posed_at: Option<&[DMat4]>,
+) -> Result<Vec<SkinJoint>, MeshError> {
+    let Some(skin) = root.skins.get(s) else {
+        return Ok(Vec::new());
     };
+    let joints: Vec<usize> = skin.joints.iter().map(|j| j.value()).collect();
+    let ibm = inverse_binds(root, s, layouts, buffers)?;
     // Down the forest once: each node's nearest ancestor that is a joint, and each
     // joint's parent joint and depth among the joints.
     let slot: HashMap<usize, usize> = joints.iter().enumerate().map(|(k, &n)| (n, k)).collect();
@@ -1836,7 +2130,10 @@ fn read_skin(
             SkinJoint {
                 name,
                 parent: joint_parent[k].map(|p| new_index[p]),
-                world_from_joint: ibm[k].inverse(),
+                world_from_joint: match posed_at {
+                    Some(world) => world.get(node).copied().unwrap_or(DMat4::IDENTITY),
+                    None => ibm[k].inverse(),
+                },
             }
         })
         .collect())

@@ -2,6 +2,7 @@
 //! marker layout; plus the procedural characters and motions (with known truth) used by
 //! the demo, the tests and the benchmarks.
 
+pub mod animation;
 pub mod bind_params;
 pub mod body;
 pub mod cell_size;

@@ -528,7 +528,11 @@ fn chain_roles(
             Said::Part(p, _) if side[c] == side[i] => Some(p),
             _ => None,
         });
+        // A limb word on a joint with no child at all is the whole limb, hanging from
+        // the trunk (Kenney's `leg-left`): its upper part.
+        let whole = children[i].is_empty();
         let lone = match (leg, next) {
+            (true, _) if whole => Part::UpperLeg,
             (true, Some(Part::LowerLeg)) => Part::UpperLeg,
             (true, _) => Part::LowerLeg,
             (false, Some(Part::Hand)) => Part::LowerArm,
@@ -1413,8 +1417,34 @@ mod tests {
     }
 
     #[test]
+    fn a_limb_without_children_is_the_whole_limb() {
+        // Kenney's mini characters: one joint per limb, nothing below it.
+        let joints = names_tree(&[
+            ("root", None),
+            ("leg-left", Some("root")),
+            ("leg-right", Some("root")),
+            ("torso", Some("root")),
+            ("arm-left", Some("torso")),
+            ("head", Some("torso")),
+        ]);
+        let roles = recognise(&joints, &[]);
+        for (name, want) in [
+            ("leg-left", "leftUpperLeg"),
+            ("leg-right", "rightUpperLeg"),
+            ("arm-left", "leftUpperArm"),
+        ] {
+            assert_eq!(role_of(&joints, &roles, name), want, "{name}");
+        }
+    }
+
+    #[test]
     fn overrides_replace_what_names_say() {
-        let joints = names_tree(&[("a", None), ("b", Some("a")), ("LeftLeg", Some("b"))]);
+        let joints = names_tree(&[
+            ("a", None),
+            ("b", Some("a")),
+            ("LeftLeg", Some("b")),
+            ("LeftFoot", Some("LeftLeg")),
+        ]);
         let knee = Role {
             part: Part::LowerLeg,
             side: Some(Side::Left),
@@ -1425,7 +1455,7 @@ mod tests {
         };
         assert_eq!(recognise(&joints, &[])[2], Some(knee));
         let roles = recognise(&joints, &[(0, Some(hips)), (2, None)]);
-        assert_eq!(roles, vec![Some(hips), None, None]);
+        assert_eq!(roles[..3], [Some(hips), None, None]);
     }
 
     #[test]

@@ -1,0 +1,628 @@
+//! The `truth` suite: known truth on real assets. Each skinned glTF asset of the shared
+//! data folder plays its own animations through its own skinning
+//! ([`crate::character::animation`]); a Plug-in Gait marker set ([`LANDMARKS`]) is put on
+//! its skin at rest, 8 mm out (a 14 mm marker on its base, scaled with the character),
+//! and follows the posed skin. The take those markers make is calibrated onto the asset
+//! with its layout unknown, as a user's take would be, and solved through the live
+//! pipeline; the solve is then held against the skinned mesh.
+//!
+//! Per case: the calibration's verdict, scale error (the truth is 1) and placement error
+//! (each placed label's rest position against its true one); the vertex error (mean over
+//! the mesh, as a share of the character's height) of the mean frame and the worst; the
+//! worst head and trunk orientation error (each joint's rotation from rest against the
+//! skinning's); and the lowest vertex against the true lowest.
+
+use super::assets::gltf_file;
+use super::{json_line, BenchError};
+use crate::calibrate::marker_sets::{candidate_joints, normalise};
+use crate::calibrate::{calibrate, CalibrationOptions, Verdict};
+use crate::character::animation::{Clip, SkinnedAsset};
+use crate::character::file::{load_character, LoadedCharacter};
+use crate::character::roles::{Part, Role, Side};
+use crate::daemon::offline::{replay_offline_with, OfflineOptions};
+use crate::geom::polar::{rotation_angle_between, rotation_of};
+use crate::replay::recording::Recording;
+use crate::solve::frame::SolverParams;
+use glam::{DMat3, DMat4, DQuat, DVec3};
+use std::io::Write;
+use std::ops::ControlFlow;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The take's rate, Hz (the replay's too: tick `i` is frame `i`).
+const RATE_HZ: f64 = 120.0;
+/// Shortest take, seconds: a short clip is played again until it lasts this long.
+const MIN_TAKE_S: f64 = 4.0;
+/// A marker's centre above the skin, metres (a 14 mm marker: 7 mm, plus its base),
+/// whatever the character's size: the take is at the character's size, and a marker is
+/// a marker.
+const MARKER_OUT_M: f64 = 0.008;
+
+/// Which joint of a part anchors a landmark.
+#[derive(Clone, Copy, Debug)]
+enum Pick {
+    /// The first joint with the role (parents first).
+    First,
+    /// The last (the top of a spine chain).
+    Last,
+    /// The middle one.
+    Middle,
+}
+
+/// A landmark of the marker set: label (`{S}` for the side letter), the part whose joint
+/// anchors it, which of several, how far along the part's bone (0 at its joint, 1 at its
+/// end; below 0 before the joint), and the direction out to the skin in the body's axes
+/// (front, up, away from the midline; orthogonalised against the bone).
+type Landmark = (&'static str, Part, Pick, f64, [f64; 3]);
+
+/// Vicon Plug-in Gait's 39 markers, placed as its manual places them, roughly: what
+/// matters here is that each sits on the skin of the part its table names.
+const LANDMARKS: &[Landmark] = &[
+    ("{S}FHD", Part::Head, Pick::First, 0.5, [1.0, 0.4, 0.6]),
+    ("{S}BHD", Part::Head, Pick::First, 0.5, [-1.0, 0.4, 0.6]),
+    ("C7", Part::Spine, Pick::Last, 1.0, [-1.0, 0.3, 0.0]),
+    ("CLAV", Part::Spine, Pick::Last, 1.0, [1.0, 0.0, 0.0]),
+    ("T10", Part::Spine, Pick::Middle, 0.5, [-1.0, 0.0, 0.0]),
+    ("STRN", Part::Spine, Pick::Middle, 1.0, [1.0, 0.0, 0.0]),
+    // On the right scapula: "away from the midline" is the left, so negative.
+    ("RBAK", Part::Spine, Pick::Last, 0.5, [-1.0, 0.0, -0.6]),
+    ("{S}SHO", Part::UpperArm, Pick::First, 0.0, [0.0, 1.0, 0.2]),
+    ("{S}UPA", Part::UpperArm, Pick::First, 0.5, [-0.3, 0.0, 1.0]),
+    ("{S}ELB", Part::UpperArm, Pick::First, 1.0, [-1.0, 0.0, 0.5]),
+    ("{S}FRM", Part::LowerArm, Pick::First, 0.5, [0.0, 1.0, 0.5]),
+    ("{S}WRA", Part::LowerArm, Pick::First, 1.0, [1.0, 0.0, 0.0]),
+    ("{S}WRB", Part::LowerArm, Pick::First, 1.0, [-1.0, 0.0, 0.0]),
+    ("{S}FIN", Part::Hand, Pick::First, 0.5, [0.0, 1.0, 0.5]),
+    (
+        "{S}ASI",
+        Part::UpperLeg,
+        Pick::First,
+        -0.15,
+        [1.0, 0.2, 0.4],
+    ),
+    (
+        "{S}PSI",
+        Part::UpperLeg,
+        Pick::First,
+        -0.2,
+        [-1.0, 0.0, 0.3],
+    ),
+    ("{S}THI", Part::UpperLeg, Pick::First, 0.5, [0.3, 0.0, 1.0]),
+    ("{S}KNE", Part::UpperLeg, Pick::First, 1.0, [0.0, 0.0, 1.0]),
+    ("{S}TIB", Part::LowerLeg, Pick::First, 0.5, [0.3, 0.0, 1.0]),
+    ("{S}ANK", Part::LowerLeg, Pick::First, 1.0, [0.0, 0.0, 1.0]),
+    ("{S}HEE", Part::Foot, Pick::First, 0.0, [-1.0, -0.3, 0.0]),
+    ("{S}TOE", Part::Foot, Pick::First, 0.9, [0.0, 1.0, 0.0]),
+];
+
+/// One case's figures.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TruthRecord {
+    pub suite: &'static str,
+    pub asset: String,
+    pub clip: String,
+    pub height_m: f64,
+    pub take_s: f64,
+    /// Markers put on the skin, and labels the calibration placed.
+    pub markers: usize,
+    pub placed: usize,
+    pub verdict: Verdict,
+    pub concerns: Vec<String>,
+    /// The calibration's misfit RMS, take millimetres.
+    pub misfit_mm_rms: f64,
+    /// |scale − 1|.
+    pub scale_error: f64,
+    /// Placed labels' rest positions against the truth, millimetres.
+    pub placement_mm_mean: f64,
+    pub placement_mm_max: f64,
+    /// Mean vertex error over the mesh as a share of the height: its mean over the
+    /// frames, its worst frame, and the largest single vertex error.
+    pub vertex_share_mean: f64,
+    pub vertex_share_worst_frame: f64,
+    pub vertex_share_max: f64,
+    /// Worst orientation error over the frames, degrees: the head, the trunk (hips and
+    /// the top of the spine), and any joint that carries a marker.
+    pub head_deg_max: f64,
+    pub trunk_deg_max: f64,
+    pub carrying_deg_max: f64,
+    /// Lowest solved vertex less the lowest true one, millimetres: median and worst.
+    pub floor_mm_median: f64,
+    pub floor_mm_worst: f64,
+    /// How far the file's rest pose is from its bind pose (largest skinning-matrix
+    /// entry off the identity; an armature's unit scale and axis turn count).
+    pub rest_off_bind: f64,
+    pub calibrate_s: f64,
+    pub solve_s: f64,
+}
+
+/// The file space to the character's world frame (units and up axis), fitted on the
+/// rest vertices: `world = scale · rotation · file + translation`.
+#[derive(Clone, Copy, Debug)]
+struct Similarity {
+    scale: f64,
+    rotation: DQuat,
+    translation: DVec3,
+}
+
+impl Similarity {
+    /// Umeyama's least-squares similarity (1991) from `from` to `to`, and its largest
+    /// residual.
+    fn fit(from: &[DVec3], to: &[DVec3]) -> (Self, f64) {
+        let n = from.len().max(1) as f64;
+        let (cf, ct) = (from.iter().sum::<DVec3>() / n, to.iter().sum::<DVec3>() / n);
+        let mut m = DMat3::ZERO;
+        let (mut sf, mut st) = (0.0, 0.0);
+        for (a, b) in from.iter().zip(to) {
+            let (a, b) = (*a - cf, *b - ct);
+            m += DMat3::from_cols(b * a.x, b * a.y, b * a.z);
+            sf += a.length_squared();
+            st += b.length_squared();
+        }
+        let rotation = rotation_of(&m);
+        let scale = if sf > 0.0 { (st / sf).sqrt() } else { 1.0 };
+        let s = Self {
+            scale,
+            rotation,
+            translation: ct - scale * (rotation * cf),
+        };
+        let worst = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| (s.point(*a) - *b).length())
+            .fold(0.0, f64::max);
+        (s, worst)
+    }
+
+    fn point(&self, p: DVec3) -> DVec3 {
+        self.scale * (self.rotation * p) + self.translation
+    }
+}
+
+/// A marker on the skin: a triangle, barycentric weights, and its distance out along
+/// the triangle's normal (`side` orients the normal outward).
+#[derive(Clone, Copy, Debug)]
+struct SkinPoint {
+    triangle: [u32; 3],
+    bary: [f64; 3],
+    out_m: f64,
+    side: f64,
+}
+
+impl SkinPoint {
+    fn at(&self, v: &[DVec3]) -> DVec3 {
+        let [a, b, c] = self.triangle.map(|i| v[i as usize]);
+        let n = (b - a).cross(c - a).normalize_or_zero() * self.side;
+        a * self.bary[0] + b * self.bary[1] + c * self.bary[2] + n * self.out_m
+    }
+}
+
+/// The first triangle a ray from `o` along `d` meets (Möller–Trumbore), as a point.
+fn cast(o: DVec3, d: DVec3, v: &[DVec3], tris: &[[u32; 3]], out_m: f64) -> Option<SkinPoint> {
+    let mut best: Option<(f64, SkinPoint)> = None;
+    for t in tris {
+        let [a, b, c] = t.map(|i| v[i as usize]);
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-14 {
+            continue;
+        }
+        let s = o - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let w = d.dot(q) / det;
+        let dist = e2.dot(q) / det;
+        if u < 0.0 || w < 0.0 || u + w > 1.0 || dist <= 0.0 {
+            continue;
+        }
+        if best.as_ref().is_none_or(|(b, _)| dist < *b) {
+            let side = if e1.cross(e2).dot(d) >= 0.0 {
+                1.0
+            } else {
+                -1.0
+            };
+            best = Some((
+                dist,
+                SkinPoint {
+                    triangle: *t,
+                    bary: [1.0 - u - w, u, w],
+                    out_m,
+                    side,
+                },
+            ));
+        }
+    }
+    best.map(|b| b.1)
+}
+
+/// The body's axes at rest (front, up, left), from the hips, the head and the hips'
+/// sides; `None` without them.
+fn body_axes(loaded: &LoadedCharacter) -> Option<(DVec3, DVec3, DVec3)> {
+    let roles = &loaded.joint_roles;
+    let at = |r: Role| {
+        let j = candidate_joints(r, roles);
+        j.first().map(|&j| loaded.character.skeleton.joints[j].rest)
+    };
+    let part = |p| Role {
+        part: p,
+        side: None,
+    };
+    let sided = |p, s| Role {
+        part: p,
+        side: Some(s),
+    };
+    let hips = at(part(Part::Hips))?;
+    let head = at(part(Part::Head))?;
+    let left = at(sided(Part::UpperLeg, Side::Left))? - at(sided(Part::UpperLeg, Side::Right))?;
+    let up = (head - hips).normalize_or_zero();
+    let left = (left - left.dot(up) * up).normalize_or_zero();
+    let front = left.cross(up);
+    (up != DVec3::ZERO && left != DVec3::ZERO).then_some((front, up, left))
+}
+
+/// The marker set on the rest skin of `loaded`: labels and points (those whose part the
+/// skeleton lacks, or whose ray finds no skin, are not put on).
+fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoint)> {
+    let ch = &loaded.character;
+    let sk = &ch.skeleton;
+    let Some((front, up, left)) = body_axes(loaded) else {
+        return Vec::new();
+    };
+    let out_m = MARKER_OUT_M;
+    let mut placed = Vec::new();
+    for &(pattern, part, pick, along, [f, u, o]) in LANDMARKS {
+        let sides: &[(Option<Side>, &str, f64)] = if pattern.contains("{S}") {
+            &[(Some(Side::Left), "L", 1.0), (Some(Side::Right), "R", -1.0)]
+        } else {
+            &[(None, "", 1.0)]
+        };
+        for &(side, letter, sign) in sides {
+            let joints = candidate_joints(Role { part, side }, &loaded.joint_roles);
+            let Some(&j) = (match pick {
+                Pick::First => joints.first(),
+                Pick::Last => joints.last(),
+                Pick::Middle => joints.get(joints.len() / 2),
+            }) else {
+                continue;
+            };
+            let start = sk.joints[j].rest;
+            let end = sk
+                .children(j)
+                .map(|c| sk.joints[c].rest)
+                .next()
+                .unwrap_or_else(|| match sk.joints[j].parent {
+                    Some(p) => {
+                        start + (start - sk.joints[p].rest).normalize_or_zero() * 0.06 * height
+                    }
+                    None => start + up * 0.06 * height,
+                });
+            let bone = (end - start).normalize_or_zero();
+            let mut d = front * f + up * u + left * (o * sign);
+            d -= d.dot(bone) * bone;
+            if d.length() < 0.2 {
+                d = front * f.signum() - up * 0.0;
+                d -= d.dot(bone) * bone;
+            }
+            let p = start + (end - start) * along;
+            if let Some(sp) = cast(p, d.normalize_or_zero(), &ch.vertices, &ch.triangles, out_m) {
+                placed.push((pattern.replace("{S}", letter), sp));
+            }
+        }
+    }
+    placed
+}
+
+/// The true mesh at `t_s` in the character's frame, into `out`.
+struct Truth<'a> {
+    asset: &'a SkinnedAsset,
+    clip: &'a Clip,
+    to_world: Similarity,
+    worlds: Vec<DMat4>,
+    file: Vec<DVec3>,
+}
+
+impl Truth<'_> {
+    fn at(&mut self, t_s: f64, out: &mut Vec<DVec3>) {
+        let t = if self.clip.duration_s > 0.0 {
+            t_s % self.clip.duration_s
+        } else {
+            0.0
+        };
+        self.asset.node_worlds(Some(self.clip), t, &mut self.worlds);
+        self.asset.pose(&self.worlds, &mut self.file);
+        out.clear();
+        out.extend(self.file.iter().map(|&p| self.to_world.point(p)));
+    }
+
+    /// Node `node`'s rotation from bind in the character's frame (after [`Self::at`]).
+    fn rotation(&self, node: usize) -> Option<DQuat> {
+        let q = self.asset.joint_rotation(&self.worlds, node)?;
+        Some(self.to_world.rotation * q * self.to_world.rotation.conjugate())
+    }
+}
+
+/// One asset and clip.
+fn case(
+    loaded: &LoadedCharacter,
+    asset: &SkinnedAsset,
+    clip: &Clip,
+    name: &str,
+) -> Result<TruthRecord, BenchError> {
+    let what = || format!("{name} {}", clip.name);
+    let ch = &loaded.character;
+    if asset.positions.len() != ch.vertices.len() {
+        return Err(BenchError::case(
+            what(),
+            std::io::Error::other("vertex counts differ"),
+        ));
+    }
+    let mut rest = Vec::new();
+    let mut worlds = Vec::new();
+    asset.node_worlds(None, 0.0, &mut worlds);
+    asset.pose(&worlds, &mut rest);
+    let (to_world, off) = Similarity::fit(&rest, &ch.vertices);
+    let (lo, hi) = ch.vertices.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), v| (a.min(*v), b.max(*v)),
+    );
+    let height = hi.y - lo.y;
+    if off > 1e-6 * height {
+        return Err(BenchError::case(
+            what(),
+            std::io::Error::other(format!(
+                "the file's mesh is not the character's ({off} m off)"
+            )),
+        ));
+    }
+    let markers = place_markers(loaded, height);
+    let mut truth = Truth {
+        asset,
+        clip,
+        to_world,
+        worlds: Vec::new(),
+        file: Vec::new(),
+    };
+    let take_s =
+        (clip.duration_s * (MIN_TAKE_S / clip.duration_s.max(1e-3)).ceil()).max(MIN_TAKE_S);
+    let frames = (take_s * RATE_HZ).round() as usize;
+    let mut mesh = Vec::new();
+    let rec = Recording {
+        name: format!("{name}-{}", clip.name),
+        rate_hz: RATE_HZ,
+        labels: markers.iter().map(|m| m.0.clone()).collect(),
+        frames: (0..frames)
+            .map(|i| {
+                truth.at(i as f64 / RATE_HZ, &mut mesh);
+                markers.iter().map(|m| m.1.at(&mesh)).collect()
+            })
+            .collect(),
+        warnings: Vec::new(),
+        file_units: "m".into(),
+        point_groups: Vec::new(),
+    };
+    let mut bare = ch.clone();
+    bare.markers.clear();
+    let opts = CalibrationOptions {
+        max_marker_distance_m: loaded.bind.max_marker_distance_m,
+        ..CalibrationOptions::default()
+    };
+    let t0 = Instant::now();
+    let mut cal = calibrate(&bare, &loaded.joint_roles, rec.as_take(), &opts)
+        .map_err(|e| BenchError::case(what(), e))?;
+    let calibrate_s = t0.elapsed().as_secs_f64();
+    let placement: Vec<f64> = cal
+        .placed
+        .iter()
+        .filter_map(|p| {
+            let m = markers
+                .iter()
+                .find(|m| normalise(&m.0) == normalise(&p.label))?;
+            let rest = ch.skeleton.joints[p.joint].rest + p.offset_m;
+            Some((rest - m.1.at(&ch.vertices)).length() * 1e3)
+        })
+        .collect();
+    let bind = loaded.bind_for(&cal.layout(&bare));
+    let rig = Arc::new(
+        cal.bind(&bare, &bind, &mut |_, _| {})
+            .map_err(|e| BenchError::case(what(), e))?,
+    );
+    let carrying: Vec<usize> = cal.placed.iter().map(|p| p.joint).collect();
+    let node_of = |j: usize| asset.node_of_joint(&ch.skeleton.joints[j].name);
+    let role_joint = |p: Part, last: bool| {
+        let j = candidate_joints(
+            Role {
+                part: p,
+                side: None,
+            },
+            &loaded.joint_roles,
+        );
+        if last {
+            j.last().copied()
+        } else {
+            j.first().copied()
+        }
+    };
+    let head: Vec<usize> = role_joint(Part::Head, false).into_iter().collect();
+    let trunk: Vec<usize> = [role_joint(Part::Hips, false), role_joint(Part::Spine, true)]
+        .into_iter()
+        .flatten()
+        .collect();
+    let mut tally = Tally::default();
+    let t1 = Instant::now();
+    let opts = OfflineOptions {
+        marker_scale: cal.scale,
+        deadline: false,
+        ..OfflineOptions::default()
+    };
+    replay_offline_with(rig, SolverParams::default(), &rec, opts, &mut |tick| {
+        truth.at(tick.index as f64 / RATE_HZ, &mut mesh);
+        let errs = mesh
+            .iter()
+            .zip(tick.vertices)
+            .map(|(a, b)| (*a - *b).length());
+        let (sum, max) = errs.fold((0.0, 0.0f64), |(s, m), e| (s + e, m.max(e)));
+        tally.frame_means.push(sum / mesh.len() as f64 / height);
+        tally.vertex_max = tally.vertex_max.max(max / height);
+        let lowest = |v: &[DVec3]| v.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+        tally
+            .floor_mm
+            .push((lowest(tick.vertices) - lowest(&mesh)) * 1e3);
+        let angle = |j: usize| {
+            let q = truth.rotation(node_of(j)?)?;
+            Some(rotation_angle_between(q, tick.joint_rot[j]).to_degrees())
+        };
+        let worst = |js: &[usize]| js.iter().filter_map(|&j| angle(j)).fold(0.0, f64::max);
+        tally.head_deg = tally.head_deg.max(worst(&head));
+        tally.trunk_deg = tally.trunk_deg.max(worst(&trunk));
+        tally.carrying_deg = tally.carrying_deg.max(worst(&carrying));
+        ControlFlow::Continue(())
+    })
+    .map_err(|e| BenchError::case(what(), e))?;
+    let solve_s = t1.elapsed().as_secs_f64();
+    let n = tally.frame_means.len().max(1) as f64;
+    let mut floor_abs: Vec<f64> = tally.floor_mm.iter().map(|x| x.abs()).collect();
+    let floor_median = crate::runtime::stats::percentile(&mut tally.floor_mm.clone(), 0.5);
+    Ok(TruthRecord {
+        suite: "truth",
+        asset: name.to_string(),
+        clip: clip.name.clone(),
+        height_m: height,
+        take_s,
+        markers: markers.len(),
+        placed: cal.placed.len(),
+        verdict: cal.verdict(),
+        concerns: cal.concerns().iter().map(ToString::to_string).collect(),
+        misfit_mm_rms: cal.residual_mm_rms,
+        scale_error: (cal.scale - 1.0).abs(),
+        placement_mm_mean: placement.iter().sum::<f64>() / placement.len().max(1) as f64,
+        placement_mm_max: placement.iter().copied().fold(0.0, f64::max),
+        vertex_share_mean: tally.frame_means.iter().sum::<f64>() / n,
+        vertex_share_worst_frame: tally.frame_means.iter().copied().fold(0.0, f64::max),
+        vertex_share_max: tally.vertex_max,
+        head_deg_max: tally.head_deg,
+        trunk_deg_max: tally.trunk_deg,
+        carrying_deg_max: tally.carrying_deg,
+        floor_mm_median: floor_median,
+        floor_mm_worst: crate::runtime::stats::percentile(&mut floor_abs, 1.0),
+        rest_off_bind: asset.rest_off_bind(),
+        calibrate_s,
+        solve_s,
+    })
+}
+
+/// Per-frame figures of a solve against its truth.
+#[derive(Default)]
+struct Tally {
+    frame_means: Vec<f64>,
+    vertex_max: f64,
+    floor_mm: Vec<f64>,
+    head_deg: f64,
+    trunk_deg: f64,
+    carrying_deg: f64,
+}
+
+fn print(r: &TruthRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchError> {
+    if json {
+        return json_line(out, r);
+    }
+    writeln!(
+        out,
+        "{:<22} {:<16} {:.2} m {:>4.1} s  {:>2}/{:<2} placed  {:<8} misfit {:>4.1} mm  scale {:>5.2} %  placement {:>5.1} mean {:>5.1} max mm  vertices {:.2} % mean {:.2} % worst frame {:.2} % max  head {:>5.1}° trunk {:>5.1}° carrying {:>5.1}°  floor {:+.0} median {:.0} worst mm  ({:.1} s + {:.1} s)",
+        r.asset, r.clip, r.height_m, r.take_s, r.placed, r.markers, r.verdict.to_string(),
+        r.misfit_mm_rms, 100.0 * r.scale_error, r.placement_mm_mean, r.placement_mm_max,
+        100.0 * r.vertex_share_mean, 100.0 * r.vertex_share_worst_frame, 100.0 * r.vertex_share_max,
+        r.head_deg_max, r.trunk_deg_max, r.carrying_deg_max, r.floor_mm_median, r.floor_mm_worst,
+        r.calibrate_s, r.solve_s
+    )?;
+    for c in &r.concerns {
+        writeln!(out, "{:<22} {c}", "")?;
+    }
+    Ok(())
+}
+
+/// The assets of the shared data folder the suite plays: file, the clips (empty: every
+/// clip), and the `[mesh] scale` it is loaded at. The Mixamo soldier is 0.21 m tall as
+/// exported: played at that size (the calibration says the actor would be as small), and
+/// at a person's size, as its user would load it.
+pub const ASSETS: &[(&str, &[&str], f64)] = &[
+    ("meshes/gltf-samples/CesiumMan.glb", &[], 1.0),
+    ("meshes/real/threejs_soldier_mixamo.glb", &[], 1.0),
+    ("meshes/real/threejs_soldier_mixamo.glb", &[], 8.5),
+    (
+        "meshes/real/kenney_mini_character_female_a.glb",
+        &["walk", "idle"],
+        1.0,
+    ),
+];
+
+/// Runs every case of one asset, printing each as it is measured.
+pub fn asset_cases(
+    data: &Path,
+    file: &str,
+    clips: &[&str],
+    mesh_scale: f64,
+    json: bool,
+    out: &mut dyn Write,
+    records: &mut Vec<TruthRecord>,
+) -> Result<(), BenchError> {
+    let glb = data.join(file);
+    if !glb.is_file() {
+        return Ok(());
+    }
+    // One folder per call: calls may run at once (the tests do).
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("rigless-truth-{}-{call}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let asset = |e| BenchError::case(file, e);
+    let character = gltf_file(&glb, &dir).map_err(asset)?;
+    if mesh_scale != 1.0 {
+        let text = std::fs::read_to_string(&character)?;
+        std::fs::write(&character, format!("{text}scale = {mesh_scale}\n"))?;
+    }
+    let loaded = load_character(&character).map_err(|e| BenchError::case(file, e))?;
+    std::fs::remove_dir_all(&dir)?;
+    let skinned = SkinnedAsset::read(&glb).map_err(|e| BenchError::case(file, e))?;
+    let stem = glb
+        .file_stem()
+        .map_or_else(|| file.to_string(), |s| s.to_string_lossy().into_owned());
+    let name = if mesh_scale == 1.0 {
+        stem
+    } else {
+        format!("{stem}×{mesh_scale}")
+    };
+    for clip in &skinned.clips {
+        if !clips.is_empty() && !clips.iter().any(|c| clip.name.eq_ignore_ascii_case(c)) {
+            continue;
+        }
+        match case(&loaded, &skinned, clip, &name) {
+            Ok(r) => {
+                print(&r, json, out)?;
+                records.push(r);
+            }
+            // A case that cannot be calibrated or solved is a result, said as such.
+            Err(e) if json => json_line(
+                out,
+                &serde_json::json!({"suite": "truth", "asset": name, "clip": clip.name, "failed": e.to_string()}),
+            )?,
+            Err(e) => writeln!(out, "{name:<22} {:<16} failed: {e}", clip.name)?,
+        }
+    }
+    Ok(())
+}
+
+/// Runs the suite.
+pub fn suite(data: &Path, json: bool, out: &mut dyn Write) -> Result<(), BenchError> {
+    if !data.is_dir() {
+        return Err(BenchError::NoData {
+            suite: "truth",
+            dir: data.display().to_string(),
+        });
+    }
+    let mut records = Vec::new();
+    for (file, clips, scale) in ASSETS {
+        asset_cases(data, file, clips, *scale, json, out, &mut records)?;
+    }
+    Ok(())
+}
