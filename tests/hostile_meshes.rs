@@ -1058,10 +1058,30 @@ impl Valid {
             Some((_, i)) => i.clone(),
             None => (0..p.len() as u32).collect(),
         };
-        // Unskinned, the node sits under nothing: its own (identity) transform.
+        // Unskinned, the node sits under nothing: its own (identity) transform. Skinned
+        // with inverse bind matrices (`T(k·Y)` for the k-th joint) under joints at
+        // `T(Y)` (nodes 1 to 3; node 0 at the origin), the mesh moves by their common
+        // skinning matrix when all joints share one (a single joint), as glTF shows it.
+        let shift = match &self.skin {
+            Some((joints, true)) => {
+                let world = |n: u64| if n == 0 { 0.0 } else { 1.0 };
+                let moves: Vec<f64> = joints
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &n)| world(n) + k as f64)
+                    .collect();
+                let common = moves.iter().all(|&m| m == moves[0]);
+                if common {
+                    moves[0]
+                } else {
+                    0.0
+                }
+            }
+            _ => 0.0,
+        };
         let positions = p
             .iter()
-            .map(|q| DVec3::from_array(q.map(f64::from)))
+            .map(|q| DVec3::from_array(q.map(f64::from)) + DVec3::Y * shift)
             .collect();
         (
             positions,
@@ -1439,4 +1459,59 @@ fn unnamed_and_repeated_joint_names_are_made_unique() {
     let m = parse_gltf(&bytes, None).unwrap();
     let names: Vec<&str> = m.skin_joints.iter().map(|j| j.name.as_str()).collect();
     assert_eq!(names, ["bone0", "bone0#2", "joint3"]);
+}
+
+/// A skinned mesh whose joints hang under a node that turns Z up to Y up and scales by
+/// 0.01 (the rest pose being the bind pose) is read in the world that node makes, its
+/// joints too; when its joints' rest transforms disagree (a rest pose other than the
+/// bind pose), it is read in bind space as stored.
+#[test]
+fn a_skin_under_a_scaled_turned_armature_reads_in_the_world() {
+    let p: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [0.0, 0.0, 180.0]];
+    let mut bin: Vec<u8> = p.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+    // Identity inverse bind matrices for both joints (the bind pose at their nodes).
+    let identity = DMat4::IDENTITY.to_cols_array().map(|x| x as f32);
+    for _ in 0..2 {
+        bin.extend(identity.iter().flat_map(|x| x.to_le_bytes()));
+    }
+    let doc = |joint_b_rotation: [f64; 4]| {
+        json!({
+            "asset": {"version": "2.0"},
+            "buffers": [{"byteLength": 164}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36},
+                            {"buffer": 0, "byteOffset": 36, "byteLength": 128}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [100, 0, 180]},
+                          {"bufferView": 1, "componentType": 5126, "count": 2, "type": "MAT4"}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "nodes": [
+                {"name": "Armature", "children": [1, 3],
+                 "rotation": [-std::f64::consts::FRAC_1_SQRT_2, 0, 0, std::f64::consts::FRAC_1_SQRT_2],
+                 "scale": [0.01, 0.01, 0.01]},
+                {"name": "hips", "children": [2]},
+                {"name": "head", "rotation": joint_b_rotation},
+                {"name": "body", "mesh": 0, "skin": 0}
+            ],
+            "skins": [{"joints": [1, 2], "inverseBindMatrices": 1}]
+        })
+        .to_string()
+    };
+    let m = parse_gltf(&glb(&doc([0.0, 0.0, 0.0, 1.0]), Some(&bin)), None).unwrap();
+    // Z up turned Y up, centimetres to metres: (0, 0, 180) is (0, 1.8, 0).
+    let want = [
+        DVec3::ZERO,
+        DVec3::new(1.0, 0.0, 0.0),
+        DVec3::new(0.0, 1.8, 0.0),
+    ];
+    for (got, want) in m.positions.iter().zip(&want) {
+        assert!((*got - *want).length() < 1e-6, "{got} vs {want}");
+    }
+    assert!(m.rest_from_bind.is_some());
+    let head = &m.skin_joints[1];
+    assert!((head.world_from_joint.w_axis.truncate()).length() < 1e-9);
+    // The head turned at rest: the rest pose is not the bind pose, kept as stored.
+    let turned = doc([0.0, 0.0, 0.3826834, 0.9238795]);
+    let m = parse_gltf(&glb(&turned, Some(&bin)), None).unwrap();
+    assert_eq!(m.positions[2], DVec3::new(0.0, 0.0, 180.0));
+    assert!(m.rest_from_bind.is_none());
 }

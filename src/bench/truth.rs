@@ -38,6 +38,10 @@ const MIN_TAKE_S: f64 = 4.0;
 /// whatever the character's size: the take is at the character's size, and a marker is
 /// a marker.
 const MARKER_OUT_M: f64 = 0.008;
+/// Thickest layer of a character's surface on a 1.75 m actor (clothing over a body,
+/// armour over clothing), metres; scaled with the character's height.
+const LAYER_M: f64 = 0.03;
+const ACTOR_HEIGHT_M: f64 = 1.75;
 
 /// Which joint of a part anchors a landmark.
 #[derive(Clone, Copy, Debug)]
@@ -197,9 +201,20 @@ impl SkinPoint {
     }
 }
 
-/// The first triangle a ray from `o` along `d` meets (Möller–Trumbore), as a point.
-fn cast(o: DVec3, d: DVec3, v: &[DVec3], tris: &[[u32; 3]], out_m: f64) -> Option<SkinPoint> {
-    let mut best: Option<(f64, SkinPoint)> = None;
+/// Where a ray from `o` along `d` leaves the skin: of the triangles it meets
+/// (Möller–Trumbore), the outermost of the first run of hits closer than `layer_m` to one
+/// another. A clothed character has layers (a body under its armour), and a marker sits
+/// on the outermost; a gap wider than a layer is air before another part (an arm beside
+/// the trunk).
+fn cast(
+    o: DVec3,
+    d: DVec3,
+    v: &[DVec3],
+    tris: &[[u32; 3]],
+    out_m: f64,
+    layer_m: f64,
+) -> Option<SkinPoint> {
+    let mut hits: Vec<(f64, SkinPoint)> = Vec::new();
     for t in tris {
         let [a, b, c] = t.map(|i| v[i as usize]);
         let (e1, e2) = (b - a, c - a);
@@ -216,24 +231,28 @@ fn cast(o: DVec3, d: DVec3, v: &[DVec3], tris: &[[u32; 3]], out_m: f64) -> Optio
         if u < 0.0 || w < 0.0 || u + w > 1.0 || dist <= 0.0 {
             continue;
         }
-        if best.as_ref().is_none_or(|(b, _)| dist < *b) {
-            let side = if e1.cross(e2).dot(d) >= 0.0 {
-                1.0
-            } else {
-                -1.0
-            };
-            best = Some((
-                dist,
-                SkinPoint {
-                    triangle: *t,
-                    bary: [1.0 - u - w, u, w],
-                    out_m,
-                    side,
-                },
-            ));
-        }
+        let side = if e1.cross(e2).dot(d) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
+        let point = SkinPoint {
+            triangle: *t,
+            bary: [1.0 - u - w, u, w],
+            out_m,
+            side,
+        };
+        hits.push((dist, point));
     }
-    best.map(|b| b.1)
+    hits.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut outer = hits.first()?;
+    for h in &hits[1..] {
+        if h.0 - outer.0 > layer_m {
+            break;
+        }
+        outer = h;
+    }
+    Some(outer.1)
 }
 
 /// The body's axes at rest (front, up, left), from the hips, the head and the hips'
@@ -305,7 +324,9 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
                 d -= d.dot(bone) * bone;
             }
             let p = start + (end - start) * along;
-            if let Some(sp) = cast(p, d.normalize_or_zero(), &ch.vertices, &ch.triangles, out_m) {
+            let layer_m = LAYER_M * height / ACTOR_HEIGHT_M;
+            let ray = d.normalize_or_zero();
+            if let Some(sp) = cast(p, ray, &ch.vertices, &ch.triangles, out_m, layer_m) {
                 placed.push((pattern.replace("{S}", letter), sp));
             }
         }
@@ -357,11 +378,8 @@ fn case(
             std::io::Error::other("vertex counts differ"),
         ));
     }
-    let mut rest = Vec::new();
-    let mut worlds = Vec::new();
-    asset.node_worlds(None, 0.0, &mut worlds);
-    asset.pose(&worlds, &mut rest);
-    let (to_world, off) = Similarity::fit(&rest, &ch.vertices);
+    // The reader's mesh to the character's frame: units, scale and up axis.
+    let (to_world, off) = Similarity::fit(&asset.positions, &ch.vertices);
     let (lo, hi) = ch.vertices.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(a, b), v| (a.min(*v), b.max(*v)),

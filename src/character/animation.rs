@@ -7,8 +7,9 @@
 //! mesh those markers should give.
 //!
 //! Poses come out in the file's world space (file units and axes), as a viewer shows
-//! them: the space the mesh reader puts the rest mesh in (it poses a skinned mesh at rest
-//! unless its rest pose is its bind pose, when the two agree).
+//! them. The mesh reader's rest mesh is in that space when the rest pose is the bind
+//! pose; when it is not, the reader keeps the bind pose, and exporters store it in world
+//! units and axes (Blender's glTF export does).
 //!
 //! The file is opened with every check of the mesh reader first
 //! ([`crate::character::mesh::open_gltf`]); the calls into the `gltf` crate's readers run
@@ -130,8 +131,12 @@ pub struct SkinnedAsset {
     /// Each node's name, if it has one.
     pub node_names: Vec<Option<String>>,
     skins: Vec<Skin>,
-    /// The mesh's vertices as the file stores them (skinned ones in bind space).
+    /// The mesh's vertices as the mesh reader gives them (file units and axes).
     pub positions: Vec<DVec3>,
+    /// From the reader's space back to the skins' bind space (the inverse of
+    /// [`crate::character::mesh::MeshData::rest_from_bind`]; the identity when the
+    /// reader keeps the bind space).
+    bind_from_reader: DMat4,
     binding: Vec<Binding>,
     pub clips: Vec<Clip>,
 }
@@ -207,7 +212,7 @@ impl SkinnedAsset {
                 s.joints
                     .iter()
                     .zip(&s.inverse_bind)
-                    .map(|(&n, ibm)| worlds[n] * *ibm)
+                    .map(|(&n, ibm)| worlds[n] * *ibm * self.bind_from_reader)
                     .collect()
             })
             .collect();
@@ -366,11 +371,11 @@ fn from_source(src: &GltfSource, path: &str) -> Result<SkinnedAsset, AnimationEr
         rest,
         node_names: doc.nodes().map(|n| n.name().map(str::to_string)).collect(),
         skins: Vec::new(),
-        positions: if src.mesh.bind_positions.is_empty() {
-            src.mesh.positions.clone()
-        } else {
-            src.mesh.bind_positions.clone()
-        },
+        positions: src.mesh.positions.clone(),
+        bind_from_reader: src
+            .mesh
+            .rest_from_bind
+            .map_or(DMat4::IDENTITY, |c| c.inverse()),
         binding: Vec::with_capacity(src.mesh.positions.len()),
         clips: Vec::new(),
     };

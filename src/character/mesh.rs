@@ -29,10 +29,10 @@ pub struct MeshData {
     pub source_positions: Vec<DVec3>,
     /// Joints of the first skin (glTF), parents before children.
     pub skin_joints: Vec<SkinJoint>,
-    /// When the skinned vertices were posed at rest (a glTF file whose rest pose is not
-    /// its bind pose): every vertex as the file stores it, skinned ones in bind space.
-    /// Empty otherwise.
-    pub bind_positions: Vec<DVec3>,
+    /// The transform the skinned vertices and the joints were taken through from the
+    /// file's bind space to its world (an armature's unit scale or axis turn above the
+    /// joints); `None` when the bind space is the world.
+    pub rest_from_bind: Option<DMat4>,
     /// The file's parts, in output order: every glTF triangle primitive, or every run of
     /// an OBJ file's faces under one group.
     pub parts: Vec<MeshPart>,
@@ -292,9 +292,6 @@ pub enum SkinProblem {
     },
     #[error("{joints} joints but {matrices} inverse bind matrices")]
     MatrixCount { joints: usize, matrices: usize },
-    /// A skinned primitive's joints or weights, which posing it at rest needs.
-    #[error("{at}: {detail}")]
-    Weights { at: PrimitiveAt, detail: String },
 }
 
 /// A primitive of a mesh, as errors name it.
@@ -481,7 +478,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
         triangles,
         source_positions: positions,
         skin_joints: Vec::new(),
-        bind_positions: Vec::new(),
+        rest_from_bind: None,
         parts,
     })
 }
@@ -639,14 +636,17 @@ fn parse_document<'a>(
         .iter()
         .filter(|n| n.mesh.is_some())
         .find_map(|n| n.skin);
-    let bind_positions = out.positions.clone();
-    let posed = pose_at_rest(&root, &layouts, &buffers, &world, &mut out)?;
-    if posed {
+    let rest = rest_transform(&root, &layouts, &buffers, &world, &out.positions)?;
+    if let Some(c) = rest {
+        let skinned: Vec<bool> = skinned_vertices(&root, &out);
+        for (p, _) in out.positions.iter_mut().zip(&skinned).filter(|(_, s)| **s) {
+            *p = c.transform_point3(*p);
+        }
         out.source_positions = out.positions.clone();
-        out.bind_positions = bind_positions;
+        out.rest_from_bind = Some(c);
     }
     if let Some(skin) = first_skin {
-        let world = posed.then_some(world.as_slice());
+        let world = rest.is_some().then_some(world.as_slice());
         out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest, world)?;
     }
     Ok((root, buffers, out))
@@ -1822,219 +1822,67 @@ fn read_meshes(
     Ok(out)
 }
 
-/// Largest difference of a skinning matrix at rest from the identity that still counts
-/// as the identity: on its rotation and scale entries, and on its translation as a share
-/// of the mesh's extent (float rounding in exporters stays below 1e-5).
-const REST_IS_BIND: f64 = 1e-4;
+/// Largest difference between skinning matrices at rest that still counts as none: on
+/// their rotation and scale entries (relative to the largest), and on their translation
+/// as a share of the mesh's extent (exporters' float rounding stays below 1e-5).
+const SAME_MATRIX: f64 = 1e-4;
 
-/// Poses every skinned primitive of `out` by its skin's joints at their rest transforms
-/// (glTF 2.0 §3.7.3: `Σ_k w_k · world_k · inverse_bind_k · v`, what a viewer shows of the
-/// file unanimated), when that differs from the bind pose the positions are stored in:
-/// an armature carrying a unit scale and an axis turn above its joints (Mixamo exports
-/// through Blender: a 0.01 scale and Z up), or a rest pose other than the bind pose.
-/// Whether any was posed (then the skeleton is read at rest too).
-fn pose_at_rest(
+/// The transform every skinned vertex takes at rest when all of it is one: glTF shows a
+/// skinned vertex at `Σ_k w_k · world_k · inverse_bind_k · v` (§3.7.3), and when every
+/// joint's `world_k · inverse_bind_k` at rest is the same matrix `C` (the rest pose is
+/// the bind pose) and `C` is not the identity, the file's bind space is not its world:
+/// an armature node above the joints carries a unit scale or an axis turn. Then `C`
+/// places the mesh as a viewer shows it; `None` when it is the identity, when a skin
+/// gives no inverse bind matrices, or when the joints disagree (a rest pose other than
+/// the bind pose, as an exporter leaves a take's frame in the nodes: the bind pose,
+/// which the skin was made on, is kept).
+fn rest_transform(
     root: &gltf::json::Root,
     layouts: &[Layout],
     buffers: &Buffers,
     world: &[DMat4],
-    out: &mut MeshData,
-) -> Result<bool, MeshError> {
-    let (lo, hi) = out.positions.iter().fold(
+    positions: &[DVec3],
+) -> Result<Option<DMat4>, MeshError> {
+    let skinned = root.nodes.iter().filter_map(|n| n.mesh.and(n.skin));
+    let mut skins: Vec<usize> = skinned.map(|s| s.value()).collect();
+    skins.sort_unstable();
+    skins.dedup();
+    let (lo, hi) = positions.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(a, b), p| (a.min(*p), b.max(*p)),
     );
     let extent = (hi - lo).max_element().max(f64::MIN_POSITIVE);
-    let off_bind = |m: &DMat4| {
-        let d = *m - DMat4::IDENTITY;
-        let linear = (0..3).flat_map(|c| (0..3).map(move |r| (c, r)));
-        linear.map(|(c, r)| d.col(c)[r].abs()).fold(0.0, f64::max) > REST_IS_BIND
-            || d.w_axis.truncate().abs().max_element() > REST_IS_BIND * extent
-    };
-    let mut skinning: Vec<Option<Vec<DMat4>>> = Vec::with_capacity(root.skins.len());
-    for s in 0..root.skins.len() {
+    let mut common: Option<DMat4> = None;
+    for s in skins {
+        // A skin without inverse bind matrices defines no bind pose apart from its
+        // joints: its stored positions are read as they are.
+        if root.skins[s].inverse_bind_matrices.is_none() {
+            return Ok(None);
+        }
         let ibm = inverse_binds(root, s, layouts, buffers)?;
-        let m: Vec<DMat4> = root.skins[s]
-            .joints
-            .iter()
-            .zip(&ibm)
-            .map(|(j, ibm)| world.get(j.value()).copied().unwrap_or(DMat4::IDENTITY) * *ibm)
-            .collect();
-        skinning.push(m.iter().any(off_bind).then_some(m));
-    }
-    if skinning.iter().all(Option::is_none) {
-        return Ok(false);
-    }
-    let mut part = 0;
-    let mut posed = false;
-    let mut joints: Vec<[u32; 4]> = Vec::new();
-    let mut weights: Vec<[f64; 4]> = Vec::new();
-    for node in &root.nodes {
-        let Some((m, mesh)) = node
-            .mesh
-            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
-        else {
-            continue;
-        };
-        for (p, prim) in mesh
-            .primitives
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| is_triangles(p))
-        {
-            let Some(range) = out
-                .parts
-                .get(part)
-                .map(|q| q.first_vertex as usize..(q.first_vertex + q.vertex_count) as usize)
-            else {
-                continue;
-            };
-            part += 1;
-            let Some(Some(mats)) = node
-                .skin
-                .map(|s| skinning.get(s.value()).cloned().flatten())
-            else {
-                continue;
-            };
-            let at = PrimitiveAt {
-                mesh: m,
-                name: mesh.name.clone(),
-                primitive: p,
-            };
-            let skin = node.skin.map_or(0, |s| s.value());
-            let err = |detail: String| MeshError::Skin {
-                skin,
-                problem: SkinProblem::Weights {
-                    at: at.clone(),
-                    detail,
-                },
-            };
-            // A skinned primitive without joints or weights (against the specification)
-            // stays as stored.
-            let has = |sem| {
-                use gltf::json::validation::Checked;
-                prim.attributes.contains_key(&Checked::Valid(sem))
-            };
-            use gltf::json::mesh::Semantic;
-            if !(has(Semantic::Joints(0)) && has(Semantic::Weights(0))) {
-                continue;
+        for (j, ibm) in root.skins[s].joints.iter().zip(&ibm) {
+            let m = world.get(j.value()).copied().unwrap_or(DMat4::IDENTITY) * *ibm;
+            match common {
+                None => common = Some(m),
+                Some(c) if !same_matrix(&c, &m, extent) => return Ok(None),
+                Some(_) => {}
             }
-            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(&err)?;
-            if joints.len() != range.len() || weights.len() != range.len() {
-                return Err(err(format!(
-                    "{} vertices but {} JOINTS_0 and {} WEIGHTS_0",
-                    range.len(),
-                    joints.len(),
-                    weights.len()
-                )));
-            }
-            for (k, v) in range.enumerate() {
-                let (j, w) = (joints[k], weights[k]);
-                let sum: f64 = w.iter().sum();
-                if sum.is_nan() || sum <= 0.0 {
-                    return Err(err(format!("vertex {k} has no positive weight")));
-                }
-                let mut x = DVec3::ZERO;
-                for c in 0..4 {
-                    if w[c] > 0.0 {
-                        let m = mats.get(j[c] as usize).ok_or_else(|| {
-                            err(format!("vertex {k} names joint {} of {}", j[c], mats.len()))
-                        })?;
-                        x += w[c] / sum * m.transform_point3(out.positions[v]);
-                    }
-                }
-                out.positions[v] = x;
-            }
-            posed = true;
         }
     }
-    Ok(posed)
+    Ok(common.filter(|c| c.is_finite() && !same_matrix(c, &DMat4::IDENTITY, extent)))
 }
 
-/// A primitive's `JOINTS_0` (unsigned bytes or shorts) and `WEIGHTS_0` (floats, or
-/// normalised unsigned bytes or shorts), non-finite and negative weights read as 0.
-fn read_influences(
-    prim: &gltf::json::mesh::Primitive,
-    layouts: &[Layout],
-    buffers: &Buffers,
-    joints: &mut Vec<[u32; 4]>,
-    weights: &mut Vec<[f64; 4]>,
-) -> Result<(), String> {
-    use gltf::json::accessor::{ComponentType, Type};
-    use gltf::json::mesh::Semantic;
-    use gltf::json::validation::Checked;
-    let get = |sem: Semantic, what: &str| -> Result<(usize, &Layout), String> {
-        let a = prim
-            .attributes
-            .get(&Checked::Valid(sem))
-            .ok_or_else(|| format!("no {what}"))?
-            .value();
-        let l = layouts.get(a).ok_or_else(|| format!("no {what}"))?;
-        if l.kind != Type::Vec4 {
-            return Err(format!(
-                "{what} accessors[{a}] is {}, not VEC4",
-                type_name(l.kind)
-            ));
-        }
-        Ok((a, l))
-    };
-    let (ja, jl) = get(Semantic::Joints(0), "JOINTS_0")?;
-    let (wa, wl) = get(Semantic::Weights(0), "WEIGHTS_0")?;
-    let jsize = match jl.component {
-        ComponentType::U8 => 1,
-        ComponentType::U16 => 2,
-        c => {
-            return Err(format!(
-                "JOINTS_0 accessors[{ja}] has componentType {}",
-                c.as_gl_enum()
-            ))
-        }
-    };
-    joints.clear();
-    weights.clear();
-    read_accessor(
-        jl,
-        ja,
-        buffers,
-        |b| std::array::from_fn(|k| le_uint(b.get(k * jsize..).unwrap_or(&[]), jsize)),
-        joints,
-    )
-    .map_err(|e| e.to_string())?;
-    let clean = |x: f64| if x.is_finite() && x > 0.0 { x } else { 0.0 };
-    let decoded = match wl.component {
-        ComponentType::F32 => read_accessor(
-            wl,
-            wa,
-            buffers,
-            |b| std::array::from_fn(|k| clean(le_f32(b, k).into())),
-            weights,
-        ),
-        ComponentType::U8 => read_accessor(
-            wl,
-            wa,
-            buffers,
-            |b| std::array::from_fn(|k| f64::from(*b.get(k).unwrap_or(&0)) / 255.0),
-            weights,
-        ),
-        ComponentType::U16 => read_accessor(
-            wl,
-            wa,
-            buffers,
-            |b| {
-                std::array::from_fn(|k| {
-                    f64::from(le_uint(b.get(2 * k..).unwrap_or(&[]), 2)) / 65535.0
-                })
-            },
-            weights,
-        ),
-        c => {
-            return Err(format!(
-                "WEIGHTS_0 accessors[{wa}] has componentType {}",
-                c.as_gl_enum()
-            ))
-        }
-    };
-    decoded.map_err(|e| e.to_string())
+/// Whether `a` and `b` agree within [`SAME_MATRIX`] (`extent`: the mesh's, for the
+/// translations).
+fn same_matrix(a: &DMat4, b: &DMat4, extent: f64) -> bool {
+    let size = (0..3)
+        .map(|c| a.col(c).truncate().length())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let d = *a - *b;
+    let linear = (0..3).flat_map(|c| (0..3).map(move |r| (c, r)));
+    linear.map(|(c, r)| d.col(c)[r].abs()).fold(0.0, f64::max) <= SAME_MATRIX * size
+        && d.w_axis.truncate().abs().max_element() <= SAME_MATRIX * size * extent
 }
 
 /// Skin `s`'s inverse bind matrices (identities when it gives none).
@@ -2076,10 +1924,31 @@ fn inverse_binds(
     })
 }
 
+/// Which vertices of `out` belong to skinned mesh nodes (the parts in the reader's
+/// order: mesh nodes in document order, their triangle primitives in order).
+fn skinned_vertices(root: &gltf::json::Root, out: &MeshData) -> Vec<bool> {
+    let mut skinned = vec![false; out.positions.len()];
+    let mut part = 0;
+    for node in &root.nodes {
+        let Some(mesh) = node.mesh.and_then(|m| root.meshes.get(m.value())) else {
+            continue;
+        };
+        for _ in mesh.primitives.iter().filter(|p| is_triangles(p)) {
+            if let (Some(q), true) = (out.parts.get(part), node.skin.is_some()) {
+                let first = q.first_vertex as usize;
+                let range = first..first + q.vertex_count as usize;
+                skinned[range].iter_mut().for_each(|s| *s = true);
+            }
+            part += 1;
+        }
+    }
+    skinned
+}
+
 /// The joints of skin `s`, parents first (by depth among the joints, the skin's order
 /// among equals), each with the nearest ancestor that is a joint as its parent; placed
 /// by the inverse bind matrices, or by the nodes' rest transforms `posed_at` when the
-/// mesh was posed at rest ([`pose_at_rest`]).
+/// mesh was taken to the world ([`rest_transform`]).
 fn read_skin(
     root: &gltf::json::Root,
     s: usize,

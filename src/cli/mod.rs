@@ -385,6 +385,20 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
         "marker residual over the run: RMS {:.2} mm, max {:.2} mm",
         st.marker_residual_mm_rms, st.marker_residual_mm_max
     );
+    if let (Some(median), Some(min)) = (st.lowest_vertex_m_median, st.lowest_vertex_m_min) {
+        println!(
+            "lowest vertex {:+.1} cm from the floor (y = 0) in the median frame, {:+.1} cm at the lowest",
+            median * 100.0,
+            min * 100.0
+        );
+    }
+    if let Some(share) = st.all_limbs_driven_share {
+        println!(
+            "every one of the {} limbs driven by a marker in {:.1} % of the frames with markers in view",
+            st.limbs,
+            share * 100.0
+        );
+    }
     if let (Some(fed), Some(ignored)) = (s.labels_fed, s.labels_ignored) {
         println!("labels: {fed} fed a marker, {ignored} ignored (no such marker)");
     }

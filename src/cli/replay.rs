@@ -335,6 +335,21 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
         r.residual_mm_max,
         r.inverted_tets_max
     );
+    if let (Some(median), Some(min)) = (r.lowest_vertex_m_median, r.lowest_vertex_m_min) {
+        println!(
+            "lowest vertex {:+.1} cm from the take's floor in the median frame, {:+.1} cm at the lowest",
+            median * 100.0,
+            min * 100.0
+        );
+    }
+    match r.all_limbs_driven_share {
+        Some(share) => println!(
+            "every one of the {} limbs driven by a marker in {:.1} % of the frames",
+            r.limbs,
+            share * 100.0
+        ),
+        None => println!("no arm or leg recognised by name: limbs not counted"),
+    }
     Ok(())
 }
 

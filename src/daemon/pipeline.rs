@@ -62,6 +62,108 @@ pub struct LoopStatus {
     /// mesh) over every frame so far: RMS and largest, mm.
     pub marker_residual_mm_rms: f64,
     pub marker_residual_mm_max: f64,
+    /// The solved mesh's lowest vertex above the take's floor (`y = 0`, the capture
+    /// volume's ground), metres, over the frames with a marker in view: the median
+    /// frame's (to the millimetre) and the lowest; `None` before such a frame or when
+    /// the posture alone is fitted.
+    pub lowest_vertex_m_median: Option<f64>,
+    pub lowest_vertex_m_min: Option<f64>,
+    /// The character's limbs ([`limb_markers`]) and the share of frames with a marker in
+    /// view in which every limb had one measured or filled; `None` without limbs.
+    pub limbs: usize,
+    pub all_limbs_driven_share: Option<f64>,
+}
+
+/// Each limb of `rig`'s skeleton (arms and legs: an upper arm or upper leg joint by the
+/// role its name gives, [`crate::character::roles::recognise`], with every joint below
+/// it) as the markers its joints carry.
+pub fn limb_markers(rig: &crate::rig::bind::Rig) -> Vec<Vec<usize>> {
+    use crate::character::roles::{recognise, Part};
+    let sk = &rig.skeleton;
+    let roles = recognise(&sk.joints, &[]);
+    let mut limbs = Vec::new();
+    for (j, role) in roles.iter().enumerate() {
+        if !role.is_some_and(|r| matches!(r.part, Part::UpperArm | Part::UpperLeg)) {
+            continue;
+        }
+        // Parents come before children: one pass marks the subtree.
+        let mut inside = vec![false; sk.len()];
+        inside[j] = true;
+        for k in j + 1..sk.len() {
+            inside[k] = sk.joints[k].parent.is_some_and(|p| inside[p]);
+        }
+        limbs.push(
+            (0..rig.marker_joint.len())
+                .filter(|&m| inside[rig.marker_joint[m]])
+                .collect(),
+        );
+    }
+    limbs
+}
+
+/// Millimetre bins of the lowest-vertex histogram, from [`LOWEST_FROM_M`] up (heights
+/// beyond count in the end bins): 4 m of heights in 16 KiB, however long the run.
+const LOWEST_BINS: usize = 4001;
+const LOWEST_FROM_M: f64 = -2.0;
+
+/// How the body stood over a run: its limbs driven, its lowest vertex.
+#[derive(Clone, Debug)]
+pub struct BodyTally {
+    limbs: Vec<Vec<usize>>,
+    frames: u64,
+    all_limbs_driven: u64,
+    lowest_bins: Vec<u32>,
+    lowest_min_m: f64,
+}
+
+impl BodyTally {
+    pub fn new(rig: &crate::rig::bind::Rig) -> Self {
+        Self {
+            limbs: limb_markers(rig),
+            frames: 0,
+            all_limbs_driven: 0,
+            lowest_bins: vec![0; LOWEST_BINS],
+            lowest_min_m: f64::INFINITY,
+        }
+    }
+
+    /// Counts a frame with markers in `states` and the solved `vertices` (none: the
+    /// posture alone was fitted).
+    pub fn count(&mut self, states: &[FillState], vertices: Option<&[DVec3]>) {
+        self.frames += 1;
+        let driven = |limb: &Vec<usize>| limb.iter().any(|&m| states[m] != FillState::Held);
+        self.all_limbs_driven += self.limbs.iter().all(driven) as u64;
+        if let Some(v) = vertices {
+            let lowest = v.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+            if lowest.is_finite() {
+                self.lowest_min_m = self.lowest_min_m.min(lowest);
+                let bin = ((lowest - LOWEST_FROM_M) * 1e3).round();
+                self.lowest_bins[bin.clamp(0.0, (LOWEST_BINS - 1) as f64) as usize] += 1;
+            }
+        }
+    }
+
+    /// The median frame's lowest vertex (to the bin), the lowest, the limbs and the
+    /// share of frames with all of them driven.
+    pub fn figures(&self) -> (Option<f64>, Option<f64>, usize, Option<f64>) {
+        let counted: u64 = self.lowest_bins.iter().map(|&c| u64::from(c)).sum();
+        let mut seen = 0u64;
+        let median = self.lowest_bins.iter().position(|&c| {
+            seen += u64::from(c);
+            2 * seen >= counted
+        });
+        let median = median
+            .filter(|_| counted > 0)
+            .map(|b| LOWEST_FROM_M + b as f64 * 1e-3);
+        let share = (!self.limbs.is_empty() && self.frames > 0)
+            .then(|| self.all_limbs_driven as f64 / self.frames as f64);
+        (
+            median,
+            self.lowest_min_m.is_finite().then_some(self.lowest_min_m),
+            self.limbs.len(),
+            share,
+        )
+    }
 }
 
 /// One frame's outcome.
@@ -102,6 +204,8 @@ pub struct Pipeline {
     residual_sq_sum: f64,
     residual_frames: u64,
     residual_max_mm: f64,
+    /// Limbs driven and the lowest vertex over the frames with a marker in view.
+    body: BodyTally,
     interval_frames: u64,
     interval_iterations: u64,
     /// Joint angles from a glove source, the version last copied, and the copy.
@@ -147,6 +251,7 @@ impl Pipeline {
             residual_sq_sum: 0.0,
             residual_frames: 0,
             residual_max_mm: 0.0,
+            body: BodyTally::new(&rig),
             interval_frames: 0,
             interval_iterations: 0,
             pin_slot: None,
@@ -308,6 +413,10 @@ impl Pipeline {
             self.residual_frames += 1;
             self.residual_max_mm = self.residual_max_mm.max(solve.marker_residual_max_mm);
         }
+        if in_view {
+            let mesh = (!self.posture_only).then_some(self.vertices.as_slice());
+            self.body.count(&self.markers.states, mesh);
+        }
         self.interval_frames += 1;
         self.interval_iterations += solve.iterations as u64;
         let report = TickReport {
@@ -450,7 +559,7 @@ impl Pipeline {
         for s in &self.markers.states {
             fill_now[*s as usize] += 1;
         }
-        let st = LoopStatus {
+        let mut st = LoopStatus {
             frames: self.frame_no,
             frame_rate_hz: self.interval_frames as f64 / interval_s.max(1e-9),
             frame_ms_p50: pct(&self.window_ms, 0.5),
@@ -467,7 +576,17 @@ impl Pipeline {
             marker_residual_mm_rms: (self.residual_sq_sum / self.residual_frames.max(1) as f64)
                 .sqrt(),
             marker_residual_mm_max: self.residual_max_mm,
+            lowest_vertex_m_median: None,
+            lowest_vertex_m_min: None,
+            limbs: 0,
+            all_limbs_driven_share: None,
         };
+        (
+            st.lowest_vertex_m_median,
+            st.lowest_vertex_m_min,
+            st.limbs,
+            st.all_limbs_driven_share,
+        ) = self.body.figures();
         self.interval_frames = 0;
         self.interval_iterations = 0;
         st
