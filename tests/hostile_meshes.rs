@@ -1337,6 +1337,8 @@ fn read_with_the_crate(path: &Path) -> MeshData {
     };
     let mut out = MeshData::default();
     let mut first_skin = None;
+    // The first skin's joints some vertex has weight on (the files here have one skin).
+    let mut weighted: Vec<bool> = Vec::new();
     for node in doc.nodes() {
         let Some(mesh) = node.mesh() else { continue };
         let xf = match node.skin() {
@@ -1356,6 +1358,19 @@ fn read_with_the_crate(path: &Path) -> MeshData {
                     .unwrap()
                     .map(|p| xf.transform_point3(DVec3::from_array(p.map(f64::from)))),
             );
+            if let (Some(s), Some(j), Some(w)) =
+                (node.skin(), reader.read_joints(0), reader.read_weights(0))
+            {
+                let n = s.joints().count();
+                weighted.resize(n, false);
+                for (j, w) in j.into_u16().zip(w.into_f32()) {
+                    for c in 0..4 {
+                        if w[c] > 0.0 && (j[c] as usize) < n {
+                            weighted[j[c] as usize] = true;
+                        }
+                    }
+                }
+            }
             let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
             out.triangles.extend(
                 idx.chunks_exact(3)
@@ -1366,6 +1381,9 @@ fn read_with_the_crate(path: &Path) -> MeshData {
     out.source_positions = out.positions.clone();
     let skin = first_skin.unwrap();
     let joints: Vec<gltf::Node> = skin.joints().collect();
+    if weighted.is_empty() {
+        weighted = vec![true; joints.len()];
+    }
     let ibm: Vec<DMat4> = skin
         .reader(|b| Some(&buffers[b.index()].0[..]))
         .read_inverse_bind_matrices()
@@ -1400,6 +1418,7 @@ fn read_with_the_crate(path: &Path) -> MeshData {
             name: joints[k].name().unwrap().to_string(),
             parent: joint_parent(k).map(new_index),
             world_from_joint: ibm[k].inverse(),
+            weighted: weighted[k],
         });
     }
     out
@@ -1440,8 +1459,8 @@ fn real_assets_read_as_the_gltf_crate_reads_them() {
         assert_eq!(ours.skin_joints.len(), theirs.skin_joints.len(), "{rel}");
         for (j, t) in ours.skin_joints.iter().zip(&theirs.skin_joints) {
             assert_eq!(
-                (&j.name, j.parent, j.world_from_joint),
-                (&t.name, t.parent, t.world_from_joint),
+                (&j.name, j.parent, j.world_from_joint, j.weighted),
+                (&t.name, t.parent, t.world_from_joint, t.weighted),
                 "{rel}"
             );
         }
@@ -1514,4 +1533,50 @@ fn a_skin_under_a_scaled_turned_armature_reads_in_the_world() {
     let m = parse_gltf(&glb(&turned, Some(&bin)), None).unwrap();
     assert_eq!(m.positions[2], DVec3::new(0.0, 0.0, 180.0));
     assert!(m.rest_from_bind.is_none());
+}
+
+/// Which joints carry skin weight is read from `JOINTS_0` and `WEIGHTS_0` (unsigned
+/// bytes and normalised bytes here): a joint no vertex is weighted to is marked so.
+#[test]
+fn joints_without_skin_weight_are_told_apart() {
+    let p: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let mut bin: Vec<u8> = p.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+    // JOINTS_0: every vertex on joint 0 (and joint 2 with weight 0); WEIGHTS_0: 255, 0.
+    for _ in 0..3 {
+        bin.extend([0u8, 2, 0, 0]);
+    }
+    for _ in 0..3 {
+        bin.extend([255u8, 0, 0, 0]);
+    }
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36},
+                        {"buffer": 0, "byteOffset": 36, "byteLength": 12},
+                        {"buffer": 0, "byteOffset": 48, "byteLength": 12}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+             "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5121, "count": 3, "type": "VEC4"},
+            {"bufferView": 2, "componentType": 5121, "normalized": true, "count": 3, "type": "VEC4"}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 1, "WEIGHTS_0": 2}}]}],
+        "nodes": [
+            {"name": "hips", "children": [2]},
+            {"name": "knee_pole"},
+            {"name": "foot_ik"},
+            {"name": "body", "mesh": 0, "skin": 0}
+        ],
+        "skins": [{"joints": [0, 1, 2]}]
+    });
+    let m = parse_gltf(&glb(&doc.to_string(), Some(&bin)), None).unwrap();
+    let flags: Vec<(&str, bool)> = m
+        .skin_joints
+        .iter()
+        .map(|j| (j.name.as_str(), j.weighted))
+        .collect();
+    assert_eq!(
+        flags,
+        [("hips", true), ("knee_pole", false), ("foot_ik", false)]
+    );
 }

@@ -15,7 +15,7 @@
 use super::assets::gltf_file;
 use super::{json_line, BenchError};
 use crate::calibrate::marker_sets::{candidate_joints, normalise};
-use crate::calibrate::{calibrate, CalibrationOptions, Verdict};
+use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
 use crate::character::file::{load_character, LoadedCharacter};
 use crate::character::roles::{Part, Role, Side};
@@ -363,6 +363,99 @@ impl Truth<'_> {
     }
 }
 
+/// The take the markers on `truth`'s skin make: the clip looped to at least
+/// [`MIN_TAKE_S`], at [`RATE_HZ`].
+fn truth_take(
+    truth: &mut Truth<'_>,
+    markers: &[(String, SkinPoint)],
+    name: String,
+) -> (Recording, f64) {
+    let d = truth.clip.duration_s;
+    let take_s = (d * (MIN_TAKE_S / d.max(1e-3)).ceil()).max(MIN_TAKE_S);
+    let frames = (take_s * RATE_HZ).round() as usize;
+    let mut mesh = Vec::new();
+    let rec = Recording {
+        name,
+        rate_hz: RATE_HZ,
+        labels: markers.iter().map(|m| m.0.clone()).collect(),
+        frames: (0..frames)
+            .map(|i| {
+                truth.at(i as f64 / RATE_HZ, &mut mesh);
+                markers.iter().map(|m| m.1.at(&mesh)).collect()
+            })
+            .collect(),
+        warnings: Vec::new(),
+        file_units: "m".into(),
+        point_groups: Vec::new(),
+    };
+    (rec, take_s)
+}
+
+/// The joints whose rotations are held against the truth: the head, the trunk (hips
+/// and the top of the spine), and those that carry a label of `cal`.
+fn watched_joints(loaded: &LoadedCharacter, cal: &Calibration) -> [Vec<usize>; 3] {
+    let role_joint = |part: Part, last: bool| {
+        let j = candidate_joints(Role { part, side: None }, &loaded.joint_roles);
+        if last {
+            j.last().copied()
+        } else {
+            j.first().copied()
+        }
+    };
+    [
+        role_joint(Part::Head, false).into_iter().collect(),
+        [role_joint(Part::Hips, false), role_joint(Part::Spine, true)]
+            .into_iter()
+            .flatten()
+            .collect(),
+        cal.placed.iter().map(|p| p.joint).collect(),
+    ]
+}
+
+/// `rec` solved through the pipeline with `rig` at `scale`, every tick held against
+/// `truth` (the head, trunk and carrying joints of `watched`).
+fn solve_against(
+    truth: &mut Truth<'_>,
+    rig: Arc<crate::rig::bind::Rig>,
+    rec: &Recording,
+    scale: f64,
+    watched: &[Vec<usize>; 3],
+    height: f64,
+) -> Result<Tally, crate::solve::harmonic::HarmonicError> {
+    let mut tally = Tally::default();
+    let mut mesh = Vec::new();
+    let names: Vec<String> = rig.skeleton.joints.iter().map(|j| j.name.clone()).collect();
+    let opts = OfflineOptions {
+        marker_scale: scale,
+        deadline: false,
+        ..OfflineOptions::default()
+    };
+    replay_offline_with(rig, SolverParams::default(), rec, opts, &mut |tick| {
+        truth.at(tick.index as f64 / RATE_HZ, &mut mesh);
+        let errs = mesh
+            .iter()
+            .zip(tick.vertices)
+            .map(|(a, b)| (*a - *b).length());
+        let (sum, max) = errs.fold((0.0, 0.0f64), |(s, m), e| (s + e, m.max(e)));
+        tally.frame_means.push(sum / mesh.len() as f64 / height);
+        tally.vertex_max = tally.vertex_max.max(max / height);
+        let lowest = |v: &[DVec3]| v.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+        tally
+            .floor_mm
+            .push((lowest(tick.vertices) - lowest(&mesh)) * 1e3);
+        let angle = |j: usize| {
+            let q = truth.rotation(truth.asset.node_of_joint(&names[j])?)?;
+            Some(rotation_angle_between(q, tick.joint_rot[j]).to_degrees())
+        };
+        let worst = |js: &[usize]| js.iter().filter_map(|&j| angle(j)).fold(0.0, f64::max);
+        tally.head_deg = tally.head_deg.max(worst(&watched[0]));
+        tally.trunk_deg = tally.trunk_deg.max(worst(&watched[1]));
+        tally.carrying_deg = tally.carrying_deg.max(worst(&watched[2]));
+        ControlFlow::Continue(())
+    })?;
+    Ok(tally)
+}
+
 /// One asset and clip.
 fn case(
     loaded: &LoadedCharacter,
@@ -401,24 +494,7 @@ fn case(
         worlds: Vec::new(),
         file: Vec::new(),
     };
-    let take_s =
-        (clip.duration_s * (MIN_TAKE_S / clip.duration_s.max(1e-3)).ceil()).max(MIN_TAKE_S);
-    let frames = (take_s * RATE_HZ).round() as usize;
-    let mut mesh = Vec::new();
-    let rec = Recording {
-        name: format!("{name}-{}", clip.name),
-        rate_hz: RATE_HZ,
-        labels: markers.iter().map(|m| m.0.clone()).collect(),
-        frames: (0..frames)
-            .map(|i| {
-                truth.at(i as f64 / RATE_HZ, &mut mesh);
-                markers.iter().map(|m| m.1.at(&mesh)).collect()
-            })
-            .collect(),
-        warnings: Vec::new(),
-        file_units: "m".into(),
-        point_groups: Vec::new(),
-    };
+    let (rec, take_s) = truth_take(&mut truth, &markers, format!("{name}-{}", clip.name));
     let mut bare = ch.clone();
     bare.markers.clear();
     let opts = CalibrationOptions {
@@ -445,62 +521,14 @@ fn case(
         cal.bind(&bare, &bind, &mut |_, _| {})
             .map_err(|e| BenchError::case(what(), e))?,
     );
-    let carrying: Vec<usize> = cal.placed.iter().map(|p| p.joint).collect();
-    let node_of = |j: usize| asset.node_of_joint(&ch.skeleton.joints[j].name);
-    let role_joint = |p: Part, last: bool| {
-        let j = candidate_joints(
-            Role {
-                part: p,
-                side: None,
-            },
-            &loaded.joint_roles,
-        );
-        if last {
-            j.last().copied()
-        } else {
-            j.first().copied()
-        }
-    };
-    let head: Vec<usize> = role_joint(Part::Head, false).into_iter().collect();
-    let trunk: Vec<usize> = [role_joint(Part::Hips, false), role_joint(Part::Spine, true)]
-        .into_iter()
-        .flatten()
-        .collect();
-    let mut tally = Tally::default();
+    let watched = watched_joints(loaded, &cal);
     let t1 = Instant::now();
-    let opts = OfflineOptions {
-        marker_scale: cal.scale,
-        deadline: false,
-        ..OfflineOptions::default()
-    };
-    replay_offline_with(rig, SolverParams::default(), &rec, opts, &mut |tick| {
-        truth.at(tick.index as f64 / RATE_HZ, &mut mesh);
-        let errs = mesh
-            .iter()
-            .zip(tick.vertices)
-            .map(|(a, b)| (*a - *b).length());
-        let (sum, max) = errs.fold((0.0, 0.0f64), |(s, m), e| (s + e, m.max(e)));
-        tally.frame_means.push(sum / mesh.len() as f64 / height);
-        tally.vertex_max = tally.vertex_max.max(max / height);
-        let lowest = |v: &[DVec3]| v.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
-        tally
-            .floor_mm
-            .push((lowest(tick.vertices) - lowest(&mesh)) * 1e3);
-        let angle = |j: usize| {
-            let q = truth.rotation(node_of(j)?)?;
-            Some(rotation_angle_between(q, tick.joint_rot[j]).to_degrees())
-        };
-        let worst = |js: &[usize]| js.iter().filter_map(|&j| angle(j)).fold(0.0, f64::max);
-        tally.head_deg = tally.head_deg.max(worst(&head));
-        tally.trunk_deg = tally.trunk_deg.max(worst(&trunk));
-        tally.carrying_deg = tally.carrying_deg.max(worst(&carrying));
-        ControlFlow::Continue(())
-    })
-    .map_err(|e| BenchError::case(what(), e))?;
+    let mut tally = solve_against(&mut truth, rig, &rec, cal.scale, &watched, height)
+        .map_err(|e| BenchError::case(what(), e))?;
     let solve_s = t1.elapsed().as_secs_f64();
     let n = tally.frame_means.len().max(1) as f64;
     let mut floor_abs: Vec<f64> = tally.floor_mm.iter().map(|x| x.abs()).collect();
-    let floor_median = crate::runtime::stats::percentile(&mut tally.floor_mm.clone(), 0.5);
+    let floor_median = crate::runtime::stats::percentile(&mut tally.floor_mm, 0.5);
     Ok(TruthRecord {
         suite: "truth",
         asset: name.to_string(),

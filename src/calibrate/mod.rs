@@ -440,6 +440,11 @@ pub enum CalibrationError {
     },
     #[error("{take}: no frame in the span asked for has {MIN_KNOWN_LABELS} known labels in view")]
     NoFrames { take: String },
+    /// Frames had labels in view, but none could be laid onto the character.
+    #[error(
+        "{take}: {frames} frames have {MIN_KNOWN_LABELS} or more known labels in view, but in          none of them do the labels come near the skin of their bones at any heading and          scale tried: labels on other bones than the table says, or a character whose bones          do not match the actor's (a limb of one joint with no child has no bone of its          own). Try --frames on a span where the actor stands as the character does, or name          the labels' bones in the character file's [calibration.bones]"
+    )]
+    NoFirstGuess { take: String, frames: usize },
     #[error("the character has no skeleton joint with children")]
     NoJoints,
     #[error("{take}: the fit found no scale (too few distinct points in view)")]
@@ -556,10 +561,17 @@ pub fn calibrate(
     let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
     let surface = WindingNumber::new(&unique, &oriented);
     let parts = Parts::new(&ch.skeleton, &unique, &oriented);
-    let guesses = first_guesses(ch, &known, rec.frames, span.clone(), stance, &surface);
-    if guesses.is_empty() {
+    let (guesses, frames_in_view) =
+        first_guesses(ch, &known, rec.frames, span.clone(), stance, &surface);
+    if guesses.is_empty() && frames_in_view == 0 {
         return Err(CalibrationError::NoFrames {
             take: rec.name.to_owned(),
+        });
+    }
+    if guesses.is_empty() {
+        return Err(CalibrationError::NoFirstGuess {
+            take: rec.name.to_owned(),
+            frames: frames_in_view,
         });
     }
     let problem = Problem {
@@ -910,8 +922,8 @@ const GUESS_REFINED: usize = 3;
 /// by any rotation: a hand's markers lie near a plane, the back of the hand, and with
 /// its fingers bent a tilted or mirrored hand at another scale fits them about as well,
 /// while a take in the character's own frame is fitted best by turns about Y alone);
-/// none when no frame of `span` has [`MIN_KNOWN_LABELS`] known labels.
-/// Each candidate frame is fitted to the anchors, then to the skin (an iterative closest
+/// none when no frame of `span` has [`MIN_KNOWN_LABELS`] known labels; with the count
+/// of candidate frames that have them. Each candidate frame is fitted to the anchors, then to the skin (an iterative closest
 /// point with each label kept near its bone, which removes the anchors' bias: they lie
 /// inside the body, the markers outside, and the scale would come out small); the best
 /// few are refined further and the best of those wins.
@@ -922,8 +934,9 @@ fn first_guesses(
     span: std::ops::Range<usize>,
     stance: Stance,
     surface: &WindingNumber,
-) -> Vec<FirstGuess> {
+) -> (Vec<FirstGuess>, usize) {
     let height = stance.height;
+    let mut in_view = 0;
     let step = span.len().div_ceil(GUESS_CANDIDATES).max(1);
     let seeds: &[Turn] = match stance.turn {
         Turn::Yaw => &[Turn::Yaw],
@@ -940,6 +953,9 @@ fn first_guesses(
             let p = anchor_pairs(ch, known, &frames[f]);
             if p.len() < MIN_KNOWN_LABELS {
                 continue;
+            }
+            if seed == seeds[0] {
+                in_view += 1;
             }
             let Some((heading, scale, _)) = fit_heading(&p, None, 0.1 * height, seed) else {
                 continue;
@@ -968,7 +984,7 @@ fn first_guesses(
             });
         }
     }
-    guesses
+    (guesses, in_view)
 }
 
 /// Iterative closest point of one frame's known labels onto the skin, from a heading and

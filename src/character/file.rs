@@ -303,6 +303,10 @@ pub enum MeshWarning {
         longest_m: f64,
         up: UpAxis,
     },
+    /// Skin joints no vertex is weighted to and below which none is (IK poles, controls,
+    /// sockets), dropped from the skeleton.
+    #[error("{} joint{} of the skin carr{} no skin weight and {} no weighted joint below {}, so {} dropped (IK poles, controls, sockets): {}", .dropped.len(), if .dropped.len() == 1 { "" } else { "s" }, if .dropped.len() == 1 { "ies" } else { "y" }, if .dropped.len() == 1 { "has" } else { "have" }, if .dropped.len() == 1 { "it" } else { "them" }, if .dropped.len() == 1 { "it was" } else { "they were" }, .dropped.join(", "))]
+    UnweightedJoints { dropped: Vec<String> },
     /// Skin joints that sat on their parents, merged into them (name, parent).
     #[error("{} joint{} of the skin sat on {} parent{} (bones of no length) and {} merged into {}: {}", .merged.len(), if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "its" } else { "their" }, if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "was" } else { "were" }, if .merged.len() == 1 { "it" } else { "them" }, .merged.iter().map(|(j, p)| format!("{j} into {p}")).collect::<Vec<_>>().join(", "))]
     ZeroLengthBones { merged: Vec<(String, String)> },
@@ -799,9 +803,10 @@ pub fn build(
         Vec::new()
     };
     let sk = &spec.skeleton;
-    let mut merged = Vec::new();
+    let (mut merged, mut unweighted) = (Vec::new(), Vec::new());
     let (mut joints, skin_x_axis) = if sk.from_skin.unwrap_or(!mesh.skin_joints.is_empty()) {
-        skin_joints(sk, &mesh, frame, &mut problems, &mut merged)
+        let dropped = (&mut merged, &mut unweighted);
+        skin_joints(sk, &mesh, frame, &mut problems, dropped)
     } else {
         listed_joints(sk, &mesh, frame, &mut problems)
     };
@@ -834,6 +839,11 @@ pub fn build(
         _ => None,
     };
     let mut warnings = warnings;
+    if !unweighted.is_empty() {
+        warnings.push(MeshWarning::UnweightedJoints {
+            dropped: unweighted,
+        });
+    }
     if !merged.is_empty() {
         warnings.push(MeshWarning::ZeroLengthBones { merged });
     }
@@ -1024,16 +1034,18 @@ fn check_surface(mesh: &MeshData, vertices: &[DVec3], weld_tol: f64) -> Vec<Mesh
 }
 
 /// The joints of the glTF skin, parents first (`skeleton.parents` overriding the file's
-/// hierarchy), at their bind-pose positions, zero-length bones merged
-/// ([`merge_zero_length_bones`], into `merged`); with each joint's bind-pose X axis in
-/// the world frame (the default bend axis).
+/// hierarchy), at their bind-pose positions, joints that carry no skin weight and have
+/// none below them dropped ([`drop_unweighted`], named in `dropped.1`), zero-length
+/// bones merged ([`merge_zero_length_bones`], into `dropped.0`); with each joint's
+/// bind-pose X axis in the world frame (the default bend axis).
 fn skin_joints(
     sk: &SkeletonSpec,
     mesh: &MeshData,
     frame: WorldFrame,
     problems: &mut Vec<CharacterProblem>,
-    merged: &mut Vec<(String, String)>,
+    dropped: (&mut Vec<(String, String)>, &mut Vec<String>),
 ) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    let (merged, unweighted) = dropped;
     if mesh.skin_joints.is_empty() {
         problems.push(CharacterProblem::NoSkin);
     }
@@ -1067,8 +1079,10 @@ fn skin_joints(
     }
     let mut joints = Vec::with_capacity(order.len());
     let mut skin_x_axis = Vec::with_capacity(order.len());
+    let mut weighted = Vec::with_capacity(order.len());
     let mut slot = vec![usize::MAX; parent.len()];
     for (i, &k) in order.iter().enumerate() {
+        weighted.push(mesh.skin_joints[k].weighted);
         slot[k] = i;
         let sj = &mesh.skin_joints[k];
         let m: DMat4 = sj.world_from_joint;
@@ -1083,7 +1097,61 @@ fn skin_joints(
             frame.direction(m.x_axis.truncate()).normalize_or_zero(),
         ));
     }
+    let (joints, skin_x_axis) = drop_unweighted(joints, skin_x_axis, &weighted, unweighted);
     merge_zero_length_bones(joints, skin_x_axis, merged)
+}
+
+/// `joints` (parents first) without those that carry no skin weight and have no
+/// weighted joint below them: a rig's IK poles, foot and hand controls, and sockets,
+/// which move no vertex and would make roots and branches of their own. An end joint
+/// (a weighted joint's only child, a leaf) stays. Their names go to `dropped`. Nothing
+/// is dropped when no joint is weighted (a skin without weights).
+fn drop_unweighted(
+    joints: Vec<Joint>,
+    axes: Vec<Option<DVec3>>,
+    weighted: &[bool],
+    dropped: &mut Vec<String>,
+) -> (Vec<Joint>, Vec<Option<DVec3>>) {
+    if !weighted.iter().any(|&w| w) {
+        return (joints, axes);
+    }
+    // An end joint (a leaf, the only child of a weighted joint: `HeadTop_End`,
+    // `LeftToe_End`) carries no weight but gives its parent's bone its length and
+    // direction: kept.
+    let n = joints.len();
+    let mut children = vec![0usize; n];
+    for j in &joints {
+        if let Some(p) = j.parent.filter(|&p| p < n) {
+            children[p] += 1;
+        }
+    }
+    let end_joint = |i: usize| {
+        children[i] == 0
+            && joints[i]
+                .parent
+                .is_some_and(|p| p < n && weighted[p] && children[p] == 1)
+    };
+    // Children after parents: one pass from the end carries "keep" up.
+    let mut keep: Vec<bool> = (0..n).map(|i| weighted[i] || end_joint(i)).collect();
+    for i in (0..joints.len()).rev() {
+        if let Some(p) = joints[i].parent.filter(|&p| keep[i] && p < i) {
+            keep[p] = true;
+        }
+    }
+    let mut new_index = vec![usize::MAX; joints.len()];
+    let (mut out, mut out_axes) = (Vec::with_capacity(joints.len()), Vec::new());
+    for (i, (j, axis)) in joints.into_iter().zip(axes).enumerate() {
+        if !keep[i] {
+            dropped.push(j.name);
+            continue;
+        }
+        new_index[i] = out.len();
+        // A kept joint's parent is kept (keep runs up the tree).
+        let parent = j.parent.map(|p| new_index[p]);
+        out.push(Joint { parent, ..j });
+        out_axes.push(axis);
+    }
+    (out, out_axes)
 }
 
 /// `joints` (parents first) with every joint that sits on its parent (within a
@@ -1682,6 +1750,47 @@ mod tests {
             ]
         );
         assert!(Skeleton::new(out).is_ok());
+    }
+
+    /// A Blender rig's IK pole (a root of its own) and foot control (a leaf under the
+    /// hips), which no vertex is weighted to, are dropped; an unweighted joint with a
+    /// weighted one below it (an armature root) stays.
+    #[test]
+    fn unweighted_joints_with_nothing_weighted_below_are_dropped() {
+        let joint = |name: &str, parent: Option<usize>, y: f64| Joint {
+            name: name.into(),
+            parent,
+            rest: DVec3::new(0.0, y, 0.0),
+            limits: None,
+            bend_axis: DVec3::X,
+        };
+        let joints = vec![
+            joint("root", None, 0.0),
+            joint("knee_pole.L", None, 0.5),
+            joint("hips", Some(0), 1.0),
+            joint("foot_ctrl.L", Some(2), 0.1),
+            joint("spine", Some(2), 1.3),
+            joint("ctrl_child", Some(3), 0.05),
+            joint("spine_end", Some(4), 1.6),
+        ];
+        let weighted = [false, false, true, false, true, false, false];
+        let axes = vec![Some(DVec3::X); joints.len()];
+        let mut dropped = Vec::new();
+        let (out, axes) = drop_unweighted(joints.clone(), axes, &weighted, &mut dropped);
+        let names: Vec<&str> = out.iter().map(|j| j.name.as_str()).collect();
+        // The spine's end joint, its only child, stays: it gives the spine its length.
+        assert_eq!(names, ["root", "hips", "spine", "spine_end"]);
+        let parents: Vec<Option<usize>> = out.iter().map(|j| j.parent).collect();
+        assert_eq!(parents, [None, Some(0), Some(1), Some(2)]);
+        assert_eq!(axes.len(), 4);
+        assert_eq!(dropped, ["knee_pole.L", "foot_ctrl.L", "ctrl_child"]);
+        assert!(Skeleton::new(out).is_ok());
+        // No weights known: nothing dropped.
+        let none = [false; 7];
+        let mut dropped = Vec::new();
+        let axes = vec![None; joints.len()];
+        let (out, _) = drop_unweighted(joints, axes, &none, &mut dropped);
+        assert_eq!((out.len(), dropped.len()), (7, 0));
     }
 
     /// Lying down is judged by the trunk: a half-body avatar with wide arms is wider

@@ -78,6 +78,10 @@ pub struct SkinJoint {
     pub parent: Option<usize>,
     /// Bind-pose world matrix (inverse of the inverse bind matrix), mesh space.
     pub world_from_joint: DMat4,
+    /// Whether some vertex the skin deforms has weight on it (`JOINTS_0` and
+    /// `WEIGHTS_0` of the primitives it skins) or an unskinned mesh node hangs from it;
+    /// every joint counts as weighted when no primitive gives weights.
+    pub weighted: bool,
 }
 
 /// Errors reading a mesh file. The glTF variants name the object at fault as the JSON
@@ -292,6 +296,9 @@ pub enum SkinProblem {
     },
     #[error("{joints} joints but {matrices} inverse bind matrices")]
     MatrixCount { joints: usize, matrices: usize },
+    /// A skinned primitive's `JOINTS_0` or `WEIGHTS_0`.
+    #[error("{at}: {detail}")]
+    Weights { at: PrimitiveAt, detail: String },
 }
 
 /// A primitive of a mesh, as errors name it.
@@ -1885,6 +1892,149 @@ fn same_matrix(a: &DMat4, b: &DMat4, extent: f64) -> bool {
         && d.w_axis.truncate().abs().max_element() <= SAME_MATRIX * size * extent
 }
 
+/// Which of skin `s`'s joints (in its own order) some vertex has weight on, through any
+/// skin that has the joint's node (a character's head mesh may have a skin of its own
+/// over the same joints); all of them when no skinned primitive gives `JOINTS_0` and
+/// `WEIGHTS_0` (then none can be told unused).
+fn weighted_joints(
+    root: &gltf::json::Root,
+    s: usize,
+    layouts: &[Layout],
+    buffers: &Buffers,
+) -> Result<Vec<bool>, MeshError> {
+    let mut node_weighted = vec![false; root.nodes.len()];
+    let mut read_any = false;
+    let (mut joints, mut weights) = (Vec::new(), Vec::new());
+    for node in &root.nodes {
+        let (Some(m), Some(t)) = (node.mesh.map(|m| m.value()), node.skin.map(|k| k.value()))
+        else {
+            continue;
+        };
+        let (Some(mesh), Some(skin)) = (root.meshes.get(m), root.skins.get(t)) else {
+            continue;
+        };
+        for (p, prim) in mesh.primitives.iter().enumerate().filter(|(_, p)| is_triangles(p)) {
+            use gltf::json::mesh::Semantic;
+            use gltf::json::validation::Checked;
+            let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));
+            if !(has(Semantic::Joints(0)) && has(Semantic::Weights(0))) {
+                continue;
+            }
+            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(
+                |detail| MeshError::Skin {
+                    skin: t,
+                    problem: SkinProblem::Weights {
+                        at: PrimitiveAt {
+                            mesh: m,
+                            name: mesh.name.clone(),
+                            primitive: p,
+                        },
+                        detail,
+                    },
+                },
+            )?;
+            read_any = true;
+            for (j, w) in joints.iter().zip(&weights) {
+                for c in 0..4 {
+                    let joint = skin.joints.get(j[c] as usize).map(|n| n.value());
+                    if let (true, Some(n)) = (w[c] > 0.0, joint) {
+                        if let Some(x) = node_weighted.get_mut(n) {
+                            *x = true;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let of_skin = root.skins.get(s).map_or(&[][..], |skin| &skin.joints[..]);
+    Ok(of_skin
+        .iter()
+        .map(|n| !read_any || node_weighted.get(n.value()).copied().unwrap_or(true))
+        .collect())
+}
+
+/// A primitive's `JOINTS_0` (unsigned bytes or shorts) and `WEIGHTS_0` (floats, or
+/// normalised unsigned bytes or shorts), non-finite and negative weights read as 0.
+fn read_influences(
+    prim: &gltf::json::mesh::Primitive,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    joints: &mut Vec<[u16; 4]>,
+    weights: &mut Vec<[f32; 4]>,
+) -> Result<(), String> {
+    use gltf::json::accessor::{ComponentType, Type};
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked;
+    let get = |sem: Semantic, what: &str| -> Result<(usize, &Layout), String> {
+        let a = prim
+            .attributes
+            .get(&Checked::Valid(sem))
+            .ok_or_else(|| format!("no {what}"))?
+            .value();
+        let l = layouts.get(a).ok_or_else(|| format!("no {what}"))?;
+        if l.kind != Type::Vec4 {
+            return Err(format!(
+                "{what} accessors[{a}] is {}, not VEC4",
+                type_name(l.kind)
+            ));
+        }
+        Ok((a, l))
+    };
+    let (ja, jl) = get(Semantic::Joints(0), "JOINTS_0")?;
+    let (wa, wl) = get(Semantic::Weights(0), "WEIGHTS_0")?;
+    let jsize = match jl.component {
+        ComponentType::U8 => 1,
+        ComponentType::U16 => 2,
+        c => {
+            return Err(format!(
+                "JOINTS_0 accessors[{ja}] has componentType {}",
+                c.as_gl_enum()
+            ))
+        }
+    };
+    joints.clear();
+    weights.clear();
+    read_accessor(
+        jl,
+        ja,
+        buffers,
+        |b| std::array::from_fn(|k| le_uint(b.get(k * jsize..).unwrap_or(&[]), jsize) as u16),
+        joints,
+    )
+    .map_err(|e| e.to_string())?;
+    let clean = |x: f32| if x.is_finite() && x > 0.0 { x } else { 0.0 };
+    let decoded = match wl.component {
+        ComponentType::F32 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| std::array::from_fn(|k| clean(le_f32(b, k))),
+            weights,
+        ),
+        ComponentType::U8 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| std::array::from_fn(|k| f32::from(*b.get(k).unwrap_or(&0)) / 255.0),
+            weights,
+        ),
+        ComponentType::U16 => read_accessor(
+            wl,
+            wa,
+            buffers,
+            |b| std::array::from_fn(|k| le_uint(b.get(2 * k..).unwrap_or(&[]), 2) as f32 / 65535.0),
+            weights,
+        ),
+        c => {
+            return Err(format!(
+                "WEIGHTS_0 accessors[{wa}] has componentType {}",
+                c.as_gl_enum()
+            ))
+        }
+    };
+    decoded.map_err(|e| e.to_string())
+}
+
 /// Skin `s`'s inverse bind matrices (identities when it gives none).
 fn inverse_binds(
     root: &gltf::json::Root,
@@ -1962,9 +2112,27 @@ fn read_skin(
     };
     let joints: Vec<usize> = skin.joints.iter().map(|j| j.value()).collect();
     let ibm = inverse_binds(root, s, layouts, buffers)?;
+    let mut weighted = weighted_joints(root, s, layouts, buffers)?;
     // Down the forest once: each node's nearest ancestor that is a joint, and each
     // joint's parent joint and depth among the joints.
     let slot: HashMap<usize, usize> = joints.iter().enumerate().map(|(k, &n)| (n, k)).collect();
+    // A joint an unskinned mesh node hangs from carries that mesh (a head modelled
+    // apart and parented to its joint) as a weighted joint carries its skin.
+    for (n, node) in root.nodes.iter().enumerate() {
+        if node.mesh.is_none() || node.skin.is_some() {
+            continue;
+        }
+        let mut up = forest.parent.get(n).copied().flatten();
+        while let Some(a) = up {
+            if let Some(&k) = slot.get(&a) {
+                if let Some(w) = weighted.get_mut(k) {
+                    *w = true;
+                }
+                break;
+            }
+            up = forest.parent.get(a).copied().flatten();
+        }
+    }
     let mut nearest: Vec<Option<usize>> = vec![None; root.nodes.len()];
     let mut joint_parent: Vec<Option<usize>> = vec![None; joints.len()];
     let mut depth = vec![0usize; joints.len()];
@@ -2003,6 +2171,7 @@ fn read_skin(
                     Some(world) => world.get(node).copied().unwrap_or(DMat4::IDENTITY),
                     None => ibm[k].inverse(),
                 },
+                weighted: weighted.get(k).copied().unwrap_or(true),
             }
         })
         .collect())
