@@ -458,3 +458,39 @@ fn real_assets_survive_the_exercise() {
         assert!(r.joint_limit_violation_deg_max <= 0.5, "{r:?}");
     }
 }
+
+/// A limb of one joint gets an end joint where its skin ends: Kenney's mini character
+/// (7 joints; each leg one joint from the hips down, the head one joint) reads with an
+/// end under each of its five leaves, the legs as upper legs and the head as a head.
+#[test]
+fn one_joint_limbs_get_end_joints_where_their_skin_ends() {
+    let Some(glb) = shared("meshes/real/kenney_mini_character_female_a.glb") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = rigless::bench::assets::gltf_file(&glb, dir.path()).unwrap();
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let sk = &loaded.character.skeleton;
+    let names: Vec<&str> = sk.joints.iter().map(|j| j.name.as_str()).collect();
+    for leaf in ["leg-left", "leg-right", "arm-left", "arm-right", "head"] {
+        let end = format!("{leaf}_end");
+        let e = names
+            .iter()
+            .position(|n| *n == end)
+            .unwrap_or_else(|| panic!("{end} in {names:?}"));
+        let j = names.iter().position(|n| *n == leaf).unwrap();
+        assert_eq!(sk.joints[e].parent, Some(j), "{end}");
+    }
+    // The legs' ends are at the soles (measured y = -0.016 m, the skin's lowest along
+    // the leg), far below the hip joints (0.18 m).
+    let foot = sk.joints[names.iter().position(|n| *n == "leg-left_end").unwrap()].rest;
+    assert!(foot.y < 0.05, "{foot}");
+    let role = |n: &str| loaded.joint_roles[names.iter().position(|x| *x == n).unwrap()];
+    use rigless::character::roles::{Part, Side};
+    assert_eq!(
+        role("leg-left").map(|r| (r.part, r.side)),
+        Some((Part::UpperLeg, Some(Side::Left)))
+    );
+    assert_eq!(role("head").map(|r| r.part), Some(Part::Head));
+    assert_eq!(role("leg-left_end"), None);
+}

@@ -442,7 +442,13 @@ pub enum CalibrationError {
     NoFrames { take: String },
     /// Frames had labels in view, but none could be laid onto the character.
     #[error(
-        "{take}: {frames} frames have {MIN_KNOWN_LABELS} or more known labels in view, but in          none of them do the labels come near the skin of their bones at any heading and          scale tried: labels on other bones than the table says, or a character whose bones          do not match the actor's (a limb of one joint with no child has no bone of its          own). Try --frames on a span where the actor stands as the character does, or name          the labels' bones in the character file's [calibration.bones]"
+        "{take}: {frames} of the frames tried have {MIN_KNOWN_LABELS} or more known \
+         labels in view, but in none of them do the labels come near the skin of their \
+         bones at any heading and scale tried: labels on other bones than the table says, \
+         or a character whose bones do not match the actor's (a limb of one joint with no \
+         child has no bone of its own). Try --frames on a span where the actor stands as \
+         the character does, or name the labels' bones in the character file's \
+         [calibration.bones]"
     )]
     NoFirstGuess { take: String, frames: usize },
     #[error("the character has no skeleton joint with children")]

@@ -655,8 +655,146 @@ fn parse_document<'a>(
     if let Some(skin) = first_skin {
         let world = rest.is_some().then_some(world.as_slice());
         out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest, world)?;
+        let dominant = dominant_nodes(&root, &layouts, &buffers, &out)?;
+        add_end_joints(&mut out, &dominant, &root);
     }
     Ok((root, buffers, out))
+}
+
+/// Each vertex's most weighted joint node (`None`: unskinned, or a primitive without
+/// `JOINTS_0` and `WEIGHTS_0`), over the parts in the reader's order.
+fn dominant_nodes(
+    root: &gltf::json::Root,
+    layouts: &[Layout],
+    buffers: &Buffers,
+    out: &MeshData,
+) -> Result<Vec<Option<usize>>, MeshError> {
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked;
+    let mut dominant = vec![None; out.positions.len()];
+    let (mut joints, mut weights) = (Vec::new(), Vec::new());
+    let mut part = 0;
+    for node in &root.nodes {
+        let Some((m, mesh)) = node
+            .mesh
+            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
+        else {
+            continue;
+        };
+        for (p, prim) in mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_triangles(p))
+        {
+            let range = out.parts.get(part).map(|q| {
+                let first = q.first_vertex as usize;
+                first..first + q.vertex_count as usize
+            });
+            part += 1;
+            let skin = node
+                .skin
+                .and_then(|s| Some((s.value(), root.skins.get(s.value())?)));
+            let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));
+            let (Some(range), Some((t, skin)), true) = (
+                range,
+                skin,
+                has(Semantic::Joints(0)) && has(Semantic::Weights(0)),
+            ) else {
+                continue;
+            };
+            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(
+                |detail| MeshError::Skin {
+                    skin: t,
+                    problem: SkinProblem::Weights {
+                        at: PrimitiveAt {
+                            mesh: m,
+                            name: mesh.name.clone(),
+                            primitive: p,
+                        },
+                        detail,
+                    },
+                },
+            )?;
+            for ((v, j), w) in range.zip(&joints).zip(&weights) {
+                let c = (0..4).fold(0, |b, c| if w[c] > w[b] { c } else { b });
+                if w[c] > 0.0 {
+                    dominant[v] = skin.joints.get(j[c] as usize).map(|n| n.value());
+                }
+            }
+        }
+    }
+    Ok(dominant)
+}
+
+/// Shortest skin past a leaf joint, as a share of the mesh's extent, that makes an end
+/// joint for it (shorter: a fingertip's nail).
+const END_JOINT_SHARE: f64 = 0.02;
+
+/// An end joint for every leaf joint of the skin whose own skin (the vertices it weighs
+/// most) reaches past it: a limb of one joint (Kenney's `leg-left`, from the hips down
+/// to the foot) or a head without a top joint has a bone only from its parent to it,
+/// and its skin hangs beyond; the end joint (`NAME_end`, no role, no weight) sits where
+/// that skin ends in the direction of its middle.
+fn add_end_joints(out: &mut MeshData, dominant: &[Option<usize>], root: &gltf::json::Root) {
+    let (lo, hi) = out.positions.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), p| (a.min(*p), b.max(*p)),
+    );
+    let extent = (hi - lo).max_element();
+    let n = out.skin_joints.len();
+    let mut has_child = vec![false; n];
+    for j in &out.skin_joints {
+        if let Some(p) = j.parent.filter(|&p| p < n) {
+            has_child[p] = true;
+        }
+    }
+    let node_name = |i: usize| &out.skin_joints[i].name;
+    let nodes: Vec<Option<usize>> = (0..n)
+        .map(|i| {
+            let mut skin_nodes = root
+                .skins
+                .iter()
+                .flat_map(|s| s.joints.iter().map(|j| j.value()));
+            skin_nodes.find(|&k| root.nodes[k].name.as_deref() == Some(node_name(i).as_str()))
+        })
+        .collect();
+    let mut ends = Vec::new();
+    for i in (0..n).filter(|&i| !has_child[i]) {
+        let (Some(p), Some(node)) = (out.skin_joints[i].parent, nodes[i]) else {
+            continue;
+        };
+        if p >= n {
+            continue;
+        }
+        // Toward the middle of its own skin (a bone from the parent may point the other
+        // way: a root on the floor under a leg joint at the hips), as far as it reaches.
+        let at = out.skin_joints[i].world_from_joint.w_axis.truncate();
+        let own: Vec<DVec3> = out
+            .positions
+            .iter()
+            .zip(dominant)
+            .filter(|(_, &k)| k == Some(node))
+            .map(|(v, _)| *v)
+            .collect();
+        let middle = own.iter().sum::<DVec3>() / own.len().max(1) as f64;
+        let d = (middle - at).normalize_or_zero();
+        let reach = own.iter().map(|v| (*v - at).dot(d)).fold(0.0, f64::max);
+        if d != DVec3::ZERO && reach > END_JOINT_SHARE * extent {
+            let mut m = out.skin_joints[i].world_from_joint;
+            m.w_axis = (at + d * reach).extend(1.0);
+            ends.push(SkinJoint {
+                name: format!("{}_end", node_name(i)),
+                parent: Some(i),
+                world_from_joint: m,
+                weighted: false,
+            });
+        }
+    }
+    let taken: std::collections::HashSet<String> =
+        out.skin_joints.iter().map(|j| j.name.clone()).collect();
+    out.skin_joints
+        .extend(ends.into_iter().filter(|e| !taken.contains(&e.name)));
 }
 
 /// Runs a call into the `gltf` crate, turning a panic into [`MeshError::Panicked`]. The
@@ -1913,7 +2051,12 @@ fn weighted_joints(
         let (Some(mesh), Some(skin)) = (root.meshes.get(m), root.skins.get(t)) else {
             continue;
         };
-        for (p, prim) in mesh.primitives.iter().enumerate().filter(|(_, p)| is_triangles(p)) {
+        for (p, prim) in mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_triangles(p))
+        {
             use gltf::json::mesh::Semantic;
             use gltf::json::validation::Checked;
             let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));

@@ -530,7 +530,7 @@ fn chain_roles(
         });
         // A limb word on a joint with no child at all is the whole limb, hanging from
         // the trunk (Kenney's `leg-left`): its upper part.
-        let whole = children[i].is_empty();
+        let whole = children[i].iter().all(|&c| said[c] == Said::End);
         let lone = match (leg, next) {
             (true, _) if whole => Part::UpperLeg,
             (true, Some(Part::LowerLeg)) => Part::UpperLeg,
