@@ -38,17 +38,19 @@ fn cesium_man_known_truth_is_measured_and_judged_honestly() {
     assert_eq!(r.placed, 39);
     // Its own file at rest is its bind pose (skinning matrices 2e-7 off identity).
     assert!(r.rest_off_bind < 1e-5, "{}", r.rest_off_bind);
-    // Measured: scale 3.4 % off, vertices 3.7 % of the height in the mean frame and
-    // 4.4 % in the worst, lowest vertex 8 mm under the truth's in the median frame (the
-    // issue's targets, 2 %, 1 % and 3 %, are not met; these bounds guard what is).
-    assert!(r.scale_error < 0.07, "{}", r.scale_error);
-    assert!(r.vertex_share_mean < 0.075, "{}", r.vertex_share_mean);
+    // Measured: scale 1.1 % off, vertices 1.8 % of the height in the mean frame and
+    // 1.9 % in the worst, head within 1.1° (its neck chain's top read as the head),
+    // lowest vertex 21 mm over the truth's in the median frame. The targets
+    // (2 %, 1 %, 3 %, 5°): scale, worst frame and head met, mean vertex error not.
+    assert!(r.scale_error < 0.025, "{}", r.scale_error);
+    assert!(r.vertex_share_mean < 0.035, "{}", r.vertex_share_mean);
     assert!(
-        r.vertex_share_worst_frame < 0.09,
+        r.vertex_share_worst_frame < 0.03,
         "{}",
         r.vertex_share_worst_frame
     );
-    assert!(r.floor_mm_median.abs() < 20.0, "{}", r.floor_mm_median);
+    assert!(r.head_deg_max < 5.0, "{}", r.head_deg_max);
+    assert!(r.floor_mm_median.abs() < 40.0, "{}", r.floor_mm_median);
     // Over the targets (1 % mean, 3 % worst frame), so the calibration must not
     // call itself good: it is doubtful (the pelvis markers fit badly).
     assert_ne!(r.verdict, Verdict::Good, "{:?}", r.concerns);

@@ -419,6 +419,7 @@ pub fn recognise(joints: &[Joint], overrides: &[(usize, Option<Role>)]) -> Vec<O
     chain_roles(joints, &said, &side, &children, &mut roles);
     keep_surest(joints, &depth, &mut roles);
     shoulder_as_upper_arm(&children, &mut roles);
+    neck_top_as_head(joints, &said, &children, &mut roles);
     if !roles.iter().flatten().any(|(r, _)| r.part == Part::Hips) {
         if let Some(root) = (0..n).find(|&i| joints[i].parent.is_none()) {
             let weak = roles[root].is_none_or(|(r, _)| r.part == Part::Spine);
@@ -554,6 +555,37 @@ fn chain_roles(
                 if chain.len() == 1 { 2 } else { 1 },
             ));
         }
+    }
+}
+
+/// Where no joint is the head, the top of a neck chain of two or more joints (with no
+/// child but end joints) is: a neck ends in a head (Khronos CesiumMan's
+/// `Skeleton_neck_joint_1 → Skeleton_neck_joint_2`, the second carrying the head).
+fn neck_top_as_head(
+    joints: &[Joint],
+    said: &[Said],
+    children: &[Vec<usize>],
+    roles: &mut [Option<(Role, u8)>],
+) {
+    if roles.iter().flatten().any(|(r, _)| r.part == Part::Head) {
+        return;
+    }
+    let is_neck = |i: usize| roles[i].is_some_and(|(r, _)| r.part == Part::Neck);
+    let tops: Vec<usize> = (0..joints.len())
+        .filter(|&i| {
+            is_neck(i)
+                && joints[i].parent.is_some_and(is_neck)
+                && children[i].iter().all(|&c| said[c] == Said::End)
+        })
+        .collect();
+    if let [top] = tops[..] {
+        roles[top] = Some((
+            Role {
+                part: Part::Head,
+                side: None,
+            },
+            1,
+        ));
     }
 }
 
@@ -1414,6 +1446,29 @@ mod tests {
         ] {
             assert_eq!(role_of(&joints, &roles, name), want, "{name}");
         }
+    }
+
+    #[test]
+    fn the_top_of_a_neck_chain_without_a_head_is_the_head() {
+        let joints = names_tree(&[
+            ("Skeleton_torso_joint_1", None),
+            ("Skeleton_torso_joint_2", Some("Skeleton_torso_joint_1")),
+            ("Skeleton_neck_joint_1", Some("Skeleton_torso_joint_2")),
+            ("Skeleton_neck_joint_2", Some("Skeleton_neck_joint_1")),
+            ("Skeleton_neck_joint_2_end", Some("Skeleton_neck_joint_2")),
+        ]);
+        let roles = recognise(&joints, &[]);
+        assert_eq!(role_of(&joints, &roles, "Skeleton_neck_joint_1"), "neck");
+        assert_eq!(role_of(&joints, &roles, "Skeleton_neck_joint_2"), "head");
+        // With a head named, the neck chain stays necks.
+        let joints = names_tree(&[
+            ("Hips", None),
+            ("Neck", Some("Hips")),
+            ("Neck1", Some("Neck")),
+            ("Head", Some("Neck1")),
+        ]);
+        let roles = recognise(&joints, &[]);
+        assert_eq!(role_of(&joints, &roles, "Neck1"), "neck");
     }
 
     #[test]
