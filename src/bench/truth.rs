@@ -473,10 +473,7 @@ fn case(
     }
     // The reader's mesh to the character's frame: units, scale and up axis.
     let (to_world, off) = Similarity::fit(&asset.positions, &ch.vertices);
-    let (lo, hi) = ch.vertices.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(a, b), v| (a.min(*v), b.max(*v)),
-    );
+    let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
     let height = hi.y - lo.y;
     if off > 1e-6 * height {
         return Err(BenchError::case(

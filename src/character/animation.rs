@@ -16,7 +16,7 @@
 //! under `catch_unwind`, and nothing is sized by a number read from the file but what
 //! those checks bound (accessor counts within their buffers).
 
-use crate::character::mesh::{open_gltf, GltfSource, MeshError};
+use crate::character::mesh::{guarded, open_gltf, GltfSource, MeshError};
 use crate::geom::polar::rotation_of;
 use glam::{DMat3, DMat4, DQuat, DVec3, DVec4};
 use std::path::Path;
@@ -44,12 +44,6 @@ pub enum AnimationError {
         animation: usize,
         channel: usize,
         problem: String,
-    },
-    #[error("{path}: the gltf crate panicked reading {stage}: {message}")]
-    Panicked {
-        path: String,
-        stage: &'static str,
-        message: String,
     },
 }
 
@@ -146,21 +140,7 @@ impl SkinnedAsset {
     pub fn read(path: &Path) -> Result<Self, AnimationError> {
         let shown = path.display().to_string();
         let src = open_gltf(path)?;
-        let guarded = |stage: &'static str, f: &mut dyn FnMut() -> Result<Self, AnimationError>| {
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|payload| {
-                let message = payload
-                    .downcast_ref::<&str>()
-                    .map(ToString::to_string)
-                    .or_else(|| payload.downcast_ref::<String>().cloned())
-                    .unwrap_or_default();
-                Err(AnimationError::Panicked {
-                    path: shown.clone(),
-                    stage,
-                    message,
-                })
-            })
-        };
-        guarded("skins and animations", &mut || from_source(&src, &shown))
+        guarded(&shown, "skins and animations", || from_source(&src, &shown))?
     }
 
     /// Every node's world transform at `t_s` seconds into `clip` (its rest pose for

@@ -1718,15 +1718,19 @@ mod tests {
 
     /// A skin's root node sitting on its first bone (the Khronos Fox's) is merged into
     /// it, and the bones below hang from it; a real bone stays.
-    #[test]
-    fn zero_length_bones_are_merged_into_their_parents() {
-        let joint = |name: &str, parent: Option<usize>, y: f64| Joint {
+    /// A joint at height `y` on the Y axis.
+    fn joint(name: &str, parent: Option<usize>, y: f64) -> Joint {
+        Joint {
             name: name.into(),
             parent,
             rest: DVec3::new(0.0, y, 0.0),
             limits: None,
             bend_axis: DVec3::X,
-        };
+        }
+    }
+
+    #[test]
+    fn zero_length_bones_are_merged_into_their_parents() {
         let joints = vec![
             joint("root", None, 1.0),
             joint("b_Root_00", Some(0), 1.0 + 1e-9),
@@ -1757,13 +1761,6 @@ mod tests {
     /// weighted one below it (an armature root) stays.
     #[test]
     fn unweighted_joints_with_nothing_weighted_below_are_dropped() {
-        let joint = |name: &str, parent: Option<usize>, y: f64| Joint {
-            name: name.into(),
-            parent,
-            rest: DVec3::new(0.0, y, 0.0),
-            limits: None,
-            bend_axis: DVec3::X,
-        };
         let joints = vec![
             joint("root", None, 0.0),
             joint("knee_pole.L", None, 0.5),

@@ -654,24 +654,39 @@ fn parse_document<'a>(
     }
     if let Some(skin) = first_skin {
         let world = rest.is_some().then_some(world.as_slice());
-        out.skin_joints = read_skin(&root, skin.value(), &layouts, &buffers, &forest, world)?;
-        let dominant = dominant_nodes(&root, &layouts, &buffers, &out)?;
-        add_end_joints(&mut out, &dominant, &root);
+        let influences = read_influences_all(&root, &layouts, &buffers, &out)?;
+        let at = (&layouts[..], &buffers, &forest);
+        out.skin_joints = read_skin(&root, skin.value(), at, world, &influences)?;
+        add_end_joints(&mut out, &influences.dominant, &root);
     }
     Ok((root, buffers, out))
 }
 
-/// Each vertex's most weighted joint node (`None`: unskinned, or a primitive without
-/// `JOINTS_0` and `WEIGHTS_0`), over the parts in the reader's order.
-fn dominant_nodes(
+/// What the skinned primitives' `JOINTS_0` and `WEIGHTS_0` say, read once through every
+/// skin (a character's head mesh may have a skin of its own over the same joints).
+struct Influences {
+    /// Each vertex's most weighted joint node (`None`: unskinned, or a primitive
+    /// without joints and weights), in the reader's vertex order.
+    dominant: Vec<Option<usize>>,
+    /// Per node: whether some vertex has weight on it.
+    weighted_node: Vec<bool>,
+    /// Whether any primitive gave joints and weights (without, no joint can be told
+    /// unused).
+    read_any: bool,
+}
+
+/// Reads [`Influences`] over the parts of `out` in the reader's order.
+fn read_influences_all(
     root: &gltf::json::Root,
     layouts: &[Layout],
     buffers: &Buffers,
     out: &MeshData,
-) -> Result<Vec<Option<usize>>, MeshError> {
+) -> Result<Influences, MeshError> {
     use gltf::json::mesh::Semantic;
     use gltf::json::validation::Checked;
     let mut dominant = vec![None; out.positions.len()];
+    let mut weighted_node = vec![false; root.nodes.len()];
+    let mut read_any = false;
     let (mut joints, mut weights) = (Vec::new(), Vec::new());
     let mut part = 0;
     for node in &root.nodes {
@@ -716,15 +731,26 @@ fn dominant_nodes(
                     },
                 },
             )?;
+            read_any = true;
+            let node_of = |k: u16| skin.joints.get(usize::from(k)).map(|n| n.value());
             for ((v, j), w) in range.zip(&joints).zip(&weights) {
+                for c in (0..4).filter(|&c| w[c] > 0.0) {
+                    if let Some(x) = node_of(j[c]).and_then(|n| weighted_node.get_mut(n)) {
+                        *x = true;
+                    }
+                }
                 let c = (0..4).fold(0, |b, c| if w[c] > w[b] { c } else { b });
                 if w[c] > 0.0 {
-                    dominant[v] = skin.joints.get(j[c] as usize).map(|n| n.value());
+                    dominant[v] = node_of(j[c]);
                 }
             }
         }
     }
-    Ok(dominant)
+    Ok(Influences {
+        dominant,
+        weighted_node,
+        read_any,
+    })
 }
 
 /// Shortest skin past a leaf joint, as a share of the mesh's extent, that makes an end
@@ -737,10 +763,7 @@ const END_JOINT_SHARE: f64 = 0.02;
 /// and its skin hangs beyond; the end joint (`NAME_end`, no role, no weight) sits where
 /// that skin ends in the direction of its middle.
 fn add_end_joints(out: &mut MeshData, dominant: &[Option<usize>], root: &gltf::json::Root) {
-    let (lo, hi) = out.positions.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(a, b), p| (a.min(*p), b.max(*p)),
-    );
+    let (lo, hi) = crate::geom::shapes::bounds(&out.positions);
     let extent = (hi - lo).max_element();
     let n = out.skin_joints.len();
     let mut has_child = vec![false; n];
@@ -801,7 +824,11 @@ fn add_end_joints(out: &mut MeshData, dominant: &[Option<usize>], root: &gltf::j
 /// crate's code is not ours to fix, and a panic on a crafted file must not take the
 /// daemon down; `AssertUnwindSafe` holds because nothing the call touches outlives a
 /// panic (the document is only read, and the results are dropped).
-fn guarded<T>(file: &str, stage: &'static str, f: impl FnOnce() -> T) -> Result<T, MeshError> {
+pub(crate) fn guarded<T>(
+    file: &str,
+    stage: &'static str,
+    f: impl FnOnce() -> T,
+) -> Result<T, MeshError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|payload| {
         let message = payload
             .downcast_ref::<&str>()
@@ -1992,10 +2019,7 @@ fn rest_transform(
     let mut skins: Vec<usize> = skinned.map(|s| s.value()).collect();
     skins.sort_unstable();
     skins.dedup();
-    let (lo, hi) = positions.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(a, b), p| (a.min(*p), b.max(*p)),
-    );
+    let (lo, hi) = crate::geom::shapes::bounds(positions);
     let extent = (hi - lo).max_element().max(f64::MIN_POSITIVE);
     let mut common: Option<DMat4> = None;
     for s in skins {
@@ -2028,72 +2052,6 @@ fn same_matrix(a: &DMat4, b: &DMat4, extent: f64) -> bool {
     let linear = (0..3).flat_map(|c| (0..3).map(move |r| (c, r)));
     linear.map(|(c, r)| d.col(c)[r].abs()).fold(0.0, f64::max) <= SAME_MATRIX * size
         && d.w_axis.truncate().abs().max_element() <= SAME_MATRIX * size * extent
-}
-
-/// Which of skin `s`'s joints (in its own order) some vertex has weight on, through any
-/// skin that has the joint's node (a character's head mesh may have a skin of its own
-/// over the same joints); all of them when no skinned primitive gives `JOINTS_0` and
-/// `WEIGHTS_0` (then none can be told unused).
-fn weighted_joints(
-    root: &gltf::json::Root,
-    s: usize,
-    layouts: &[Layout],
-    buffers: &Buffers,
-) -> Result<Vec<bool>, MeshError> {
-    let mut node_weighted = vec![false; root.nodes.len()];
-    let mut read_any = false;
-    let (mut joints, mut weights) = (Vec::new(), Vec::new());
-    for node in &root.nodes {
-        let (Some(m), Some(t)) = (node.mesh.map(|m| m.value()), node.skin.map(|k| k.value()))
-        else {
-            continue;
-        };
-        let (Some(mesh), Some(skin)) = (root.meshes.get(m), root.skins.get(t)) else {
-            continue;
-        };
-        for (p, prim) in mesh
-            .primitives
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| is_triangles(p))
-        {
-            use gltf::json::mesh::Semantic;
-            use gltf::json::validation::Checked;
-            let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));
-            if !(has(Semantic::Joints(0)) && has(Semantic::Weights(0))) {
-                continue;
-            }
-            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(
-                |detail| MeshError::Skin {
-                    skin: t,
-                    problem: SkinProblem::Weights {
-                        at: PrimitiveAt {
-                            mesh: m,
-                            name: mesh.name.clone(),
-                            primitive: p,
-                        },
-                        detail,
-                    },
-                },
-            )?;
-            read_any = true;
-            for (j, w) in joints.iter().zip(&weights) {
-                for c in 0..4 {
-                    let joint = skin.joints.get(j[c] as usize).map(|n| n.value());
-                    if let (true, Some(n)) = (w[c] > 0.0, joint) {
-                        if let Some(x) = node_weighted.get_mut(n) {
-                            *x = true;
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let of_skin = root.skins.get(s).map_or(&[][..], |skin| &skin.joints[..]);
-    Ok(of_skin
-        .iter()
-        .map(|n| !read_any || node_weighted.get(n.value()).copied().unwrap_or(true))
-        .collect())
 }
 
 /// A primitive's `JOINTS_0` (unsigned bytes or shorts) and `WEIGHTS_0` (floats, or
@@ -2241,21 +2199,24 @@ fn skinned_vertices(root: &gltf::json::Root, out: &MeshData) -> Vec<bool> {
 /// The joints of skin `s`, parents first (by depth among the joints, the skin's order
 /// among equals), each with the nearest ancestor that is a joint as its parent; placed
 /// by the inverse bind matrices, or by the nodes' rest transforms `posed_at` when the
-/// mesh was taken to the world ([`rest_transform`]).
+/// mesh was taken to the world ([`rest_transform`]); each marked weighted as
+/// `influences` say, or when an unskinned mesh node hangs from it.
 fn read_skin(
     root: &gltf::json::Root,
     s: usize,
-    layouts: &[Layout],
-    buffers: &Buffers,
-    forest: &Forest,
+    (layouts, buffers, forest): (&[Layout], &Buffers, &Forest),
     posed_at: Option<&[DMat4]>,
+    influences: &Influences,
 ) -> Result<Vec<SkinJoint>, MeshError> {
     let Some(skin) = root.skins.get(s) else {
         return Ok(Vec::new());
     };
     let joints: Vec<usize> = skin.joints.iter().map(|j| j.value()).collect();
     let ibm = inverse_binds(root, s, layouts, buffers)?;
-    let mut weighted = weighted_joints(root, s, layouts, buffers)?;
+    let mut weighted: Vec<bool> = joints
+        .iter()
+        .map(|&n| !influences.read_any || influences.weighted_node.get(n).copied().unwrap_or(true))
+        .collect();
     // Down the forest once: each node's nearest ancestor that is a joint, and each
     // joint's parent joint and depth among the joints.
     let slot: HashMap<usize, usize> = joints.iter().enumerate().map(|(k, &n)| (n, k)).collect();

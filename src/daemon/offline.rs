@@ -8,7 +8,7 @@
 //! point cache, or the fitted skeleton to BVH ([`export_take`], `rigless replay
 //! --export`).
 
-use super::pipeline::{limb_markers, Pipeline, TickReport};
+use super::pipeline::{BodyTally, Pipeline, TickReport};
 use crate::markers::buffer::{BufferConfig, MarkerBuffer};
 use crate::markers::index::{LabelMap, MarkerIndex};
 use crate::markers::{FillState, MarkerSample};
@@ -17,7 +17,6 @@ use crate::output::skin_fit::SkinFit;
 use crate::replay::bvh::BvhSkeleton;
 use crate::replay::recording::Recording;
 use crate::rig::bind::Rig;
-use crate::runtime::stats::percentile;
 use crate::solve::arap::StopReason;
 use crate::solve::frame::{SolveReport, Solver, SolverParams};
 use glam::DVec3;
@@ -86,13 +85,15 @@ pub struct OfflineReport {
     pub frame_ms_p99: f64,
     pub frame_ms_max: f64,
     /// The solved mesh's lowest vertex above the take's floor (its `y = 0`, the capture
-    /// volume's ground as optical systems set it), character metres: in the median tick
-    /// and the lowest; `None` when the posture alone was fitted.
+    /// volume's ground as optical systems set it), character metres, over the ticks with
+    /// a marker in view: in the median tick (to the millimetre) and the lowest; `None`
+    /// when the posture alone was fitted.
     pub lowest_vertex_m_median: Option<f64>,
     pub lowest_vertex_m_min: Option<f64>,
     /// The character's limbs (arms and legs, each an upper arm or upper leg joint by
-    /// its name's role and the joints below it), and the share of ticks in which every
-    /// limb had a marker measured or filled (not held); `None` without limbs.
+    /// its name's role and the joints below it), and the share of ticks with a marker in
+    /// view in which every limb had one measured or filled (not held); `None` without
+    /// limbs.
     pub limbs: usize,
     pub all_limbs_driven_share: Option<f64>,
 }
@@ -165,10 +166,9 @@ struct Tally {
     sq_sum: f64,
     in_view: usize,
     times_ms: Vec<f64>,
-    /// Each counted tick's lowest vertex (character metres; not with `posture_only`).
-    lowest_m: Vec<f64>,
-    /// Ticks in which every limb was driven.
-    all_limbs_driven: usize,
+    /// Limbs driven and the lowest vertex over the counted ticks with a marker in view
+    /// (the pipeline's own tally).
+    body: Option<BodyTally>,
 }
 
 impl Tally {
@@ -191,8 +191,11 @@ impl Tally {
         self.sq_sum += o.sq_sum;
         self.in_view += o.in_view;
         self.times_ms.extend(o.times_ms);
-        self.lowest_m.extend(o.lowest_m);
-        self.all_limbs_driven += o.all_limbs_driven;
+        match (&mut self.body, o.body) {
+            (Some(b), Some(o)) => b.merge(&o),
+            (b @ None, o) => *b = o,
+            (Some(_), None) => {}
+        }
     }
 
     fn finish(mut self) -> OfflineReport {
@@ -208,13 +211,13 @@ impl Tally {
                 .unwrap_or(0.0)
         };
         (rep.frame_ms_p50, rep.frame_ms_p99, rep.frame_ms_max) = (at(0.5), at(0.99), at(1.0));
-        if !self.lowest_m.is_empty() {
-            rep.lowest_vertex_m_median = Some(percentile(&mut self.lowest_m, 0.5));
-            rep.lowest_vertex_m_min = Some(percentile(&mut self.lowest_m, 0.0));
-        }
-        if rep.limbs > 0 {
-            rep.all_limbs_driven_share =
-                Some(self.all_limbs_driven as f64 / rep.frames.max(1) as f64);
+        if let Some(b) = &self.body {
+            (
+                rep.lowest_vertex_m_median,
+                rep.lowest_vertex_m_min,
+                rep.limbs,
+                rep.all_limbs_driven_share,
+            ) = b.figures();
         }
         rep
     }
@@ -260,14 +263,13 @@ fn play(
     };
     let period_s = 1.0 / opts.rate_hz;
     let ticks = tick_count(rec, opts.rate_hz).min(span.to);
-    let limbs = limb_markers(&rig);
     let mut tally = Tally {
         rep: OfflineReport {
             labels_fed: fed.len(),
             markers_unfed: map.unfed_markers.len(),
-            limbs: limbs.len(),
             ..OfflineReport::default()
         },
+        body: None,
         times_ms: Vec::with_capacity(ticks.saturating_sub(span.from)),
         ..Tally::default()
     };
@@ -303,22 +305,15 @@ fn play(
         } else {
             Duration::from_secs(3600)
         };
+        if tick == span.from {
+            // The body's figures cover the counted ticks alone.
+            pipeline.clear_body();
+        }
         let r = pipeline.tick(t_s, Instant::now() + budget, &|| t_s);
         if tick < span.from {
             continue;
         }
         count(&mut tally, &pipeline, &fed_markers, &r);
-        let states = &pipeline.markers().states;
-        let driven = |limb: &Vec<usize>| limb.iter().any(|&m| states[m] != FillState::Held);
-        tally.all_limbs_driven += limbs.iter().all(driven) as usize;
-        if !opts.posture_only {
-            let lowest = pipeline
-                .vertices()
-                .iter()
-                .map(|v| v.y)
-                .fold(f64::INFINITY, f64::min);
-            tally.lowest_m.push(lowest);
-        }
         let (joint_rot, joint_pos) = pipeline.joint_world();
         let shown = OfflineTick {
             index: tick,
@@ -331,6 +326,7 @@ fn play(
             break;
         }
     }
+    tally.body = Some(pipeline.body().clone());
     Ok(Some(tally))
 }
 

@@ -77,7 +77,7 @@ pub struct LoopStatus {
 /// Each limb of `rig`'s skeleton (arms and legs: an upper arm or upper leg joint by the
 /// role its name gives, [`crate::character::roles::recognise`], with every joint below
 /// it) as the markers its joints carry.
-pub fn limb_markers(rig: &crate::rig::bind::Rig) -> Vec<Vec<usize>> {
+fn limb_markers(rig: &crate::rig::bind::Rig) -> Vec<Vec<usize>> {
     use crate::character::roles::{recognise, Part};
     let sk = &rig.skeleton;
     let roles = recognise(&sk.joints, &[]);
@@ -129,7 +129,7 @@ impl BodyTally {
 
     /// Counts a frame with markers in `states` and the solved `vertices` (none: the
     /// posture alone was fitted).
-    pub fn count(&mut self, states: &[FillState], vertices: Option<&[DVec3]>) {
+    fn count(&mut self, states: &[FillState], vertices: Option<&[DVec3]>) {
         self.frames += 1;
         let driven = |limb: &Vec<usize>| limb.iter().any(|&m| states[m] != FillState::Held);
         self.all_limbs_driven += self.limbs.iter().all(driven) as u64;
@@ -141,6 +141,24 @@ impl BodyTally {
                 self.lowest_bins[bin.clamp(0.0, (LOWEST_BINS - 1) as f64) as usize] += 1;
             }
         }
+    }
+
+    /// Forgets the frames counted so far.
+    pub fn clear(&mut self) {
+        self.frames = 0;
+        self.all_limbs_driven = 0;
+        self.lowest_bins.iter_mut().for_each(|b| *b = 0);
+        self.lowest_min_m = f64::INFINITY;
+    }
+
+    /// Adds another run's frames (a later part of an export).
+    pub fn merge(&mut self, o: &BodyTally) {
+        self.frames += o.frames;
+        self.all_limbs_driven += o.all_limbs_driven;
+        for (a, b) in self.lowest_bins.iter_mut().zip(&o.lowest_bins) {
+            *a += b;
+        }
+        self.lowest_min_m = self.lowest_min_m.min(o.lowest_min_m);
     }
 
     /// The median frame's lowest vertex (to the bin), the lowest, the limbs and the
@@ -427,6 +445,16 @@ impl Pipeline {
         };
         self.frame_no += 1;
         report
+    }
+
+    /// Limbs driven and the lowest vertex over the frames with a marker in view.
+    pub fn body(&self) -> &BodyTally {
+        &self.body
+    }
+
+    /// Starts [`Self::body`]'s count again (an export's part after its warm-up).
+    pub fn clear_body(&mut self) {
+        self.body.clear();
     }
 
     /// Passes the samples still queued to the recorder (at shutdown, so that a session
