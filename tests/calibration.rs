@@ -862,6 +862,61 @@ fn every_calibration_has_an_honest_verdict() {
     assert_eq!(cal.verdict(), Verdict::Failed, "{:?}", cal.concerns());
 }
 
+/// A standing character against the take's floor: on the body's own take its lowest
+/// point stands on `y = 0`; with the take lifted 6 cm (a floor calibrated too low, or
+/// foot markers the character's feet do not reach) its feet float, and the calibration,
+/// which fits the markers as well as before, is doubtful and says where the feet are;
+/// lifted 50 cm the take's lowest markers are no foot's on its floor and nothing is said.
+#[test]
+fn a_character_off_the_takes_floor_is_doubtful() {
+    use rigless::calibrate::{Concern, Verdict, FLOOR_TOLERANCE_M};
+    let (bare, _) = bodies();
+    let lifted = |dy: f64| {
+        let mut rec = take("body_rom", 1.0);
+        for p in rec.frames.iter_mut().flatten() {
+            p.y += dy;
+        }
+        run(&bare, &rec, &CalibrationOptions::default())
+    };
+    let on = lifted(0.0);
+    let floor = on.floor.expect("a floor check");
+    // Measured: lowest point +0.1 cm, lowest marker 2.1 cm.
+    println!("on the floor: {floor:?}");
+    assert!(floor.floor_shown());
+    assert!(
+        floor.lowest_skin_m.abs() < FLOOR_TOLERANCE_M / 2.0,
+        "{floor:?}"
+    );
+    assert_eq!(on.verdict(), Verdict::Good, "{:?}", on.concerns());
+    let up = lifted(0.06);
+    let floor = up.floor.expect("a floor check");
+    println!(
+        "lifted 6 cm: {floor:?}, misfit {:.2} mm",
+        up.residual_mm_rms
+    );
+    // The lift itself, to the fit's millimetres (the scale is fitted about y = 0, the
+    // lowest point moves with the markers).
+    assert!(
+        (floor.lowest_skin_m - floor_on(&on) - 0.06).abs() < 0.01,
+        "{floor:?}"
+    );
+    assert_eq!(up.verdict(), Verdict::Doubtful, "{:?}", up.concerns());
+    let said = up.concerns().iter().any(|c| matches!(c, Concern::Floor(_)));
+    assert!(said, "{:?}", up.concerns());
+    assert!(up
+        .concerns()
+        .iter()
+        .any(|c| c.to_string().contains("above the take's floor")));
+    let far = lifted(0.5);
+    assert!(!far.floor.expect("a floor check").floor_shown());
+    assert_eq!(far.verdict(), Verdict::Good, "{:?}", far.concerns());
+}
+
+/// The lowest point's height in a calibration's floor check.
+fn floor_on(cal: &Calibration) -> f64 {
+    cal.floor.map_or(f64::NAN, |f| f.lowest_skin_m)
+}
+
 /// `--write` never writes what the loader refuses: a calibration whose scale the
 /// character file cannot hold (0.001, under the loader's 0.1) leaves the file as it was,
 /// with no backup and no trial file beside it.

@@ -175,6 +175,8 @@ pub struct Calibration {
     /// The character's standing height, metres, when it stands on legs and has a head
     /// (the actor's is this over the scale).
     pub standing_height_m: Option<f64>,
+    /// Where the fitted postures put the character against the take's floor.
+    pub floor: Option<FloorCheck>,
 }
 
 /// How far a calibration can be trusted.
@@ -226,6 +228,60 @@ pub enum Concern {
     /// outside [`HUMAN_HEIGHT_M`]: the markers' sizes and distances from the skin, which
     /// the fit takes as a person's, do not hold.
     ActorSize { height_m: f64 },
+    /// A standing character's lowest point is farther than [`FLOOR_TOLERANCE_M`] from
+    /// the floor the take shows ([`FloorCheck`]).
+    Floor(FloorCheck),
+}
+
+/// How far a standing character's lowest point may come from the take's floor in the
+/// median frame used and the calibration still be good, take metres: a foot 3 cm
+/// through the floor or above it is plain to see (the issue's bound on a replay).
+pub const FLOOR_TOLERANCE_M: f64 = 0.03;
+/// Heights of a take's lowest marker, in the median frame used, that show its floor is
+/// `y = 0`, take metres: the lowest marker of a standing actor is a foot's, from its own
+/// radius (a toe marker, about 1 cm) to an ankle's height (about 10 cm) above the
+/// floor, with 2 cm below for a floor set a little high. Elsewhere (no foot markers, a
+/// floor at another height) the take says nothing of its floor.
+pub const FLOOR_MARKER_M: std::ops::RangeInclusive<f64> = -0.02..=0.15;
+
+/// Where a calibration puts the character against the take's floor (`y = 0`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FloorCheck {
+    /// Median over the frames used of the height of the posed character's lowest skin
+    /// point, take metres (negative: under the floor).
+    pub lowest_skin_m: f64,
+    /// Median over the frames used of the height of the lowest marker in view, take
+    /// metres.
+    pub lowest_marker_m: f64,
+}
+
+impl FloorCheck {
+    /// From per-frame heights of the lowest skin point and lowest marker
+    /// ([`solve::OffsetSolve::lowest_m`]); `None` when no frame has both.
+    pub fn from_frames(lowest: &[(f64, f64)]) -> Option<Self> {
+        let (mut skin, mut marker): (Vec<f64>, Vec<f64>) = lowest
+            .iter()
+            .filter(|(s, m)| s.is_finite() && m.is_finite())
+            .copied()
+            .unzip();
+        if skin.is_empty() {
+            return None;
+        }
+        Some(Self {
+            lowest_skin_m: crate::runtime::stats::percentile(&mut skin, 0.5),
+            lowest_marker_m: crate::runtime::stats::percentile(&mut marker, 0.5),
+        })
+    }
+
+    /// Whether the take shows its floor at `y = 0` ([`FLOOR_MARKER_M`]).
+    pub fn floor_shown(&self) -> bool {
+        FLOOR_MARKER_M.contains(&self.lowest_marker_m)
+    }
+
+    /// Whether the character stands off that floor by more than [`FLOOR_TOLERANCE_M`].
+    pub fn off_floor(&self) -> bool {
+        self.floor_shown() && self.lowest_skin_m.abs() > FLOOR_TOLERANCE_M
+    }
 }
 
 /// Heights of a person wearing markers, metres (a small child to a tall adult); a
@@ -241,7 +297,8 @@ impl Concern {
             Concern::Misfit { .. }
             | Concern::Flagged { .. }
             | Concern::WholeSpan { .. }
-            | Concern::ActorSize { .. } => Verdict::Doubtful,
+            | Concern::ActorSize { .. }
+            | Concern::Floor(_) => Verdict::Doubtful,
         }
     }
 }
@@ -286,6 +343,18 @@ impl std::fmt::Display for Concern {
                  take's units",
                 HUMAN_HEIGHT_M.start(),
                 HUMAN_HEIGHT_M.end()
+            ),
+            Concern::Floor(floor) => write!(
+                f,
+                "the character's lowest point comes {:.1} cm {} the take's floor (y = 0, where \
+                 its lowest marker is {:.1} cm above it) in the median frame used: the foot \
+                 labels sit higher or lower on the character's feet than on the actor's, or \
+                 the legs are scaled wrong; look at the feet in a replay (--rerun), and \
+                 name the foot labels' bones in [calibration.bones] or try --frames on a span \
+                 where the actor stands",
+                floor.lowest_skin_m.abs() * 100.0,
+                if floor.lowest_skin_m < 0.0 { "under" } else { "above" },
+                floor.lowest_marker_m * 100.0
             ),
             Concern::Flagged { labels } => write!(
                 f,
@@ -335,6 +404,11 @@ impl Calibration {
         if let Some(height_m) = self.standing_height_m.map(|h| h / self.scale) {
             if !HUMAN_HEIGHT_M.contains(&height_m) && GOOD_SCALE.contains(&self.scale) {
                 out.push(Concern::ActorSize { height_m });
+            }
+        }
+        if let Some(floor) = self.floor.filter(|f| f.off_floor()) {
+            if self.standing_height_m.is_some() {
+                out.push(Concern::Floor(floor));
             }
         }
         if let Some(whole_mm) = self.whole_span_mm {
@@ -1400,5 +1474,39 @@ fn finish(
         rest_frame,
         whole_span_mm: None,
         standing_height_m: None,
+        floor: FloorCheck::from_frames(&solve.lowest_m()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The medians of the frames that have both heights; a take whose lowest marker is
+    /// no foot's on `y = 0` shows no floor, and nothing is judged against it.
+    #[test]
+    fn a_floor_check_takes_medians_and_judges_only_a_floor_the_take_shows() {
+        let frames = [
+            (-0.05, 0.03),
+            (-0.04, 0.02),
+            (f64::NAN, 0.01),
+            (-0.06, f64::NAN),
+            (-0.20, 0.40),
+        ];
+        let f = FloorCheck::from_frames(&frames).expect("three frames have both");
+        assert_eq!(f.lowest_skin_m, -0.05);
+        assert_eq!(f.lowest_marker_m, 0.03);
+        assert!(f.floor_shown() && f.off_floor());
+        let near = FloorCheck {
+            lowest_skin_m: -0.02,
+            ..f
+        };
+        assert!(!near.off_floor());
+        let high = FloorCheck {
+            lowest_marker_m: 0.6,
+            ..f
+        };
+        assert!(!high.floor_shown() && !high.off_floor());
+        assert!(FloorCheck::from_frames(&[(f64::NAN, 0.0)]).is_none());
     }
 }

@@ -158,6 +158,9 @@ pub struct Parts<'a> {
     /// Per joint, the triangles with a vertex in its part (empty for a joint without
     /// children).
     triangles: Vec<Vec<[DVec3; 3]>>,
+    /// Per joint, the rest vertices of its part as offsets from the joint's rest
+    /// position (world axes, metres).
+    owned: Vec<Vec<DVec3>>,
 }
 
 impl<'a> Parts<'a> {
@@ -168,6 +171,10 @@ impl<'a> Parts<'a> {
             .iter()
             .map(|&v| crate::rig::bind::nearest_owner(skeleton, &segments, v))
             .collect();
+        let mut owned = vec![Vec::new(); skeleton.len()];
+        for (v, &o) in vertices.iter().zip(&owner) {
+            owned[o as usize].push(*v - skeleton.joints[o as usize].rest);
+        }
         let mut parts = vec![Vec::new(); skeleton.len()];
         for t in triangles {
             let mut owners = t.map(|i| owner[i as usize]);
@@ -182,6 +189,26 @@ impl<'a> Parts<'a> {
             skeleton,
             segments,
             triangles: parts,
+            owned,
+        }
+    }
+
+    /// The height (`y`) of the lowest point of the skin with the joints at world
+    /// rotations `rot` and positions `pos` (indexed by joint), each part moving rigidly
+    /// with its joint; NaN when there is no skin. Near the joints the solve's deformed
+    /// mesh blends neighbouring parts; a foot's sole, the lowest point of a standing
+    /// character, moves with its foot.
+    pub fn lowest(&self, rot: &[DQuat], pos: &[DVec3]) -> f64 {
+        let mut low = f64::INFINITY;
+        for ((vs, q), t) in self.owned.iter().zip(rot).zip(pos) {
+            for v in vs {
+                low = low.min(t.y + (*q * *v).y);
+            }
+        }
+        if low.is_finite() {
+            low
+        } else {
+            f64::NAN
         }
     }
 
@@ -303,6 +330,24 @@ impl<'a> OffsetSolve<'a> {
     /// Marker `k`'s current offset from its joint at rest (world axes, metres).
     pub fn model_offset(&self, k: usize) -> DVec3 {
         self.model.marker_offset[k]
+    }
+
+    /// Per frame used, the heights of the posed skin's lowest point ([`Parts::lowest`])
+    /// and of the lowest marker in view, take metres (NaN where there is none).
+    pub fn lowest_m(&self) -> Vec<(f64, f64)> {
+        self.states
+            .iter()
+            .zip(&self.frames)
+            .map(|(st, frame)| {
+                let skin = self.skin.parts.lowest(&st.world_rot, &st.world_pos) / self.scale;
+                let marker = frame
+                    .iter()
+                    .filter(|m| m.is_finite())
+                    .map(|m| m.y)
+                    .fold(f64::NAN, f64::min);
+                (skin, marker)
+            })
+            .collect()
     }
 
     /// Markers of the problem.

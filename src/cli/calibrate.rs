@@ -400,6 +400,11 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
         "frames": cal.frames,
         "rest_frame": cal.rest_frame,
         "whole_span_mm_rms": cal.whole_span_mm,
+        "floor": cal.floor.map(|f| serde_json::json!({
+            "lowest_skin_m": f.lowest_skin_m,
+            "lowest_marker_m": f.lowest_marker_m,
+            "floor_shown": f.floor_shown(),
+        })),
         "residual_mm_rms": cal.residual_mm_rms,
         "residual_mm_max": cal.residual_mm_max,
         "iterations": cal.report.iterations,
@@ -490,6 +495,18 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
         "fit          residual RMS {:.2} mm, max {:.2} mm; {} iterations, {:.2} s",
         cal.residual_mm_rms, cal.residual_mm_max, cal.report.iterations, seconds
     );
+    if let Some(f) = cal.floor {
+        println!(
+            "floor        the character's lowest point {:+.1} cm from y = 0 in the median frame used; the lowest marker {:+.1} cm{}",
+            100.0 * f.lowest_skin_m,
+            100.0 * f.lowest_marker_m,
+            if f.floor_shown() {
+                ""
+            } else {
+                " (too far for a foot's: the take does not show its floor)"
+            }
+        );
+    }
     println!();
     println!(
         "{:<12} {:<18} {:>27} {:>6} {:>6} {:>6} {:>7}  from",
