@@ -912,6 +912,60 @@ fn a_character_off_the_takes_floor_is_doubtful() {
     assert_eq!(far.verdict(), Verdict::Good, "{:?}", far.concerns());
 }
 
+/// A take with no marker on some limb leaves it undriven, and says which: the body's
+/// range of motion with its left arm's and head's labels missing throughout is doubtful,
+/// naming the left arm and the head and nothing else (the trunk still turns with the
+/// chest's and the right arm's); with every label it is good.
+#[test]
+fn limbs_no_label_rides_are_named() {
+    use rigless::calibrate::{Concern, Verdict};
+    let (bare, _) = bodies();
+    let whole = run(
+        &bare,
+        &take("body_rom", 1.0),
+        &CalibrationOptions::default(),
+    );
+    assert_eq!(whole.verdict(), Verdict::Good, "{:?}", whole.concerns());
+    // Arms, legs, head and trunk: six parts.
+    let names: Vec<&str> = whole.body_parts.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names.len(), 6, "{names:?}");
+    let gone: Vec<&(String, Vec<usize>)> = whole
+        .body_parts
+        .iter()
+        .filter(|(n, _)| n == "left arm" || n == "head")
+        .collect();
+    assert_eq!(gone.len(), 2, "{names:?}");
+    let labels: Vec<&str> = whole
+        .placed
+        .iter()
+        .filter(|p| gone.iter().any(|(_, joints)| joints.contains(&p.joint)))
+        .map(|p| p.label.as_str())
+        .collect();
+    assert!(labels.len() >= 4, "{labels:?}");
+    let mut rec = take("body_rom", 1.0);
+    let columns: Vec<usize> = (0..rec.labels.len())
+        .filter(|&k| labels.contains(&rec.labels[k].as_str()))
+        .collect();
+    for f in &mut rec.frames {
+        for &k in &columns {
+            f[k] = DVec3::NAN;
+        }
+    }
+    let cal = run(&bare, &rec, &CalibrationOptions::default());
+    assert_eq!(cal.verdict(), Verdict::Doubtful, "{:?}", cal.concerns());
+    let undriven: Vec<String> = cal
+        .concerns()
+        .into_iter()
+        .find_map(|c| match c {
+            Concern::Undriven { parts } => Some(parts),
+            _ => None,
+        })
+        .expect("the undriven parts named");
+    let mut undriven = undriven;
+    undriven.sort();
+    assert_eq!(undriven, ["head", "left arm"]);
+}
+
 /// The lowest point's height in a calibration's floor check.
 fn floor_on(cal: &Calibration) -> f64 {
     cal.floor.map_or(f64::NAN, |f| f.lowest_skin_m)

@@ -175,6 +175,9 @@ pub struct Calibration {
     /// The character's standing height, metres, when it stands on legs and has a head
     /// (the actor's is this over the scale).
     pub standing_height_m: Option<f64>,
+    /// A standing character's limbs and head ([`body_parts`]): each one's name and its
+    /// joints, which a placed label must ride for it to be driven.
+    pub body_parts: Vec<(String, Vec<usize>)>,
     /// Where the fitted postures put the character against the take's floor.
     pub floor: Option<FloorCheck>,
 }
@@ -231,6 +234,8 @@ pub enum Concern {
     /// A standing character's lowest point is farther than [`FLOOR_TOLERANCE_M`] from
     /// the floor the take shows ([`FloorCheck`]).
     Floor(FloorCheck),
+    /// Limbs, the head or the trunk of a standing character that no placed label rides.
+    Undriven { parts: Vec<String> },
 }
 
 /// How far a standing character's lowest point may come from the take's floor in the
@@ -298,7 +303,8 @@ impl Concern {
             | Concern::Flagged { .. }
             | Concern::WholeSpan { .. }
             | Concern::ActorSize { .. }
-            | Concern::Floor(_) => Verdict::Doubtful,
+            | Concern::Floor(_)
+            | Concern::Undriven { .. } => Verdict::Doubtful,
         }
     }
 }
@@ -356,6 +362,17 @@ impl std::fmt::Display for Concern {
                 if floor.lowest_skin_m < 0.0 { "under" } else { "above" },
                 floor.lowest_marker_m * 100.0
             ),
+            Concern::Undriven { parts } => write!(
+                f,
+                "no placed label rides the {}: the solve does not drive {}, and {} \
+                 whatever pose the rest of the body leaves {} (the take has no markers there, \
+                 or they were left out: see the labels left out); a take with markers on \
+                 them drives them",
+                parts.join(", "),
+                if parts.len() == 1 { "it" } else { "them" },
+                if parts.len() == 1 { "it keeps" } else { "they keep" },
+                if parts.len() == 1 { "it in" } else { "them in" },
+            ),
             Concern::Flagged { labels } => write!(
                 f,
                 "{} label{} fit badly: {}",
@@ -410,6 +427,15 @@ impl Calibration {
             if self.standing_height_m.is_some() {
                 out.push(Concern::Floor(floor));
             }
+        }
+        let parts: Vec<String> = self
+            .body_parts
+            .iter()
+            .filter(|(_, joints)| !self.placed.iter().any(|p| joints.contains(&p.joint)))
+            .map(|(name, _)| name.clone())
+            .collect();
+        if !parts.is_empty() {
+            out.push(Concern::Undriven { parts });
         }
         if let Some(whole_mm) = self.whole_span_mm {
             out.push(Concern::WholeSpan {
@@ -691,13 +717,55 @@ pub fn calibrate(
     }
     let has_head = roles.iter().flatten().any(|r| r.part == Part::Head);
     let standing = (stance.turn == Turn::Yaw && has_head).then_some(stance.height);
+    let body_parts = if standing.is_some() {
+        body_parts(ch, roles)
+    } else {
+        Vec::new()
+    };
     best.map(|b| Calibration {
         standing_height_m: standing,
+        body_parts,
         ..b.0
     })
     .ok_or_else(|| CalibrationError::NoFrames {
         take: rec.name.to_owned(),
     })
+}
+
+/// A standing character's limbs (an upper arm or upper leg joint by its role, with every
+/// joint below it), head (the head joint and below) and trunk (the lowest spine joint
+/// and everything above it: a label on the chest, the head or an arm turns it), each
+/// named by its side and part, with its joints.
+fn body_parts(ch: &Character, roles: &[Option<Role>]) -> Vec<(String, Vec<usize>)> {
+    use crate::character::roles::Side;
+    let sk = &ch.skeleton;
+    let mut out = Vec::new();
+    for (j, role) in roles.iter().enumerate().take(sk.len()) {
+        let Some(role) = role else { continue };
+        let parent_role = sk.joints[j]
+            .parent
+            .and_then(|p| roles.get(p).copied().flatten());
+        let what = match role.part {
+            Part::UpperArm => "arm",
+            Part::UpperLeg => "leg",
+            Part::Head => "head",
+            Part::Spine if parent_role.is_none_or(|r| r.part != Part::Spine) => "trunk",
+            _ => continue,
+        };
+        let name = match role.side {
+            Some(Side::Left) => format!("left {what}"),
+            Some(Side::Right) => format!("right {what}"),
+            None => what.to_owned(),
+        };
+        // Parents come before children: one pass marks the subtree.
+        let mut inside = vec![false; sk.len()];
+        inside[j] = true;
+        for k in j + 1..sk.len() {
+            inside[k] = sk.joints[k].parent.is_some_and(|p| inside[p]);
+        }
+        out.push((name, (0..sk.len()).filter(|&k| inside[k]).collect()));
+    }
+    out
 }
 
 /// Moves the labels of `plan` that no table, map or layout places and that the take's
@@ -1474,6 +1542,7 @@ fn finish(
         rest_frame,
         whole_span_mm: None,
         standing_height_m: None,
+        body_parts: Vec::new(),
         floor: FloorCheck::from_frames(&solve.lowest_m()),
     }
 }
