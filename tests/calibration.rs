@@ -966,6 +966,39 @@ fn limbs_no_label_rides_are_named() {
     assert_eq!(undriven, ["head", "left arm"]);
 }
 
+/// A head turned from rest where the actor stands most like the character's rest pose
+/// is said: the head's own markers alone see its turn, and a fit that turns it there
+/// turns it in every frame. On the body's own range of motion the head stays within a
+/// few degrees (measured 0.1°) and nothing is said; the Qualisys take onto the body
+/// turns it 86° (the four head markers of a person on a larger round head), and the
+/// calibration names it.
+#[test]
+fn a_head_turned_where_the_actor_stands_at_rest_is_named() {
+    use rigless::calibrate::{Concern, TURNED_AT_REST_DEG};
+    let (bare, _) = bodies();
+    let own = run(
+        &bare,
+        &take("body_rom", 1.0),
+        &CalibrationOptions::default(),
+    );
+    println!("own take: {:?}", own.rest_turns);
+    assert_eq!(own.rest_turns.len(), 1, "one head: {:?}", own.rest_turns);
+    assert!(own.rest_turns[0].1 < 5.0, "{:?}", own.rest_turns);
+    let Some(rec) = shared_take("c3d/Qualisys.c3d") else {
+        return;
+    };
+    let cal = run(&bare, &rec, &CalibrationOptions::default());
+    println!("Qualisys: {:?}", cal.rest_turns);
+    let turned = cal.concerns().into_iter().find_map(|c| match c {
+        Concern::TurnedAtRest { joints } => Some(joints),
+        _ => None,
+    });
+    let turned = turned.expect("the turned head named");
+    assert_eq!(turned.len(), 1);
+    assert_eq!(turned[0].0, "head");
+    assert!(turned[0].1 > TURNED_AT_REST_DEG, "{turned:?}");
+}
+
 /// The lowest point's height in a calibration's floor check.
 fn floor_on(cal: &Calibration) -> f64 {
     cal.floor.map_or(f64::NAN, |f| f.lowest_skin_m)

@@ -180,6 +180,13 @@ pub struct Calibration {
     pub body_parts: Vec<(String, Vec<usize>)>,
     /// Where the fitted postures put the character against the take's floor.
     pub floor: Option<FloorCheck>,
+    /// The head joints whose turn only their own labels see (a head some label rides,
+    /// with none riding below it, on a neck that carries none: turning it and its
+    /// labels' offsets back fits every frame alike), each with its turn from rest, in
+    /// degrees, in the rest-like frame's fitted posture (against the nearest ancestor a
+    /// label rides). A person standing as the character does faces forward; a hand or a
+    /// foot may be bent there, and is not judged so.
+    pub rest_turns: Vec<(String, f64)>,
 }
 
 /// How far a calibration can be trusted.
@@ -234,9 +241,18 @@ pub enum Concern {
     /// A standing character's lowest point is farther than [`FLOOR_TOLERANCE_M`] from
     /// the floor the take shows ([`FloorCheck`]).
     Floor(FloorCheck),
+    /// A head whose turn only its own labels see ([`Calibration::rest_turns`]),
+    /// turned more than [`TURNED_AT_REST_DEG`] from rest in the rest-like frame.
+    TurnedAtRest { joints: Vec<(String, f64)> },
     /// Limbs, the head or the trunk of a standing character that no placed label rides.
     Undriven { parts: Vec<String> },
 }
+
+/// How far from rest a head whose turn only its own labels see may be turned in the
+/// rest-like frame, degrees: an actor standing as the character does holds the head
+/// within about 15° of facing forward; 30° leaves room for a character's rest pose unlike
+/// the actor's natural stance.
+pub const TURNED_AT_REST_DEG: f64 = 30.0;
 
 /// How far a standing character's lowest point may come from the take's floor in the
 /// median frame used and the calibration still be good, take metres: a foot 3 cm
@@ -304,6 +320,7 @@ impl Concern {
             | Concern::WholeSpan { .. }
             | Concern::ActorSize { .. }
             | Concern::Floor(_)
+            | Concern::TurnedAtRest { .. }
             | Concern::Undriven { .. } => Verdict::Doubtful,
         }
     }
@@ -373,6 +390,20 @@ impl std::fmt::Display for Concern {
                 if parts.len() == 1 { "it keeps" } else { "they keep" },
                 if parts.len() == 1 { "it in" } else { "them in" },
             ),
+            Concern::TurnedAtRest { joints } => write!(
+                f,
+                "the head ({}) is turned from rest in the frame where the actor stands most \
+                 like the character's rest pose, where a person faces forward: only the head's \
+                 own labels see its turn, so they may sit elsewhere on the character's head \
+                 than on the actor's (a head larger or smaller than the actor's), and the head \
+                 is then turned as much in every frame; look at it in a replay (--rerun), and \
+                 try --frames on a span where the actor stands facing forward",
+                joints
+                    .iter()
+                    .map(|(name, deg)| format!("{name} {deg:.0}°"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            ),
             Concern::Flagged { labels } => write!(
                 f,
                 "{} label{} fit badly: {}",
@@ -422,6 +453,15 @@ impl Calibration {
             if !HUMAN_HEIGHT_M.contains(&height_m) && GOOD_SCALE.contains(&self.scale) {
                 out.push(Concern::ActorSize { height_m });
             }
+        }
+        let turned: Vec<(String, f64)> = self
+            .rest_turns
+            .iter()
+            .filter(|(_, deg)| *deg > TURNED_AT_REST_DEG)
+            .cloned()
+            .collect();
+        if !turned.is_empty() {
+            out.push(Concern::TurnedAtRest { joints: turned });
         }
         if let Some(floor) = self.floor.filter(|f| f.off_floor()) {
             if self.standing_height_m.is_some() {
@@ -722,7 +762,21 @@ pub fn calibrate(
     } else {
         Vec::new()
     };
+    let is_head = |name: &str| {
+        ch.skeleton
+            .joints
+            .iter()
+            .zip(roles)
+            .any(|(j, r)| j.name == name && r.is_some_and(|r| r.part == Part::Head))
+    };
     best.map(|b| Calibration {
+        rest_turns: b
+            .0
+            .rest_turns
+            .iter()
+            .filter(|(name, _)| is_head(name))
+            .cloned()
+            .collect(),
         standing_height_m: standing,
         body_parts,
         ..b.0
@@ -1476,6 +1530,9 @@ fn finish(
     opts: &CalibrationOptions,
 ) -> Calibration {
     let on_skin = opts.markers_on_skin;
+    let state = frames.iter().position(|&f| f == rest_frame).unwrap_or(0);
+    let joints: Vec<usize> = placed.iter().map(|p| p.joint).collect();
+    let rest_turns = rest_turns(ch, &joints, solve, state);
     let mut left_out = plan.left_out;
     let residuals = solve.residuals();
     let mut rms: Vec<f64> = residuals.iter().map(|r| r.0).collect();
@@ -1544,7 +1601,50 @@ fn finish(
         standing_height_m: None,
         body_parts: Vec::new(),
         floor: FloorCheck::from_frames(&solve.lowest_m()),
+        rest_turns,
     }
+}
+
+/// Per joint whose turn only its own labels see ([`Calibration::rest_turns`]; the labels
+/// ride `joints`), its name and its turn from rest in state `state` of `solve`, degrees.
+fn rest_turns(
+    ch: &Character,
+    joints: &[usize],
+    solve: &OffsetSolve,
+    state: usize,
+) -> Vec<(String, f64)> {
+    let sk = &ch.skeleton;
+    let Some(st) = solve.states.get(state) else {
+        return Vec::new();
+    };
+    let n = sk.len();
+    let mut carries = vec![false; n];
+    for &j in joints {
+        carries[j] = true;
+    }
+    // Whether a joint or one below it carries labels (children after their parents).
+    let mut below = carries.clone();
+    for j in (0..n).rev() {
+        if let Some(p) = sk.joints[j].parent.filter(|_| below[j]) {
+            below[p] = true;
+        }
+    }
+    let mut out = Vec::new();
+    for j in (0..n).filter(|&j| carries[j] && sk.children(j).all(|c| !below[c])) {
+        let mut up = sk.joints[j].parent;
+        while let Some(p) = up.filter(|&p| !carries[p]) {
+            up = sk.joints[p].parent;
+        }
+        let Some(anchor) = up else { continue };
+        // World rotations are the identity at rest: the turn is the relative one's angle.
+        let relative = st.world_rot[anchor].inverse() * st.world_rot[j];
+        let deg = relative
+            .normalize()
+            .angle_between(DQuat::IDENTITY)
+            .to_degrees();
+        out.push((sk.joints[j].name.clone(), deg));
+    }
+    out
 }
 
 #[cfg(test)]
