@@ -755,13 +755,23 @@ pub fn calibrate(
             best = Some((cal, (on_skin, cost)));
         }
     }
+    best.map(|b| with_the_body(b.0, ch, roles, stance))
+        .ok_or_else(|| CalibrationError::NoFrames {
+            take: rec.name.to_owned(),
+        })
+}
+
+/// `cal` with what its verdict needs of the character's body: its standing height and
+/// parts when it stands on legs and has a head ([`body_parts`]), and the turns at rest
+/// of its head joints alone.
+fn with_the_body(
+    cal: Calibration,
+    ch: &Character,
+    roles: &[Option<Role>],
+    stance: Stance,
+) -> Calibration {
     let has_head = roles.iter().flatten().any(|r| r.part == Part::Head);
     let standing = (stance.turn == Turn::Yaw && has_head).then_some(stance.height);
-    let body_parts = if standing.is_some() {
-        body_parts(ch, roles)
-    } else {
-        Vec::new()
-    };
     let is_head = |name: &str| {
         ch.skeleton
             .joints
@@ -769,21 +779,21 @@ pub fn calibrate(
             .zip(roles)
             .any(|(j, r)| j.name == name && r.is_some_and(|r| r.part == Part::Head))
     };
-    best.map(|b| Calibration {
-        rest_turns: b
-            .0
+    Calibration {
+        rest_turns: cal
             .rest_turns
             .iter()
             .filter(|(name, _)| is_head(name))
             .cloned()
             .collect(),
         standing_height_m: standing,
-        body_parts,
-        ..b.0
-    })
-    .ok_or_else(|| CalibrationError::NoFrames {
-        take: rec.name.to_owned(),
-    })
+        body_parts: if standing.is_some() {
+            body_parts(ch, roles)
+        } else {
+            Vec::new()
+        },
+        ..cal
+    }
 }
 
 /// A standing character's limbs (an upper arm or upper leg joint by its role, with every
