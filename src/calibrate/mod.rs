@@ -821,12 +821,7 @@ fn body_parts(ch: &Character, roles: &[Option<Role>]) -> Vec<(String, Vec<usize>
             Some(Side::Right) => format!("right {what}"),
             None => what.to_owned(),
         };
-        // Parents come before children: one pass marks the subtree.
-        let mut inside = vec![false; sk.len()];
-        inside[j] = true;
-        for k in j + 1..sk.len() {
-            inside[k] = sk.joints[k].parent.is_some_and(|p| inside[p]);
-        }
+        let inside = sk.subtree(j);
         out.push((name, (0..sk.len()).filter(|&k| inside[k]).collect()));
     }
     out

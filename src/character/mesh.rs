@@ -688,61 +688,46 @@ fn read_influences_all(
     let mut weighted_node = vec![false; root.nodes.len()];
     let mut read_any = false;
     let (mut joints, mut weights) = (Vec::new(), Vec::new());
-    let mut part = 0;
-    for node in &root.nodes {
-        let Some((m, mesh)) = node
-            .mesh
-            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
-        else {
+    for (part, (node, m, mesh, p, prim)) in triangle_primitives(root).enumerate() {
+        let range = out.parts.get(part).map(|q| {
+            let first = q.first_vertex as usize;
+            first..first + q.vertex_count as usize
+        });
+        let skin = node
+            .skin
+            .and_then(|s| Some((s.value(), root.skins.get(s.value())?)));
+        let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));
+        let (Some(range), Some((t, skin)), true) = (
+            range,
+            skin,
+            has(Semantic::Joints(0)) && has(Semantic::Weights(0)),
+        ) else {
             continue;
         };
-        for (p, prim) in mesh
-            .primitives
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| is_triangles(p))
-        {
-            let range = out.parts.get(part).map(|q| {
-                let first = q.first_vertex as usize;
-                first..first + q.vertex_count as usize
-            });
-            part += 1;
-            let skin = node
-                .skin
-                .and_then(|s| Some((s.value(), root.skins.get(s.value())?)));
-            let has = |sem| prim.attributes.contains_key(&Checked::Valid(sem));
-            let (Some(range), Some((t, skin)), true) = (
-                range,
-                skin,
-                has(Semantic::Joints(0)) && has(Semantic::Weights(0)),
-            ) else {
-                continue;
-            };
-            read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(
-                |detail| MeshError::Skin {
-                    skin: t,
-                    problem: SkinProblem::Weights {
-                        at: PrimitiveAt {
-                            mesh: m,
-                            name: mesh.name.clone(),
-                            primitive: p,
-                        },
-                        detail,
+        read_influences(prim, layouts, buffers, &mut joints, &mut weights).map_err(|detail| {
+            MeshError::Skin {
+                skin: t,
+                problem: SkinProblem::Weights {
+                    at: PrimitiveAt {
+                        mesh: m,
+                        name: mesh.name.clone(),
+                        primitive: p,
                     },
+                    detail,
                 },
-            )?;
-            read_any = true;
-            let node_of = |k: u16| skin.joints.get(usize::from(k)).map(|n| n.value());
-            for ((v, j), w) in range.zip(&joints).zip(&weights) {
-                for c in (0..4).filter(|&c| w[c] > 0.0) {
-                    if let Some(x) = node_of(j[c]).and_then(|n| weighted_node.get_mut(n)) {
-                        *x = true;
-                    }
+            }
+        })?;
+        read_any = true;
+        let node_of = |k: u16| skin.joints.get(usize::from(k)).map(|n| n.value());
+        for ((v, j), w) in range.zip(&joints).zip(&weights) {
+            for c in (0..4).filter(|&c| w[c] > 0.0) {
+                if let Some(x) = node_of(j[c]).and_then(|n| weighted_node.get_mut(n)) {
+                    *x = true;
                 }
-                let c = (0..4).fold(0, |b, c| if w[c] > w[b] { c } else { b });
-                if w[c] > 0.0 {
-                    dominant[v] = node_of(j[c]);
-                }
+            }
+            let c = (0..4).fold(0, |b, c| if w[c] > w[b] { c } else { b });
+            if w[c] > 0.0 {
+                dominant[v] = node_of(j[c]);
             }
         }
     }
@@ -1721,6 +1706,35 @@ fn index_count(a: usize, layouts: &[Layout]) -> Result<usize, PrimitiveProblem> 
     Ok(layout.count)
 }
 
+/// Every triangle primitive of every mesh node in the reader's order (mesh nodes in
+/// document order, their triangle primitives in order), as the node, its mesh's index,
+/// the mesh, the primitive's index in the mesh, and the primitive.
+fn triangle_primitives(
+    root: &gltf::json::Root,
+) -> impl Iterator<
+    Item = (
+        &gltf::json::Node,
+        usize,
+        &gltf::json::Mesh,
+        usize,
+        &gltf::json::mesh::Primitive,
+    ),
+> {
+    root.nodes
+        .iter()
+        .filter_map(|node| {
+            let m = node.mesh?.value();
+            Some((node, m, root.meshes.get(m)?))
+        })
+        .flat_map(|(node, m, mesh)| {
+            mesh.primitives
+                .iter()
+                .enumerate()
+                .filter(|(_, prim)| is_triangles(prim))
+                .map(move |(p, prim)| (node, m, mesh, p, prim))
+        })
+}
+
 /// Whether a primitive is read (a triangle list).
 fn is_triangles(prim: &gltf::json::mesh::Primitive) -> bool {
     prim.mode == gltf::json::validation::Checked::Valid(gltf::json::mesh::Mode::Triangles)
@@ -1736,53 +1750,40 @@ fn check_primitives(
     let vertex_budget = (GLTF_VERTEX_ALLOWANCE + input_len / 4).min(u32::MAX.into());
     let index_budget = GLTF_INDEX_ALLOWANCE.saturating_add(input_len);
     let (mut vertices, mut indices, mut largest) = (0u64, 0u64, 0usize);
-    for node in &root.nodes {
-        let Some((m, mesh)) = node
-            .mesh
-            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
-        else {
-            continue;
+    for (_, m, mesh, p, prim) in triangle_primitives(root) {
+        let err = |problem| MeshError::Primitive {
+            at: PrimitiveAt {
+                mesh: m,
+                name: mesh.name.clone(),
+                primitive: p,
+            },
+            problem,
         };
-        for (p, prim) in mesh
-            .primitives
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| is_triangles(p))
-        {
-            let err = |problem| MeshError::Primitive {
-                at: PrimitiveAt {
-                    mesh: m,
-                    name: mesh.name.clone(),
-                    primitive: p,
-                },
-                problem,
-            };
-            let a = position_accessor(prim, layouts).map_err(err)?;
-            let count = layouts[a].count;
-            let (n, indexed) = match prim.indices {
-                Some(ix) => (index_count(ix.value(), layouts).map_err(err)?, true),
-                None => (count, false),
-            };
-            if n % 3 != 0 {
-                return Err(err(PrimitiveProblem::NotTriangles { count: n, indexed }));
-            }
-            vertices = vertices.saturating_add(count as u64);
-            indices = indices.saturating_add(n as u64);
-            if indexed {
-                largest = largest.max(n);
-            }
-            for (what, total, budget) in [
-                ("vertices", vertices, vertex_budget),
-                ("indices", indices, index_budget),
-            ] {
-                if total > budget {
-                    return Err(err(PrimitiveProblem::OverBudget {
-                        what,
-                        total,
-                        budget,
-                        input_len,
-                    }));
-                }
+        let a = position_accessor(prim, layouts).map_err(err)?;
+        let count = layouts[a].count;
+        let (n, indexed) = match prim.indices {
+            Some(ix) => (index_count(ix.value(), layouts).map_err(err)?, true),
+            None => (count, false),
+        };
+        if n % 3 != 0 {
+            return Err(err(PrimitiveProblem::NotTriangles { count: n, indexed }));
+        }
+        vertices = vertices.saturating_add(count as u64);
+        indices = indices.saturating_add(n as u64);
+        if indexed {
+            largest = largest.max(n);
+        }
+        for (what, total, budget) in [
+            ("vertices", vertices, vertex_budget),
+            ("indices", indices, index_budget),
+        ] {
+            if total > budget {
+                return Err(err(PrimitiveProblem::OverBudget {
+                    what,
+                    total,
+                    budget,
+                    input_len,
+                }));
             }
         }
     }
@@ -2179,18 +2180,11 @@ fn inverse_binds(
 /// order: mesh nodes in document order, their triangle primitives in order).
 fn skinned_vertices(root: &gltf::json::Root, out: &MeshData) -> Vec<bool> {
     let mut skinned = vec![false; out.positions.len()];
-    let mut part = 0;
-    for node in &root.nodes {
-        let Some(mesh) = node.mesh.and_then(|m| root.meshes.get(m.value())) else {
-            continue;
-        };
-        for _ in mesh.primitives.iter().filter(|p| is_triangles(p)) {
-            if let (Some(q), true) = (out.parts.get(part), node.skin.is_some()) {
-                let first = q.first_vertex as usize;
-                let range = first..first + q.vertex_count as usize;
-                skinned[range].iter_mut().for_each(|s| *s = true);
-            }
-            part += 1;
+    for (part, (node, ..)) in triangle_primitives(root).enumerate() {
+        if let (Some(q), true) = (out.parts.get(part), node.skin.is_some()) {
+            let first = q.first_vertex as usize;
+            let range = first..first + q.vertex_count as usize;
+            skinned[range].iter_mut().for_each(|s| *s = true);
         }
     }
     skinned

@@ -121,6 +121,18 @@ impl Skeleton {
         self.joints.is_empty()
     }
 
+    /// Per joint, whether it is joint `j` or below it (one pass: parents come first).
+    pub fn subtree(&self, j: usize) -> Vec<bool> {
+        let mut inside = vec![false; self.len()];
+        if let Some(x) = inside.get_mut(j) {
+            *x = true;
+        }
+        for k in j + 1..self.len() {
+            inside[k] = self.joints[k].parent.is_some_and(|p| inside[p]);
+        }
+        inside
+    }
+
     /// Children of joint `j`.
     pub fn children(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
         self.joints

@@ -86,12 +86,7 @@ fn limb_markers(rig: &crate::rig::bind::Rig) -> Vec<Vec<usize>> {
         if !role.is_some_and(|r| matches!(r.part, Part::UpperArm | Part::UpperLeg)) {
             continue;
         }
-        // Parents come before children: one pass marks the subtree.
-        let mut inside = vec![false; sk.len()];
-        inside[j] = true;
-        for k in j + 1..sk.len() {
-            inside[k] = sk.joints[k].parent.is_some_and(|p| inside[p]);
-        }
+        let inside = sk.subtree(j);
         limbs.push(
             (0..rig.marker_joint.len())
                 .filter(|&m| inside[rig.marker_joint[m]])
