@@ -1044,6 +1044,62 @@ fn a_layout_the_loader_would_refuse_is_not_written() {
     assert_eq!(loaded.character.markers.len(), 36);
 }
 
+/// A label the take gives to two points (RASI's column labelled LASI as well): neither
+/// is placed (which one is LASI cannot be told), both are listed with the reason, and the
+/// layout written names every marker once and loads. A take whose every point carries
+/// one label, or whose every column is empty, fails, saying nothing can be fitted and
+/// why, instead of fitting nothing to a scale (0.447, "residual 0.00 mm" before).
+#[test]
+fn a_repeated_label_is_left_out_and_a_take_of_nothing_fails() {
+    use rigless::calibrate::points::NotAMarker;
+    use rigless::daemon::live_calibration::write_layout;
+    let (bare, _) = bodies();
+    let mut twice = take("body_rom", 1.0);
+    let k = twice.labels.iter().position(|l| l == "RASI").expect("RASI");
+    twice.labels[k] = "LASI".into();
+    let cal = run(&bare, &twice, &CalibrationOptions::default());
+    let repeated: Vec<&String> = cal
+        .left_out
+        .iter()
+        .filter(|(_, r)| *r == LeftOut::NotAMarker(NotAMarker::Repeated { points: 2 }))
+        .map(|(l, _)| l)
+        .collect();
+    assert_eq!(repeated, ["LASI", "LASI"], "{:?}", cal.left_out);
+    assert_eq!(cal.placed.len(), 34);
+    assert!(cal.placed.iter().all(|p| p.label != "LASI"));
+    let dir = tempfile::tempdir().unwrap();
+    let file = rigless::character::file::write_character_files(
+        &bare,
+        Some(&rigless::character::demo::body_bind_params()),
+        dir.path(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    write_layout(&file, &cal).unwrap_or_else(|e| panic!("{e}"));
+    let loaded = rigless::character::file::load_character(&file).unwrap();
+    assert_eq!(loaded.character.markers.len(), 34);
+
+    let roles = recognise(&bare.skeleton.joints, &[]);
+    let mut one = take("body_rom", 1.0);
+    one.labels.iter_mut().for_each(|l| *l = "index_nail".into());
+    let mut empty = take("body_rom", 1.0);
+    empty.frames.iter_mut().for_each(|f| f.fill(DVec3::NAN));
+    for (rec, reason) in [
+        (&one, "gives this label to 36 points"),
+        (&empty, "no sample"),
+    ] {
+        match calibrate(&bare, &roles, rec.as_take(), &CalibrationOptions::default()) {
+            Err(e @ CalibrationError::NoMarkers { points: 36, .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains("nothing can be fitted") && text.contains(reason),
+                    "{text}"
+                );
+            }
+            other => panic!("expected NoMarkers, got {:?}", other.map(|c| c.scale)),
+        }
+    }
+}
+
 /// A real Plug-in Gait trial (Vicon Nexus) holds 39 markers among 239 points: its 76
 /// segment-axis points, 42 unlabelled trajectories and 82 model outputs are left out,
 /// each with its reason, and the 39 markers are placed onto the body. Measured: misfit

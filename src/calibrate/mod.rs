@@ -591,6 +591,17 @@ pub enum CalibrationError {
          [calibration.bones]"
     )]
     NoFirstGuess { take: String, frames: usize },
+    /// Every point of the take was left out before the fit: there is nothing to fit.
+    #[error(
+        "{take}: none of its {points} points can be a marker, so nothing can be fitted: {}",
+        .why.iter().map(|(reason, n, label)| format!("{n} point(s), such as {label:?}: {reason}")).collect::<Vec<_>>().join("; ")
+    )]
+    NoMarkers {
+        take: String,
+        points: usize,
+        /// Each reason given, with how many labels it left out and the first of them.
+        why: Vec<(String, usize, String)>,
+    },
     #[error("the character has no skeleton joint with children")]
     NoJoints,
     #[error("{take}: the fit found no scale (too few distinct points in view)")]
@@ -685,6 +696,9 @@ pub fn calibrate(
         }
         params.skin_band_weight = 0.0;
         params.skin_pull_weight = 0.0;
+    }
+    if plan.markers == 0 {
+        return Err(no_markers(rec, &plan.left_out));
     }
     let known: Vec<&LabelPlan> = plan
         .labels
@@ -1000,6 +1014,36 @@ impl Problem<'_> {
             self.opts,
         );
         Ok((cal, report.cost_end))
+    }
+}
+
+/// Reasons [`CalibrationError::NoMarkers`] lists one by one.
+const NO_MARKERS_REASONS: usize = 6;
+
+/// The error of a take none of whose points can be a marker (a label given to every
+/// point, every column empty, every label excluded): each reason with how many labels
+/// it left out and the first of them.
+fn no_markers(rec: Take, left_out: &[(String, LeftOut)]) -> CalibrationError {
+    let mut why: Vec<(String, usize, String)> = Vec::new();
+    for (label, reason) in left_out {
+        let reason = reason.to_string();
+        match why.iter_mut().find(|w| w.0 == reason) {
+            Some(w) => w.1 += 1,
+            None => why.push((reason, 1, label.clone())),
+        }
+    }
+    // Reasons with figures in them (distances) may each differ: the first few and a
+    // count of the rest.
+    if why.len() > NO_MARKERS_REASONS {
+        let rest: usize = why[NO_MARKERS_REASONS..].iter().map(|w| w.1).sum();
+        let first = why[NO_MARKERS_REASONS].2.clone();
+        why.truncate(NO_MARKERS_REASONS);
+        why.push(("other reasons".into(), rest, first));
+    }
+    CalibrationError::NoMarkers {
+        take: rec.name.to_owned(),
+        points: rec.labels.len(),
+        why,
     }
 }
 

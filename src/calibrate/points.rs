@@ -37,6 +37,9 @@ pub enum NotAMarker {
     /// No table knows it and it moves rigidly with others as one object away from the
     /// body's known markers.
     Prop { with: usize, distance_m: f64 },
+    /// The take gives this label to `points` points (`points` ≥ 2): which of them is the
+    /// marker of that name cannot be told, and a layout names each marker once.
+    Repeated { points: usize },
 }
 
 impl std::fmt::Display for NotAMarker {
@@ -69,6 +72,10 @@ impl std::fmt::Display for NotAMarker {
             NotAMarker::Prop { with, distance_m } => write!(
                 f,
                 "moves rigidly with {with} other unknown labels as one object {distance_m:.2} m from the nearest known marker: a prop"
+            ),
+            NotAMarker::Repeated { points } => write!(
+                f,
+                "the take gives this label to {points} points: which is the marker cannot be told, and a layout names each marker once (give each point its own label in the take)"
             ),
         }
     }
@@ -188,10 +195,20 @@ pub fn screen_by_name(
         .iter()
         .max_by_key(|(_, n)| *n)
         .and_then(|(s, _)| *s);
+    // A label given to several points: none of them is taken, whatever the filter says
+    // (a layout written with the name twice is one the loader refuses).
+    let mut uses: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    for l in labels {
+        *uses.entry(l.as_str()).or_default() += 1;
+    }
     labels
         .iter()
         .enumerate()
         .map(|(k, label)| {
+            let points = uses.get(label.as_str()).copied().unwrap_or(1);
+            if points > 1 {
+                return Some(NotAMarker::Repeated { points });
+            }
             if filter.included(label) {
                 return None;
             }
@@ -468,9 +485,38 @@ pub fn rigid_groups<F: AsRef<[DVec3]>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     fn labels(names: &[&str]) -> Vec<String> {
         names.iter().map(|s| s.to_string()).collect()
+    }
+
+    proptest! {
+        /// Whatever the labels and the user's `--include` (which keeps a label against
+        /// every other rule), a label given to several points is left out at each of
+        /// them with their count, and every label kept is the take's only one of that
+        /// name (so a layout never names a marker twice).
+        #[test]
+        fn a_repeated_label_is_never_kept(
+            names in proptest::collection::vec("[A-Ca-c:_ ]{0,3}", 0..40),
+            include_all in any::<bool>(),
+        ) {
+            let filter = PointFilter {
+                include: if include_all { vec!["*".into()] } else { Vec::new() },
+                ..PointFilter::default()
+            };
+            let got = screen_by_name(&names, &[], &filter);
+            prop_assert_eq!(got.len(), names.len());
+            for (label, why) in names.iter().zip(&got) {
+                let n = names.iter().filter(|o| *o == label).count();
+                if n > 1 {
+                    prop_assert_eq!(why, &Some(NotAMarker::Repeated { points: n }));
+                } else {
+                    let repeated = matches!(why, Some(NotAMarker::Repeated { .. }));
+                    prop_assert!(!repeated, "{:?}: {:?}", label, why);
+                }
+            }
+        }
     }
 
     /// `n` labels over 10 frames, each moving along x by 5 cm a frame.
