@@ -149,6 +149,95 @@ fn a_take_without_the_characters_labels_is_refused() {
     assert!(!path.exists());
 }
 
+/// The names in `dir`, sorted.
+fn listing(dir: &std::path::Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// An export writes beside its file and renames onto it when complete. While it runs,
+/// the file at the path is the old one (so a process killed then leaves it: a killed
+/// multi-part PC2 export used to leave a file of the right header and size whose
+/// frames were zeros). One that fails leaves the old file and no temporary file. A path
+/// that holds something other than a regular file (a socket here; a device used to be
+/// deleted when an export failed) is refused before anything is written, and kept.
+#[test]
+fn an_export_replaces_its_file_only_when_complete() {
+    use rigless::output::export::ExportError;
+    use std::os::unix::fs::FileTypeExt;
+    let (rig, rec) = hand_and_take();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("take.pc2");
+    std::fs::write(&path, b"old").unwrap();
+    let mut during = Vec::new();
+    let two_parts = ExportOptions {
+        marker_scale: 1.0,
+        threads: 2,
+    };
+    let export = |path: &std::path::Path, opts, progress: &mut dyn FnMut(usize, usize)| {
+        export_take(
+            Arc::clone(&rig),
+            SolverParams::default(),
+            &rec,
+            opts,
+            path,
+            progress,
+        )
+    };
+    export(&path, two_parts, &mut |done, _| {
+        during.push((done, std::fs::read(&path).unwrap(), listing(dir.path())));
+    })
+    .unwrap();
+    assert!(during.len() > 10, "{} progress calls", during.len());
+    for (done, bytes, names) in &during {
+        assert_eq!(bytes, b"old", "frame {done}");
+        assert_eq!(names.len(), 2, "frame {done}: {names:?}");
+    }
+    let cache = std::fs::read(&path).unwrap();
+    let pc2 = decode(&cache).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(pc2.header.samples as usize, rec.frames.len());
+    assert_eq!(listing(dir.path()), ["take.pc2"]);
+
+    // Its temporary file removed by another hand part way: the rename fails, and the
+    // old file stays.
+    std::fs::write(&path, b"old").unwrap();
+    let err = export(&path, ONE_PASS, &mut |done, _| {
+        if done == 100 {
+            for name in listing(dir.path()) {
+                if name.starts_with(".take.pc2.") {
+                    std::fs::remove_file(dir.path().join(name)).unwrap();
+                }
+            }
+        }
+    })
+    .unwrap_err();
+    assert!(
+        matches!(err, OfflineExportError::Export(ExportError::Io { .. })),
+        "{err}"
+    );
+    assert!(err.to_string().contains("take.pc2"), "{err}");
+    assert_eq!(std::fs::read(&path).unwrap(), b"old");
+    assert_eq!(listing(dir.path()), ["take.pc2"]);
+
+    let socket = dir.path().join("socket.bvh");
+    let _listener = std::os::unix::net::UnixListener::bind(&socket).unwrap();
+    let err = export(&socket, ONE_PASS, &mut |_, _| {}).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            OfflineExportError::Export(ExportError::NotAFile { .. })
+        ),
+        "{err}"
+    );
+    let kept = std::fs::symlink_metadata(&socket).unwrap().file_type();
+    assert!(kept.is_socket());
+    assert_eq!(listing(dir.path()), ["socket.bvh", "take.pc2"]);
+}
+
 /// The fitted skeleton exported as BVH and read back through the project's BVH reader:
 /// one frame per take frame at the take's rate, every joint where the solve's posture
 /// put it (within 1 µm: the text keeps 1e-6 cm and 1e-6 degrees), so every bone keeps

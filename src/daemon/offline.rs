@@ -527,7 +527,17 @@ pub fn export_take(
         .min(frames / (warm * MIN_PART_WARM_UPS).max(1))
         .max(1);
     let bounds = part_bounds(frames, parts, warm);
-    let outs = create_outputs(&rig, format, path, frames, 1.0 / rec.rate_hz, &bounds)?;
+    // Written beside `path` and renamed onto it when complete: a failed or killed
+    // export leaves what was there.
+    let staged = crate::output::export::StagedPath::new(path)?;
+    let outs = create_outputs(
+        &rig,
+        format,
+        staged.temp(),
+        frames,
+        1.0 / rec.rate_hz,
+        &bounds,
+    )?;
     let play_opts = OfflineOptions {
         rate_hz: rec.rate_hz,
         marker_scale: opts.marker_scale,
@@ -537,20 +547,8 @@ pub fn export_take(
         posture_only: format == ExportFormat::Bvh,
     };
     let solved = solve_parts(&rig, params, rec, play_opts, &bounds, warm, outs, progress);
-    let written = solved.and_then(|(tally, file)| {
-        finish_file(file)?;
-        Ok(tally)
-    });
-    // A failed export leaves no half-written file behind.
-    let tally = match written {
-        Ok(t) => t,
-        Err(e) => {
-            if let Err(rm) = std::fs::remove_file(path) {
-                tracing::debug!("removing {}: {rm}", path.display());
-            }
-            return Err(e);
-        }
-    };
+    let (tally, file) = solved?;
+    finish_file(file)?;
     if parts > 1 {
         // The polling above may have missed the last parts' final frames.
         progress(frames, frames);
@@ -560,6 +558,7 @@ pub fn export_take(
             take: rec.name.clone(),
         });
     };
+    staged.commit()?;
     Ok(ExportSummary {
         frames,
         rate_hz: rec.rate_hz,

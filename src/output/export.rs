@@ -37,6 +37,82 @@ pub enum ExportError {
         what: &'static str,
         count: usize,
     },
+    #[error("{path}: it is not a regular file (a folder, a device, a pipe or a socket), and an export only replaces files")]
+    NotAFile { path: String },
+}
+
+/// An export's file, written under a temporary name beside its final one and renamed
+/// onto it only when complete (a rename within a folder is atomic, POSIX `rename(2)`):
+/// an export that fails or is killed leaves whatever was at the final name as it was.
+/// Dropped without [`StagedPath::commit`], it removes the temporary file it made (a
+/// process killed outright leaves it, named `.NAME.PID-N.part`, beside the final name).
+#[derive(Debug)]
+pub struct StagedPath {
+    /// Where the file goes: the path given, or the file a symbolic link there names.
+    final_path: PathBuf,
+    temp: PathBuf,
+    committed: bool,
+}
+
+impl StagedPath {
+    /// Stages `path`: an error when something other than a regular file is there (a
+    /// folder, a device, a pipe: an export never replaces them); a link to a file stages
+    /// the file it names.
+    pub fn new(path: &Path) -> Result<Self, ExportError> {
+        static STAGED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let final_path = match std::fs::metadata(path) {
+            Ok(meta) if meta.is_file() => {
+                std::fs::canonicalize(path).map_err(|source| io_error(path, source))?
+            }
+            Ok(_) => {
+                return Err(ExportError::NotAFile {
+                    path: path.display().to_string(),
+                })
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => path.to_owned(),
+            Err(source) => return Err(io_error(path, source)),
+        };
+        let name = final_path
+            .file_name()
+            .ok_or_else(|| ExportError::NotAFile {
+                path: path.display().to_string(),
+            })?
+            .to_string_lossy();
+        let n = STAGED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let temp = final_path.with_file_name(format!(".{name}.{}-{n}.part", std::process::id()));
+        Ok(Self {
+            final_path,
+            temp,
+            committed: false,
+        })
+    }
+
+    /// Where the export writes until it is complete.
+    pub fn temp(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Renames the complete file onto the final name.
+    pub fn commit(mut self) -> Result<(), ExportError> {
+        std::fs::rename(&self.temp, &self.final_path)
+            .map_err(|source| io_error(&self.final_path, source))?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for StagedPath {
+    fn drop(&mut self) {
+        if self.committed {
+            return;
+        }
+        match std::fs::remove_file(&self.temp) {
+            Ok(()) => {}
+            // Never made: the export failed before its first byte.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => tracing::warn!("could not remove {}: {e}", self.temp.display()),
+        }
+    }
 }
 
 /// A file of a header and a known number of frames, written frame by frame: what the
