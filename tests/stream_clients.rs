@@ -337,3 +337,140 @@ fn the_websocket_port_serves_the_viewer_page() {
         );
     }
 }
+
+/// A stream server on loopback over TCP and WebSocket serving at most `max_clients`.
+fn small_server(
+    max_clients: usize,
+) -> (
+    StreamServer,
+    Arc<LatestSlot<rigless::output::frame::DeformedFrame>>,
+) {
+    let loopback = "127.0.0.1:0".parse().unwrap();
+    let slot = Arc::new(LatestSlot::new());
+    let server = StreamServer::start(
+        &StreamOutputConfig {
+            tcp: Some(loopback),
+            websocket: Some(loopback),
+            max_clients,
+            viewer: true,
+            websocket_any_port_if_taken: false,
+        },
+        &common::tiny_topology(),
+        Arc::clone(&slot),
+    )
+    .unwrap();
+    (server, slot)
+}
+
+/// A slowloris on the viewer's port: 64 sockets that each sent half a request head
+/// (`GET / HTTP/1.1\r\n`) take no stream client's place (they used to count toward
+/// `max_clients` for 5 s each: the TCP stream answered "server full"). With them
+/// open, four TCP clients and a WebSocket one (the handshake budget cuts the oldest
+/// half-heads, once they have had their grace, to make room) are all served; the
+/// half-heads are all closed by their head deadline (`HEAD_TIMEOUT_SECS`, 2 s).
+#[test]
+fn half_sent_heads_take_no_clients_place() {
+    use std::io::Write;
+    let (server, _slot) = small_server(5);
+    let (tcp_addr, ws_addr) = (server.local_addr().unwrap(), server.ws_addr().unwrap());
+    let started = Instant::now();
+    let mut half: Vec<TcpStream> = (0..64)
+        .map(|_| {
+            let mut s = TcpStream::connect(ws_addr).unwrap();
+            s.write_all(b"GET / HTTP/1.1\r\n").unwrap();
+            s.set_read_timeout(Some(TIMEOUT)).unwrap();
+            s
+        })
+        .collect();
+    let mut kept = Vec::new();
+    for _ in 0..4 {
+        let mut s = TcpStream::connect(tcp_addr).unwrap();
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        assert!(matches!(read_message(&mut s), Message::Topology(_)));
+        kept.push(s);
+    }
+    let mut ws = ws_client(ws_addr);
+    assert!(matches!(ws_message(&mut ws), Some(Message::Topology(_))));
+    let stats = server.stats();
+    assert_eq!(stats.refused.load(Ordering::Relaxed), 0);
+    assert_eq!(stats.connections.load(Ordering::Relaxed), 5);
+    // Each half-head is closed: cut for room (reset, when its bytes were not read yet),
+    // or at its deadline.
+    for s in &mut half {
+        let mut rest = Vec::new();
+        match s.read_to_end(&mut rest) {
+            Ok(_) => assert!(rest.is_empty(), "{:?}", String::from_utf8_lossy(&rest)),
+            Err(e) => assert_eq!(e.kind(), std::io::ErrorKind::ConnectionReset, "{e}"),
+        }
+    }
+    let all_closed_s = started.elapsed().as_secs_f64();
+    println!("every half-head closed {all_closed_s:.2} s after the first was sent");
+    // Measured 2.25-2.26 s: the first 32 wait their grace (0.25 s) before they are cut,
+    // the last 32 their head deadline (2 s) after that; 5 s was the old limit.
+    assert!(all_closed_s < 4.0, "{all_closed_s} s");
+    server.shutdown("test over");
+}
+
+/// Heads the viewer's port must answer, not drop: one over 8 KiB gets a 400 saying so
+/// (it was reset), one whose lines end in a bare LF is answered (it waited out the
+/// deadline); a WebSocket client's ping gets its pong, and its close gets a close (RFC
+/// 6455 §5.5.1-3: the server never read what clients sent).
+#[test]
+fn the_viewers_port_answers_long_and_bare_lf_heads_pings_and_closes() {
+    use std::io::Write;
+    use tokio_tungstenite::tungstenite::{Error as WsError, Message as Ws};
+    let (server, _slot) = small_server(4);
+    let addr = server.ws_addr().unwrap();
+    let ask = |bytes: &[u8]| {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        s.write_all(bytes).unwrap();
+        let mut reply = Vec::new();
+        s.read_to_end(&mut reply).unwrap();
+        String::from_utf8(reply).unwrap()
+    };
+    let mut long = b"GET / HTTP/1.1\r\nX-Long: ".to_vec();
+    long.resize(9000, b'a');
+    let r = ask(&long);
+    assert!(r.starts_with("HTTP/1.1 400"), "{r}");
+    assert!(r.contains("longer than 8192 bytes"), "{r}");
+    let r = ask(b"GET / HTTP/1.1\nHost: a\n\n");
+    assert!(r.starts_with("HTTP/1.1 200 OK"), "{r}");
+
+    let mut ws = ws_client(addr);
+    assert!(matches!(ws_message(&mut ws), Some(Message::Topology(_))));
+    ws.send(Ws::Ping(b"are you there".to_vec().into())).unwrap();
+    loop {
+        match ws.read().expect("the pong") {
+            Ws::Pong(p) => {
+                assert_eq!(&p[..], b"are you there");
+                break;
+            }
+            Ws::Binary(_) => {}
+            other => panic!("{other:?}"),
+        }
+    }
+    ws.close(None).unwrap();
+    let mut answered = false;
+    loop {
+        match ws.read() {
+            Ok(Ws::Close(_)) => answered = true,
+            Ok(Ws::Binary(_)) => {}
+            Ok(other) => panic!("{other:?}"),
+            Err(WsError::ConnectionClosed) => break,
+            Err(e) => panic!("not a clean close: {e}"),
+        }
+    }
+    assert!(answered, "the server's close");
+    let stats = server.stats();
+    let start = Instant::now();
+    while stats.clients.load(Ordering::Relaxed) > 0 {
+        assert!(
+            start.elapsed() < TIMEOUT,
+            "the closed client is still served"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(stats.write_errors.load(Ordering::Relaxed), 0);
+    server.shutdown("test over");
+}

@@ -10,8 +10,12 @@
 //! `watch` channel that every client task follows, so a slow client skips to the newest frame (the skipped frames
 //! are counted) and never holds up the loop or the other clients.
 //!
-//! At most `max_clients` are served at once (a connection still in its WebSocket
-//! handshake counts); the next is sent a goodbye saying the server is full and closed.
+//! At most `max_clients` are served at once; the next is sent a goodbye saying the server
+//! is full and closed. A connection to the WebSocket port is no client until its
+//! handshake is done: requests still being read, and pages, have their own budget
+//! ([`MAX_HANDSHAKES`], the oldest cut when it is spent) and a short deadline for the
+//! head ([`HEAD_TIMEOUT_SECS`]), so half-sent heads never take a client's place. A
+//! WebSocket client's pings get pongs and its close gets a close (RFC 6455 §5.5).
 //! When accepting fails (out of file descriptors, say), the server waits before it tries
 //! again, 100 ms and doubling up to a second, and says so at most once a second with a
 //! count of the failures it did not report; the clients already connected are served
@@ -19,11 +23,11 @@
 
 use super::config::StreamOutputConfig;
 use super::frame::DeformedFrame;
-use super::viewer::{bad_request, head_end, parse_head, respond, MAX_HEAD_BYTES};
+use super::viewer::{bad_request, head_end, parse_head, respond, HeadError, MAX_HEAD_BYTES};
 use crate::protocol::vertex_stream::{encode_frame, encode_goodbye, encode_topology, Topology};
 use crate::runtime::said::Throttle;
 use crate::runtime::slot::LatestSlot;
-use futures_util::SinkExt;
+use futures_util::{SinkExt, StreamExt};
 use std::io;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -36,6 +40,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinSet;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::Message as WsMessage;
 use tokio_tungstenite::WebSocketStream;
 
@@ -47,6 +52,20 @@ const GOODBYE_TIMEOUT_SECS: f64 = 1.0;
 /// Connections being refused at once at most; beyond, a connection is closed at once,
 /// with no goodbye.
 const MAX_REFUSALS: usize = 16;
+/// Connections to the WebSocket port still in their request or handshake, or being sent
+/// a page, at once at most. When they are all under way, new connections wait in the
+/// listen queue until one ends or the oldest has had [`HANDSHAKE_GRACE_SECS`]; then it
+/// is cut to make room.
+pub const MAX_HANDSHAKES: usize = 32;
+/// Time a handshake keeps its place against newcomers, seconds (one on loopback or a
+/// LAN takes well under a millisecond; a burst of clients waits, a slowloris loses).
+pub const HANDSHAKE_GRACE_SECS: f64 = 0.25;
+/// Time a connection to the WebSocket port has to send its request head, seconds (a
+/// browser sends it at once).
+pub const HEAD_TIMEOUT_SECS: f64 = 2.0;
+/// Largest message or frame a WebSocket client may send, bytes: it has nothing to send
+/// but pings and a close.
+const WS_MAX_MESSAGE_BYTES: usize = 64 << 10;
 /// The first wait after a failed accept, seconds; it doubles with each failure in a row
 /// up to [`ACCEPT_BACKOFF_MAX_S`].
 const ACCEPT_BACKOFF_MIN_S: f64 = 0.1;
@@ -71,11 +90,12 @@ pub struct StreamStats {
     pub frames_sent: AtomicU64,
     /// Frames a client skipped because it was slower than the loop, over all clients.
     pub frames_skipped: AtomicU64,
-    /// Clients dropped on a write error or timeout (a client that hangs up is noticed
-    /// at the next write, so it counts here too; so does one whose goodbye fails).
+    /// Clients dropped on a write error or timeout (a TCP client that hangs up is
+    /// noticed at the next write, so it counts here too; so does one whose goodbye
+    /// fails; a WebSocket client's close or hang-up is read, and is no error).
     pub write_errors: AtomicU64,
-    /// WebSocket connections whose handshake failed or timed out (a request head that
-    /// does not parse included).
+    /// WebSocket-port connections whose handshake failed, timed out or was cut to make
+    /// room (a request head that does not parse is answered and counted as a page).
     pub handshake_errors: AtomicU64,
     /// Requests on the WebSocket port answered with the viewer's page (or a 404); they
     /// are not counted in `connections`.
@@ -257,60 +277,111 @@ impl AsyncWrite for Rewind {
     }
 }
 
-/// Reads a request head from `sock`: the bytes up to its blank line and whatever came
-/// with them, at most [`MAX_HEAD_BYTES`]. `None` if the peer closes first or sends more
-/// without ending its head.
-async fn read_head(sock: &mut TcpStream) -> Option<(Vec<u8>, usize)> {
+/// What reading a request head gave.
+enum HeadRead {
+    /// The bytes up to its blank line (`end`) and whatever came with them.
+    Head { bytes: Vec<u8>, end: usize },
+    /// [`MAX_HEAD_BYTES`] without a blank line.
+    TooLong,
+    /// The peer closed, or the read failed, first.
+    Closed,
+}
+
+/// Reads a request head from `sock`, at most [`MAX_HEAD_BYTES`].
+async fn read_head(sock: &mut TcpStream) -> HeadRead {
     let mut buf = vec![0u8; MAX_HEAD_BYTES];
     let mut have = 0;
     while have < buf.len() {
-        let n = sock.read(&mut buf[have..]).await.ok()?;
-        if n == 0 {
-            return None;
-        }
+        let n = match sock.read(&mut buf[have..]).await {
+            Ok(0) | Err(_) => return HeadRead::Closed,
+            Ok(n) => n,
+        };
         // The blank line may straddle two reads: look from three bytes before.
         let from = have.saturating_sub(3);
         have += n;
         if let Some(end) = head_end(&buf[from..have]) {
             buf.truncate(have);
-            return Some((buf, from + end));
+            return HeadRead::Head {
+                bytes: buf,
+                end: from + end,
+            };
         }
     }
-    None
+    HeadRead::TooLong
+}
+
+/// What a connection to the WebSocket port is: a client once its handshake is done, or
+/// a page request, answered when `viewer` (else with a 404), or a bad one, answered
+/// with a 400. The head must come within [`HEAD_TIMEOUT_SECS`]; the handshake or the
+/// answer within `limit` more.
+async fn handshake(sock: TcpStream, viewer: bool, limit: Duration) -> Accepted {
+    let mut sock = sock;
+    let head_limit = Duration::from_secs_f64(HEAD_TIMEOUT_SECS);
+    let (bytes, end) = match tokio::time::timeout(head_limit, read_head(&mut sock)).await {
+        Ok(HeadRead::Head { bytes, end }) => (bytes, end),
+        Ok(HeadRead::TooLong) => (Vec::new(), 0),
+        Ok(HeadRead::Closed) | Err(_) => return Accepted::Failed,
+    };
+    let rest = async move {
+        let reply = match parse_head(&bytes[..end]) {
+            _ if end == 0 => bad_request(&HeadError::TooLong),
+            Ok(h) if h.websocket => {
+                let rewind = Rewind {
+                    prefix: bytes,
+                    at: 0,
+                    inner: sock,
+                };
+                let config = WebSocketConfig::default()
+                    .max_message_size(Some(WS_MAX_MESSAGE_BYTES))
+                    .max_frame_size(Some(WS_MAX_MESSAGE_BYTES));
+                let ws = tokio_tungstenite::accept_async_with_config(rewind, Some(config))
+                    .await
+                    .ok()?;
+                return Some(Accepted::Client(Conn::Ws(Box::new(ws))));
+            }
+            Ok(h) => respond(&h, viewer),
+            Err(e) => bad_request(&e),
+        };
+        sock.write_all(&reply).await.ok()?;
+        // The peer reads to the end: close our side, and let it go.
+        sock.shutdown().await.ok()?;
+        Some(Accepted::Page)
+    };
+    match tokio::time::timeout(limit, rest).await {
+        Ok(Some(a)) => a,
+        _ => Accepted::Failed,
+    }
+}
+
+/// What a client sent that the server acts on.
+enum Incoming {
+    /// A ping (its pong is queued) or anything else: flush and go on.
+    Flush,
+    /// Its close (the reply is queued), or the connection is gone.
+    Closed,
 }
 
 impl Conn {
-    /// What an accepted socket is: over WebSocket, a client once its handshake is done,
-    /// or a page request, answered when `viewer` (else refused with a 404); each bounded
-    /// by `limit`.
-    async fn accept(sock: TcpStream, websocket: bool, viewer: bool, limit: Duration) -> Accepted {
-        if !websocket {
-            return Accepted::Client(Conn::Tcp(sock));
+    /// The next thing the client sends that needs an answer: a WebSocket client's
+    /// messages are read (tungstenite queues the pong to a ping and the reply to a
+    /// close); a TCP client is not read, and this never returns.
+    async fn incoming(&mut self) -> Incoming {
+        match self {
+            Conn::Tcp(_) => std::future::pending().await,
+            Conn::Ws(w) => match w.next().await {
+                Some(Ok(WsMessage::Close(_))) | Some(Err(_)) | None => Incoming::Closed,
+                Some(Ok(_)) => Incoming::Flush,
+            },
         }
-        let handshake = async move {
-            let mut sock = sock;
-            let (bytes, end) = read_head(&mut sock).await?;
-            let reply = match parse_head(&bytes[..end]) {
-                Ok(h) if h.websocket => {
-                    let rewind = Rewind {
-                        prefix: bytes,
-                        at: 0,
-                        inner: sock,
-                    };
-                    let ws = tokio_tungstenite::accept_async(rewind).await.ok()?;
-                    return Some(Accepted::Client(Conn::Ws(Box::new(ws))));
-                }
-                Ok(h) => respond(&h, viewer),
-                Err(e) => bad_request(&e),
-            };
-            sock.write_all(&reply).await.ok()?;
-            // The peer reads to the end: close our side, and let it go.
-            sock.shutdown().await.ok()?;
-            Some(Accepted::Page)
-        };
-        match tokio::time::timeout(limit, handshake).await {
-            Ok(Some(a)) => a,
-            _ => Accepted::Failed,
+    }
+
+    /// Sends what tungstenite has queued (a pong, a close reply); false on error or
+    /// timeout.
+    async fn flush(&mut self) -> bool {
+        let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
+        match self {
+            Conn::Tcp(_) => true,
+            Conn::Ws(w) => matches!(tokio::time::timeout(limit, w.flush()).await, Ok(Ok(()))),
         }
     }
 
@@ -392,6 +463,90 @@ impl AcceptBackoff {
     }
 }
 
+/// The accept loop's connections: clients served, refusals under way and WebSocket-port
+/// connections in their handshake (with their abort handles, oldest first).
+struct Connections {
+    clients: JoinSet<()>,
+    refusals: JoinSet<()>,
+    handshakes: JoinSet<Accepted>,
+    /// The handshakes under way, oldest first, with when each began.
+    handshake_order: std::collections::VecDeque<(tokio::task::AbortHandle, tokio::time::Instant)>,
+    max_clients: usize,
+    viewer: bool,
+    /// The goodbye of a connection the server has no room for.
+    full: Arc<Vec<u8>>,
+    topo: Arc<Vec<u8>>,
+    frames: FrameRx,
+    shutdown: ShutdownRx,
+    stats: Arc<StreamStats>,
+}
+
+impl Connections {
+    /// `None` while there is room for a handshake; else when the oldest will have had
+    /// its grace (the WebSocket port is not accepted from until then).
+    fn handshakes_full_until(&mut self) -> Option<tokio::time::Instant> {
+        self.handshake_order.retain(|(h, _)| !h.is_finished());
+        if self.handshake_order.len() < MAX_HANDSHAKES {
+            return None;
+        }
+        let grace = Duration::from_secs_f64(HANDSHAKE_GRACE_SECS);
+        self.handshake_order
+            .front()
+            .map(|(_, began)| *began + grace)
+    }
+
+    /// A connection to the WebSocket port: into the handshake budget, the oldest
+    /// handshake cut when it is spent (the loop waits out its grace first).
+    fn handshake(&mut self, sock: TcpStream) {
+        if self.handshakes_full_until().is_some() {
+            if let Some((oldest, _)) = self.handshake_order.pop_front() {
+                oldest.abort();
+            }
+        }
+        let limit = Duration::from_secs_f64(WRITE_TIMEOUT_SECS);
+        let viewer = self.viewer;
+        let handle = self.handshakes.spawn(handshake(sock, viewer, limit));
+        self.handshake_order
+            .push_back((handle, tokio::time::Instant::now()));
+    }
+
+    /// A handshake's end: a client (served, or refused when the server is full), a page
+    /// answered, or a failure (cut included).
+    fn handshake_done(&mut self, done: Result<Accepted, tokio::task::JoinError>) {
+        match done {
+            Ok(Accepted::Client(conn)) => self.admit(conn),
+            Ok(Accepted::Page) => {
+                self.stats.pages_served.fetch_add(1, Ordering::Relaxed);
+            }
+            Ok(Accepted::Failed) | Err(_) => {
+                self.stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// Serves `conn`, or refuses it when `max_clients` are served.
+    fn admit(&mut self, conn: Conn) {
+        while self.clients.try_join_next().is_some() {}
+        if self.clients.len() >= self.max_clients {
+            self.stats.refused.fetch_add(1, Ordering::Relaxed);
+            tracing::debug!("vertex stream: refused, full");
+            if self.refusals.len() < MAX_REFUSALS {
+                self.refusals.spawn(refuse(conn, Arc::clone(&self.full)));
+            }
+            return;
+        }
+        self.stats.connections.fetch_add(1, Ordering::Relaxed);
+        tracing::debug!("vertex stream: client connected");
+        self.clients.spawn(serve_client(
+            conn,
+            Arc::clone(&self.topo),
+            self.frames.clone(),
+            self.shutdown.clone(),
+            Arc::clone(&self.stats),
+        ));
+    }
+}
+
 async fn serve(
     listeners: Listeners,
     topo: Arc<Vec<u8>>,
@@ -407,7 +562,7 @@ async fn serve(
             None
         }
     };
-    let (max_clients, viewer) = (listeners.max_clients, listeners.viewer);
+    let max_clients = listeners.max_clients;
     let (tcp, ws) = (register(listeners.tcp), register(listeners.ws));
     let (frames_tx, frames_rx) = watch::channel(None);
     let dispatcher = tokio::spawn(dispatch(slot, frames_tx, shutdown.clone()));
@@ -416,8 +571,19 @@ async fn serve(
         &format!("server full: {max_clients} clients connected (its max_clients)"),
         &mut full,
     );
-    let full = Arc::new(full);
-    let (mut clients, mut refusals) = (JoinSet::new(), JoinSet::new());
+    let mut c = Connections {
+        clients: JoinSet::new(),
+        refusals: JoinSet::new(),
+        handshakes: JoinSet::new(),
+        handshake_order: std::collections::VecDeque::new(),
+        max_clients,
+        viewer: listeners.viewer,
+        full: Arc::new(full),
+        topo,
+        frames: frames_rx,
+        shutdown: shutdown.clone(),
+        stats: Arc::clone(&stats),
+    };
     let (mut backoff, mut report) = (
         AcceptBackoff::default(),
         Throttle::new(ACCEPT_REPORT_INTERVAL_S),
@@ -425,16 +591,23 @@ async fn serve(
     let started = tokio::time::Instant::now();
     let mut paused_until: Option<tokio::time::Instant> = None;
     loop {
+        let full_until = c.handshakes_full_until();
+        let ws_room = full_until.is_none_or(|t| t <= tokio::time::Instant::now());
         let (r, websocket) = tokio::select! {
             r = accept_on(&tcp), if paused_until.is_none() => (r, false),
-            r = accept_on(&ws), if paused_until.is_none() => (r, true),
+            r = accept_on(&ws), if paused_until.is_none() && ws_room => (r, true),
+            _ = tokio::time::sleep_until(full_until.unwrap_or(started)), if !ws_room => continue,
             _ = tokio::time::sleep_until(paused_until.unwrap_or(started)), if paused_until.is_some() => {
                 paused_until = None;
                 continue;
             }
             _ = shutdown.changed() => break,
-            Some(_) = clients.join_next(), if !clients.is_empty() => continue,
-            Some(_) = refusals.join_next(), if !refusals.is_empty() => continue,
+            Some(_) = c.clients.join_next(), if !c.clients.is_empty() => continue,
+            Some(_) = c.refusals.join_next(), if !c.refusals.is_empty() => continue,
+            Some(done) = c.handshakes.join_next(), if !c.handshakes.is_empty() => {
+                c.handshake_done(done);
+                continue;
+            }
         };
         let (sock, peer) = match r {
             Ok(x) => x,
@@ -456,41 +629,23 @@ async fn serve(
             }
         };
         backoff.succeeded();
-        while clients.try_join_next().is_some() {}
-        if clients.len() >= max_clients {
-            stats.refused.fetch_add(1, Ordering::Relaxed);
-            tracing::debug!(%peer, websocket, "vertex stream: refused, full");
-            if refusals.len() < MAX_REFUSALS {
-                refusals.spawn(refuse(sock, websocket, viewer, Arc::clone(&full)));
-            }
-            continue;
+        tracing::debug!(%peer, websocket, "vertex stream: connection");
+        if let Err(e) = sock.set_nodelay(true) {
+            tracing::debug!("TCP_NODELAY not set on a stream connection: {e}");
         }
-        stats.connections.fetch_add(1, Ordering::Relaxed);
-        tracing::debug!(%peer, websocket, "vertex stream: client connected");
-        let (topo, frames, shutdown, stats) = (
-            Arc::clone(&topo),
-            frames_rx.clone(),
-            shutdown.clone(),
-            Arc::clone(&stats),
-        );
-        clients.spawn(async move {
-            if let Err(e) = sock.set_nodelay(true) {
-                tracing::debug!("TCP_NODELAY not set on a stream client: {e}");
-            }
-            let limit = Duration::from_secs_f64(WRITE_TIMEOUT_SECS);
-            match Conn::accept(sock, websocket, viewer, limit).await {
-                Accepted::Client(conn) => serve_client(conn, topo, frames, shutdown, stats).await,
-                Accepted::Page => {
-                    stats.connections.fetch_sub(1, Ordering::Relaxed);
-                    stats.pages_served.fetch_add(1, Ordering::Relaxed);
-                }
-                Accepted::Failed => {
-                    stats.handshake_errors.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-        });
+        if websocket {
+            c.handshake(sock);
+        } else {
+            c.admit(Conn::Tcp(sock));
+        }
     }
-    drop((tcp, ws, refusals));
+    let Connections {
+        mut clients,
+        refusals,
+        handshakes,
+        ..
+    } = c;
+    drop((tcp, ws, refusals, handshakes));
     if let Err(e) = dispatcher.await {
         tracing::error!("the stream's frame dispatcher failed: {e}");
     }
@@ -529,15 +684,11 @@ async fn dispatch(
     }
 }
 
-/// Sends a connection the server had no room for the `goodbye` (after the WebSocket
-/// handshake, over WebSocket) and closes it; each step bounded by
-/// [`GOODBYE_TIMEOUT_SECS`].
-async fn refuse(sock: TcpStream, websocket: bool, viewer: bool, goodbye: Arc<Vec<u8>>) {
-    let limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS);
-    if let Accepted::Client(mut conn) = Conn::accept(sock, websocket, viewer, limit).await {
-        if conn.send(&goodbye, GOODBYE_TIMEOUT_SECS).await {
-            conn.close().await;
-        }
+/// Sends a client the server had no room for the `goodbye` and closes it; each step
+/// bounded by [`GOODBYE_TIMEOUT_SECS`].
+async fn refuse(mut conn: Conn, goodbye: Arc<Vec<u8>>) {
+    if conn.send(&goodbye, GOODBYE_TIMEOUT_SECS).await {
+        conn.close().await;
     }
 }
 
@@ -554,10 +705,24 @@ async fn serve_client(
     frames.mark_changed();
     let mut buf = Vec::new();
     let mut last: Option<u64> = None;
+    // The client closed (its close answered) or hung up: no goodbye, and no error.
+    let mut gone = false;
     while ok {
         tokio::select! {
             biased;
             _ = shutdown.changed() => break,
+            m = conn.incoming() => match m {
+                Incoming::Flush => ok = conn.flush().await,
+                Incoming::Closed => {
+                    gone = true;
+                    // The close reply, when the client sent a close (an error when it
+                    // hung up: nothing is owed then).
+                    if !conn.flush().await {
+                        tracing::debug!("a stream client went without a clean close");
+                    }
+                    break;
+                }
+            },
             r = frames.changed() => {
                 if r.is_err() {
                     // The dispatcher has gone: the server is shutting down. Wait for
@@ -579,7 +744,7 @@ async fn serve_client(
             }
         }
     }
-    if ok {
+    if ok && !gone {
         let reason = shutdown.borrow().clone().unwrap_or_default();
         buf.clear();
         encode_goodbye(&reason, &mut buf);

@@ -36,17 +36,30 @@ pub enum HeadError {
     Header { index: usize },
     #[error("the head is not UTF-8")]
     NotText,
+    #[error("the head is longer than {MAX_HEAD_BYTES} bytes")]
+    TooLong,
 }
 
-/// Where a head ends in `buf`: the index just past its blank line, if it has one.
+/// Where a head ends in `buf`: the index just past its blank line, if it has one. Lines
+/// end in CRLF or, as RFC 9112 §2.2 lets a recipient read them, a bare LF.
 pub fn head_end(buf: &[u8]) -> Option<usize> {
-    buf.windows(4).position(|w| w == b"\r\n\r\n").map(|i| i + 4)
+    buf.iter().enumerate().find_map(|(i, &b)| {
+        if b != b'\n' {
+            return None;
+        }
+        match (buf.get(i + 1), buf.get(i + 2)) {
+            (Some(b'\n'), _) => Some(i + 2),
+            (Some(b'\r'), Some(b'\n')) => Some(i + 3),
+            _ => None,
+        }
+    })
 }
 
-/// Parses a request head (the bytes up to and including its blank line).
+/// Parses a request head (the bytes up to and including its blank line; lines end in
+/// CRLF or a bare LF).
 pub fn parse_head(head: &[u8]) -> Result<RequestHead, HeadError> {
     let text = std::str::from_utf8(head).map_err(|_| HeadError::NotText)?;
-    let mut lines = text.split("\r\n");
+    let mut lines = text.split('\n').map(|l| l.strip_suffix('\r').unwrap_or(l));
     let first = lines.next().unwrap_or_default();
     let mut words = first.split(' ');
     let (Some(method), Some(target), Some(version), None) =
@@ -106,7 +119,7 @@ pub fn respond(req: &RequestHead, page: bool) -> Vec<u8> {
     out
 }
 
-/// The response to a head that does not parse.
+/// The response to a head that does not parse, or is longer than [`MAX_HEAD_BYTES`].
 pub fn bad_request(e: &HeadError) -> Vec<u8> {
     let body = format!("{e}\n");
     format!(
@@ -183,6 +196,19 @@ mod tests {
         );
         let r = String::from_utf8(bad_request(&HeadError::NotText)).unwrap();
         assert!(r.starts_with("HTTP/1.1 400") && r.ends_with("the head is not UTF-8\n"));
+    }
+
+    /// A head whose lines end in a bare LF (RFC 9112 §2.2) ends at its blank line and
+    /// parses as the CRLF one does; a blank line that straddles the two endings too.
+    #[test]
+    fn bare_lf_heads_end_and_parse() {
+        assert_eq!(head_end(b"GET / HTTP/1.1\r\nHost: a\r\n\r\nrest"), Some(27));
+        assert_eq!(head_end(b"GET / HTTP/1.1\nHost: a\n\nrest"), Some(24));
+        assert_eq!(head_end(b"GET / HTTP/1.1\nHost: a\n\r\n"), Some(25));
+        assert_eq!(head_end(b"GET / HTTP/1.1\r\nHost: a\r\n"), None);
+        let lf = head("GET /viewer.js HTTP/1.1\nHost: a\nUpgrade: websocket\n\n").unwrap();
+        assert_eq!(lf.path, "/viewer.js");
+        assert!(lf.websocket);
     }
 
     #[test]
