@@ -136,6 +136,12 @@ const FINGERS: [FingerSpec; 4] = [
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
+/// The procedural right hand's skeleton alone (what a data glove poses), without meshing
+/// its surface: microseconds, where [`hand`] takes over a second.
+pub fn hand_skeleton() -> Skeleton {
+    Skeleton::new(hand_joints_and_bones().0).expect("procedural hand skeleton is valid")
+}
+
 /// Builds the procedural right hand: the implicit surface is meshed on a lattice of
 /// `mesh_cell_m` and simplified to about `target_triangles` (10,000 gives about 5,000
 /// vertices).

@@ -4,7 +4,7 @@
 use super::{check_seconds, ctrl_c_flag};
 use anyhow::{bail, Context, Result};
 use glam::{DQuat, DVec3};
-use rigless::character::demo::demo_hand;
+use rigless::character::procedural::hand_skeleton;
 use rigless::character::skeleton::Skeleton;
 use rigless::input::config::InputConfig;
 use rigless::input::glove::HandMap;
@@ -46,14 +46,15 @@ pub fn run(a: ListenArgs) -> Result<()> {
         );
     }
     let cfg = InputConfig::from_url(&a.url)?.with_sender_units(a.scale, a.z_up);
-    // A glove poses the procedural hand's fingers, wrist at rest.
-    let hand = demo_hand();
+    // A glove poses the procedural hand's fingers, wrist at rest: its skeleton alone,
+    // so that the socket is bound at once (packets sent before are lost).
+    let skeleton = hand_skeleton();
     let input = Input::open(
         &cfg,
         &OpenContext {
             base_dir: std::path::Path::new("."),
             markers: None,
-            skeleton: Some(&hand.skeleton),
+            skeleton: Some(&skeleton),
             procedural: None,
         },
     )?;
@@ -79,7 +80,7 @@ pub fn run(a: ListenArgs) -> Result<()> {
         seen: 0,
         write_error: None,
         stop: Arc::clone(&stop),
-        skeleton: &hand.skeleton,
+        skeleton: &skeleton,
     };
     let summary = input.run(&SystemClock::new(), 0.0, &stop, &mut printer)?;
     if let Some(e) = printer.write_error {
