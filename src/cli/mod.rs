@@ -241,7 +241,12 @@ pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> R
     if tty {
         println!();
     }
-    print_summary(&summary, opts.json)
+    print_summary(&summary, opts.json)?;
+    if summary.recording_failed.is_some() {
+        // Said when it happened and in the summary; the status tells scripts.
+        bail!("the recording stopped part way (see the summary)");
+    }
+    Ok(())
 }
 
 /// What was started. Tests and scripts read the `... listening on` lines for the ports
@@ -355,13 +360,17 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
             "marker_residual_mm_rms": s.status.marker_residual_mm_rms,
             "marker_residual_mm_max": s.status.marker_residual_mm_max,
             "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
+            "recording_failed": s.recording_failed,
             "rerun": s.rerun,
         });
         println!("{v}");
         return Ok(());
     }
     if let Some((path, n)) = &s.recorded {
-        println!("recorded {n} samples to {}", path.display());
+        match &s.recording_failed {
+            Some(why) => println!("recording to {} stopped part way: {why}", path.display()),
+            None => println!("recorded {n} samples to {}", path.display()),
+        }
     }
     if let Some(r) = &s.rerun {
         println!(

@@ -25,7 +25,7 @@ use crate::output::frame::DeformedFrame;
 use crate::output::rerun_sink::{self, RerunOptions, RerunStats, RerunTarget};
 use crate::output::scene::Scene;
 use crate::output::stream::{StreamServer, StreamStats};
-use crate::replay::session::{run_recorder, SessionHeader, SessionWriter};
+use crate::replay::session::{run_recorder, RecorderOutcome, SessionHeader, SessionWriter};
 use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::rig::cache::{load_or_bind, LoadOrBindError};
 use crate::runtime::clock::{Attached, Clock};
@@ -197,6 +197,9 @@ pub struct Summary {
     pub stream: StreamSummary,
     /// The session file and the samples written to it.
     pub recorded: Option<(PathBuf, u64)>,
+    /// Why the recording stopped part way (a full disk, say), and the samples that were
+    /// not written: the stage went on solving without it.
+    pub recording_failed: Option<String>,
     pub rerun: Option<RerunSummary>,
 }
 
@@ -232,7 +235,7 @@ pub struct Stage {
     solver: JoinHandle<LoopStatus>,
     sources: Vec<JoinHandle<Result<String, InputError>>>,
     counters: Vec<Arc<SourceCounters>>,
-    recorder: Option<(PathBuf, JoinHandle<std::io::Result<u64>>)>,
+    recorder: Option<(PathBuf, JoinHandle<RecorderOutcome>)>,
     server: Option<StreamServer>,
     stream_stats: Arc<StreamStats>,
     rerun: Option<RunningRerun>,
@@ -641,16 +644,20 @@ impl Stage {
             inputs.push(line);
         }
         // The pipeline and its recorder channel went with the solver thread.
-        let recorded = match self.recorder {
+        let (recorded, recording_failed) = match self.recorder {
             Some((path, handle)) => match handle.join() {
-                Ok(Ok(n)) => Ok(Some((path, n))),
-                Ok(Err(source)) => Err(StageError::Recorder {
-                    path: path.display().to_string(),
-                    source,
-                }),
-                Err(_) => Err(StageError::Panicked { thread: "recorder" }),
+                Ok(out) => {
+                    let failed = out.failed.map(|(e, lost)| {
+                        format!(
+                            "{e}, after {} samples; {lost} samples not written",
+                            out.written
+                        )
+                    });
+                    (Ok(Some((path, out.written))), failed)
+                }
+                Err(_) => (Err(StageError::Panicked { thread: "recorder" }), None),
             },
-            None => Ok(None),
+            None => (Ok(None), None),
         };
         if let Some(s) = self.server {
             s.shutdown(stopped.reason());
@@ -700,6 +707,7 @@ impl Stage {
                 accept_errors: s.accept_errors.load(Ordering::Relaxed),
             },
             recorded: recorded?,
+            recording_failed,
             rerun: rerun?,
         })
     }
@@ -871,7 +879,7 @@ fn start_recorder(
 ) -> Result<
     (
         crossbeam_channel::Sender<crate::markers::MarkerSample>,
-        JoinHandle<std::io::Result<u64>>,
+        JoinHandle<RecorderOutcome>,
     ),
     StageError,
 > {
@@ -893,8 +901,9 @@ fn start_recorder(
         SessionWriter::new(file, &header, cfg.recorder.flush_interval_secs, 0.0).map_err(io)?;
     let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity * 4);
     let clock = Arc::clone(clock);
+    let shown = path.display().to_string();
     let handle = spawn("recorder", move || {
-        run_recorder(writer, &rx, &|| clock.now_s())
+        run_recorder(writer, &rx, &|| clock.now_s(), &shown)
     })?;
     Ok((tx, handle))
 }

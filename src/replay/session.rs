@@ -520,16 +520,29 @@ impl<W: Write> SessionWriter<W> {
     }
 }
 
-/// Runs a recorder on the calling thread: takes samples from `rx` and writes them with
-/// `w` until the channel closes, flushing at `w`'s interval by `now_s()`. Returns the
-/// samples written.
+/// What a recorder did.
+#[derive(Debug)]
+pub struct RecorderOutcome {
+    /// Samples written to the file.
+    pub written: u64,
+    /// The write that failed (a full disk, say), when one did, and the samples that
+    /// arrived after it and were not written.
+    pub failed: Option<(std::io::Error, u64)>,
+}
+
+/// Writes the samples that arrive on `rx` to `w` until the channel closes, then finishes
+/// the file. A write that fails is said once (naming `shown`, the file) and stops the
+/// writing; the samples that arrive after it are counted and let go, so the loop
+/// feeding `rx` goes on as before.
 pub fn run_recorder<W: Write>(
     mut w: SessionWriter<W>,
     rx: &crossbeam_channel::Receiver<MarkerSample>,
     now_s: &dyn Fn() -> f64,
-) -> std::io::Result<u64> {
+    shown: &str,
+) -> RecorderOutcome {
     let tick = std::time::Duration::from_secs_f64((w.flush_interval_s / 4.0).clamp(0.001, 0.25));
     let mut batch = Vec::with_capacity(4096);
+    let mut failed: Option<(std::io::Error, u64)> = None;
     loop {
         match rx.recv_timeout(tick) {
             Ok(s) => {
@@ -539,18 +552,41 @@ pub fn run_recorder<W: Write>(
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         }
-        w.push(&batch, now_s())?;
+        match &mut failed {
+            Some((_, lost)) => *lost += batch.len() as u64,
+            None => {
+                if let Err(e) = w.push(&batch, now_s()) {
+                    tracing::error!(
+                        "recording to {shown} stopped after {} samples: {e}; the stage goes on without it",
+                        w.written
+                    );
+                    // What was pending when the write failed (this batch with it) is
+                    // lost with the rest.
+                    failed = Some((e, w.pending.len() as u64));
+                    w.pending.clear();
+                }
+            }
+        }
         batch.clear();
     }
-    let written = w.written + w.pending.len() as u64;
-    w.finish(now_s())?;
-    Ok(written)
+    if failed.is_none() {
+        let pending = w.pending.len() as u64;
+        if let Err(e) = w.flush(now_s()) {
+            tracing::error!("recording to {shown}: its last {pending} samples not written: {e}");
+            failed = Some((e, pending));
+        }
+    }
+    RecorderOutcome {
+        written: w.written,
+        failed,
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use std::sync::Arc;
 
     fn header() -> SessionHeader {
         SessionHeader {
@@ -571,6 +607,72 @@ mod tests {
                 occluded: i % 5 == 0,
             })
             .collect()
+    }
+
+    /// A file on a disk with room for `room` bytes: a write past it fails as a full
+    /// disk does (ENOSPC); `used` tells how many it took.
+    struct Disk {
+        room: usize,
+        used: Arc<std::sync::atomic::AtomicUsize>,
+    }
+
+    impl Write for Disk {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            let used = self.used.load(std::sync::atomic::Ordering::SeqCst);
+            if used + buf.len() > self.room {
+                return Err(std::io::Error::from_raw_os_error(28));
+            }
+            self.used
+                .fetch_add(buf.len(), std::sync::atomic::Ordering::SeqCst);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// The disk fills part way: the failure is kept with the samples it cost, the
+    /// samples that arrive after it are taken off the channel and counted (the loop
+    /// feeding it never sees it closed or full), and the recorder returns when the
+    /// channel closes; before, it returned the error at once and the stage printed no
+    /// summary.
+    #[test]
+    fn a_full_disk_stops_the_recording_and_nothing_else() {
+        let used = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let mut header_bytes = Vec::new();
+        encode_start(&header(), &mut header_bytes);
+        let mut record = Vec::new();
+        encode_samples(&samples(10), &mut record);
+        let disk = Disk {
+            // The header and one record of ten samples.
+            room: header_bytes.len() + record.len(),
+            used: Arc::clone(&used),
+        };
+        let w = SessionWriter::new(disk, &header(), 0.0, 0.0).unwrap();
+        let (tx, rx) = crossbeam_channel::bounded(64);
+        let recorder = std::thread::spawn(move || run_recorder(w, &rx, &|| 1.0, "full.rig"));
+        for s in samples(10) {
+            tx.send(s).unwrap();
+        }
+        let start = std::time::Instant::now();
+        while used.load(std::sync::atomic::Ordering::SeqCst) < header_bytes.len() + record.len() {
+            assert!(
+                start.elapsed().as_secs() < 20,
+                "the first record was not written"
+            );
+            std::thread::yield_now();
+        }
+        // Twice the channel's room: it is drained after the failure.
+        for s in samples(128) {
+            tx.send_timeout(s, std::time::Duration::from_secs(20))
+                .expect("the channel is drained");
+        }
+        drop(tx);
+        let out = recorder.join().unwrap();
+        assert_eq!(out.written, 10);
+        let (e, lost) = out.failed.expect("the disk filled");
+        assert_eq!(e.raw_os_error(), Some(28));
+        assert_eq!(lost, 128);
     }
 
     fn file(n_records: usize) -> Vec<u8> {
