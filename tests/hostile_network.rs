@@ -436,7 +436,75 @@ mod vrpn {
         assert!((3..=5).contains(&pings), "{pings} pings");
         assert_eq!(stats.connections.load(Ordering::Relaxed), 2);
         assert_eq!(stats.silent.load(Ordering::Relaxed), 1);
-        assert_eq!(log.count("WARN", "sent nothing for"), 1);
+        assert_eq!(log.count("WARN", "no whole message for"), 1);
+    }
+
+    /// A server that sends a report, then trickles one byte of a next message every
+    /// 0.9 s (never completing it) is given up as a silent one is, 5 s after its last
+    /// whole message, and connected again (bytes alone used to keep it forever).
+    #[test]
+    fn a_server_that_trickles_bytes_is_given_up() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let server = {
+            let stop = Arc::clone(&stop);
+            std::thread::spawn(move || {
+                let mut first = accept(&listener, Duration::from_secs(5));
+                let mut out = hello();
+                report(&mut out);
+                first.write_all(&out).unwrap();
+                let quiet_from = Instant::now();
+                let mut next = Vec::new();
+                report(&mut next);
+                let trickle = {
+                    let mut s = first.try_clone().unwrap();
+                    let stop = Arc::clone(&stop);
+                    std::thread::spawn(move || {
+                        // One byte every 0.9 s, never the whole message.
+                        for b in &next[..next.len() - 1] {
+                            if stop.load(Ordering::Relaxed) || s.write_all(&[*b]).is_err() {
+                                break;
+                            }
+                            std::thread::sleep(Duration::from_millis(900));
+                        }
+                    })
+                };
+                let reader = std::thread::spawn(move || {
+                    read_client(first, quiet_from + Duration::from_secs(15), false)
+                });
+                let mut second = accept(&listener, Duration::from_secs(15));
+                let gap = quiet_from.elapsed();
+                second.write_all(&out).unwrap();
+                let start = Instant::now();
+                while !stop.load(Ordering::Relaxed) && start.elapsed() < Duration::from_secs(5) {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                trickle.join().unwrap();
+                reader.join().unwrap();
+                gap
+            })
+        };
+        let log = common::LogCapture::default();
+        let stats = VrpnStats::default();
+        let mut reports = 0;
+        tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
+            run(addr, "Dev", &stop, &stats, &mut |_, _, _| {
+                reports += 1;
+                if reports == 2 {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+        });
+        let gap = server.join().unwrap().as_secs_f64();
+        println!("connected again {gap:.2} s after the last whole message");
+        assert!(
+            (SILENCE_TIMEOUT_S - 0.05..=SILENCE_TIMEOUT_S + RECONNECT_S + 0.5).contains(&gap),
+            "{gap:.2} s"
+        );
+        assert_eq!(stats.connections.load(Ordering::Relaxed), 2);
+        assert_eq!(stats.silent.load(Ordering::Relaxed), 1);
+        assert_eq!(log.count("WARN", "no whole message for"), 1);
     }
 
     /// A server with nothing to report that answers pings is kept: 6.5 s of quiet, one

@@ -12,7 +12,8 @@
 //! `DEVICE_SENSOR` (stage configs map those names to the character's markers).
 //!
 //! A server that has sent nothing for a second is pinged, as VRPN's own clients do, once
-//! a second; one silent for [`SILENCE_TIMEOUT_S`] is given up and connected again. Each
+//! a second; one that sends no whole message for [`SILENCE_TIMEOUT_S`] (silent, or
+//! trickling bytes that never complete one) is given up and connected again. Each
 //! kind of reason for a drop (a bad cookie, a message length out of bounds, silence, a
 //! refused connect, ...) is said once at warning level, and every drop is counted.
 //! Datagrams, and connections to the call-back port, from hosts other than the server's
@@ -52,7 +53,7 @@ pub struct VrpnStats {
     pub errors: AtomicU64,
     /// Connections the server closed.
     pub closed: AtomicU64,
-    /// Connections given up because the server sent nothing for [`SILENCE_TIMEOUT_S`].
+    /// Connections given up because no whole message came for [`SILENCE_TIMEOUT_S`].
     pub silent: AtomicU64,
     /// Datagrams from hosts other than the server's, and connections to the call-back
     /// port from them (ignored).
@@ -209,7 +210,7 @@ pub enum VrpnDrop {
     Io { source: std::io::Error },
     #[error("the server broke the protocol: {source}")]
     Protocol { source: VrpnError },
-    #[error("the server sent nothing for {silent_s:.1} s (pings unanswered)")]
+    #[error("the server sent no whole message for {silent_s:.1} s (pings unanswered, or bytes that never complete one)")]
     Silent { silent_s: f64 },
     #[error("the server closed the connection")]
     Closed,
@@ -300,8 +301,9 @@ impl<'a> Reasons<'a> {
 /// How often a client pings a server it has heard nothing from, seconds (as VRPN's own
 /// clients do, once a second; a live server answers with a pong).
 pub const PING_INTERVAL_S: f64 = 1.0;
-/// Seconds without a byte from the server after which the connection is given up and
-/// made again.
+/// Seconds without a whole message from the server after which the connection is given
+/// up and made again (bytes that do not complete a message do not count: a server that
+/// trickles one byte a second is as good as silent).
 pub const SILENCE_TIMEOUT_S: f64 = 5.0;
 
 /// What [`Liveness::poll`] says is due.
@@ -334,7 +336,7 @@ impl Liveness {
         }
     }
 
-    /// Bytes from the server arrived at `now_s`.
+    /// A whole message (or datagram) from the server arrived at `now_s`.
     pub fn heard(&mut self, now_s: f64) {
         self.last_heard_s = now_s;
     }
@@ -439,12 +441,16 @@ fn session(
             }
             Ok(n) => {
                 stats.received(n);
-                alive.heard(now_s());
+                let mut whole = 0usize;
                 reader
                     .feed(&chunk[..n], &mut |m| {
+                        whole += 1;
                         peer.message(m, &mut replies, on_report)
                     })
                     .map_err(|source| VrpnDrop::Protocol { source })?;
+                if whole > 0 {
+                    alive.heard(now_s());
+                }
             }
             Err(e) if is_wait(&e) => {}
             Err(e) => return Err(e.into()),
