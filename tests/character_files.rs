@@ -6,7 +6,10 @@ use glam::DVec3;
 use rigless::bench::characters::{demo_hand, hand_bind_params};
 use rigless::character::bind_params::BindParams;
 use rigless::character::demo::{body_bind_params, demo_body};
-use rigless::character::file::{load_character, write_character_files, LoadedCharacter};
+use rigless::character::file::{
+    load_character, write_character_files, CharacterError, CharacterProblem, LoadedCharacter,
+    MAX_MARKERS,
+};
 use rigless::character::Character;
 use rigless::markers::MarkerFrame;
 use rigless::rig::bind::Rig;
@@ -732,4 +735,75 @@ fn a_mesh_or_a_take_given_as_the_character_says_what_to_do() {
     assert!(e.contains("export it as glTF 2.0 (.glb) or OBJ"), "{e}");
     let e = err(&binary);
     assert!(e.contains("not UTF-8 text (byte 11 starts"), "{e}");
+}
+
+/// The problems of a character file that loads with problems.
+fn problems_of(path: &Path) -> Vec<CharacterProblem> {
+    match load_character(path) {
+        Err(CharacterError::Invalid { problems, .. }) => problems,
+        other => panic!("{}: {other:?}", path.display()),
+    }
+}
+
+/// A file listing more markers than a capture stage has is refused with the count and
+/// the cap; one at the cap loads with every marker placed on its bone. (The duplicate
+/// check compared each marker with all before it: 100,000 markers took 17 s to load.)
+#[test]
+fn markers_are_capped_and_a_file_at_the_cap_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let text = std::fs::read_to_string(&path).unwrap();
+    let own = load_character(&path).unwrap().character.markers.len();
+    let with = |extra: usize| {
+        let mut t = text.clone();
+        for k in 0..extra {
+            t += &format!(
+                "\n[[markers]]\nname = \"extra{k}\"\nbone = \"wrist\"\noffset_m = [0.0, {:?}, 0.0]\n",
+                k as f64 * 1e-6
+            );
+        }
+        std::fs::write(&path, t).unwrap();
+    };
+    with(MAX_MARKERS - own);
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let markers = &loaded.character.markers;
+    assert_eq!(markers.len(), MAX_MARKERS);
+    let wrist = loaded
+        .character
+        .skeleton
+        .joints
+        .iter()
+        .position(|j| j.name == "wrist");
+    let last = &markers[MAX_MARKERS - 1];
+    assert_eq!(
+        (last.name.as_str(), last.joint),
+        (&*format!("extra{}", MAX_MARKERS - own - 1), wrist)
+    );
+    with(MAX_MARKERS - own + 1);
+    assert_eq!(
+        problems_of(&path),
+        vec![CharacterProblem::TooManyMarkers {
+            count: MAX_MARKERS + 1,
+            max: 4096
+        }]
+    );
+    let said = load_character(&path).unwrap_err().to_string();
+    assert!(said.contains("4097 [[markers]] (at most 4096"), "{said}");
+    // Written as an inline array (the file's own markers left out), they are counted
+    // once parsed.
+    let first = text.find("[[markers]]").unwrap();
+    let after = text[first..]
+        .find("\n[bind]")
+        .map_or(text.len(), |b| first + b + 1);
+    let bare = format!("{}{}", &text[..first], &text[after..]);
+    let inline: Vec<String> = (0..=MAX_MARKERS)
+        .map(|k| format!("{{ name = \"x{k}\", position_m = [0.0, 0.0, 0.0] }}"))
+        .collect();
+    std::fs::write(&path, format!("markers = [{}]\n{bare}", inline.join(", "))).unwrap();
+    match &problems_of(&path)[..] {
+        [CharacterProblem::TooManyMarkers { count, max: 4096 }] => {
+            assert_eq!(*count, MAX_MARKERS + 1)
+        }
+        other => panic!("{other:?}"),
+    }
 }

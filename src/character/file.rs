@@ -52,6 +52,13 @@ use serde::Deserialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
+/// Most `[[markers]]` a character file may list. A capture stage labels tens to a few
+/// hundred markers (a full body with fingers and a face about 200; `rigless calibrate`
+/// keeps at most 512 labels of a take), and every marker is a row of the solver's
+/// system each frame: 4,096 is ample room, and a file listing more is refused before any
+/// is placed.
+pub const MAX_MARKERS: usize = 4096;
+
 /// Smallest `calibration.marker_scale`: a character a tenth of its actor's size.
 pub const MIN_MARKER_SCALE: f64 = 0.1;
 /// Largest: ten times.
@@ -487,6 +494,9 @@ pub enum CharacterProblem {
     /// Two markers share a name.
     #[error("marker name {marker:?} is used twice")]
     DuplicateMarker { marker: String },
+    /// More `[[markers]]` than a character may have.
+    #[error("{count} [[markers]] (at most {max}: a capture stage has tens to a few hundred)")]
+    TooManyMarkers { count: usize, max: usize },
     /// A marker's `bone` names a joint the skeleton does not have.
     #[error("marker {marker:?}: no joint is named {bone:?}")]
     MarkerUnknownBone { marker: String, bone: String },
@@ -650,6 +660,22 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         path: shown.clone(),
         source,
     })?;
+    // Too many markers are refused before the TOML is parsed (its tables take some 40
+    // bytes of memory per byte of text): `[[markers]]` headers are counted by line here,
+    // markers written otherwise (an inline array) by `build`.
+    let count = text
+        .lines()
+        .filter(|l| l.trim_start().starts_with("[[markers]]"))
+        .count();
+    if count > MAX_MARKERS {
+        return Err(CharacterError::Invalid {
+            path: shown,
+            problems: vec![CharacterProblem::TooManyMarkers {
+                count,
+                max: MAX_MARKERS,
+            }],
+        });
+    }
     let spec = read_spec(&text).map_err(|problems| CharacterError::Toml {
         path: shown.clone(),
         problems,
@@ -1433,15 +1459,27 @@ fn finish_skeleton(joints: Vec<Joint>, problems: &mut Vec<CharacterProblem>) -> 
     Some(s)
 }
 
-/// The marker layout of `[[markers]]`, in file order (names unique, positions finite).
+/// The marker layout of `[[markers]]`, in file order (names unique, positions finite;
+/// at most [`MAX_MARKERS`], else none is placed). Linear in the markers: names and
+/// joints are looked up by hash.
 fn place_markers(
     specs: &[MarkerSpec],
     skeleton: Option<&Skeleton>,
     problems: &mut Vec<CharacterProblem>,
 ) -> Vec<MarkerDef> {
+    if specs.len() > MAX_MARKERS {
+        problems.push(CharacterProblem::TooManyMarkers {
+            count: specs.len(),
+            max: MAX_MARKERS,
+        });
+        return Vec::new();
+    }
+    let joints = skeleton.map(JointIndex::of);
+    let skeleton = skeleton.zip(joints.as_ref());
+    let mut seen = std::collections::HashSet::with_capacity(specs.len());
     let mut markers = Vec::with_capacity(specs.len());
-    for (k, m) in specs.iter().enumerate() {
-        if specs[..k].iter().any(|o| o.name == m.name) {
+    for m in specs {
+        if !seen.insert(m.name.as_str()) {
             problems.push(CharacterProblem::DuplicateMarker {
                 marker: m.name.clone(),
             });
@@ -1461,21 +1499,42 @@ fn place_markers(
     markers
 }
 
+/// A skeleton's joints by name (the first of a name, as a search in order finds it), and
+/// which are leaves.
+struct JointIndex<'a> {
+    by_name: HashMap<&'a str, usize>,
+    leaf: Vec<bool>,
+}
+
+impl<'a> JointIndex<'a> {
+    fn of(s: &'a Skeleton) -> Self {
+        let mut by_name = HashMap::with_capacity(s.joints.len());
+        let mut leaf = vec![true; s.joints.len()];
+        for (j, joint) in s.joints.iter().enumerate() {
+            by_name.entry(joint.name.as_str()).or_insert(j);
+            if let Some(p) = joint.parent.and_then(|p| leaf.get_mut(p)) {
+                *p = false;
+            }
+        }
+        Self { by_name, leaf }
+    }
+}
+
 /// A marker's rest position and the joint whose bone carries it: `position_m` (joint
 /// decided at bind time), or its bone's joint plus `offset_m` (a leaf joint's bone is
 /// its parent's). Zero and no joint when the marker cannot be placed.
 fn marker_rest(
     m: &MarkerSpec,
-    skeleton: Option<&Skeleton>,
+    skeleton: Option<(&Skeleton, &JointIndex)>,
     problems: &mut Vec<CharacterProblem>,
 ) -> (DVec3, Option<usize>) {
     match (&m.position_m, &m.bone, skeleton) {
         (Some(p), None, _) => (DVec3::from_array(*p), None),
-        (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
-            Some(j) => {
+        (None, Some(b), Some((s, index))) => match index.by_name.get(b.as_str()) {
+            Some(&j) => {
                 let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
                 // A leaf joint's bone is the segment that ends at it.
-                let carrier = if s.children(j).next().is_none() {
+                let carrier = if index.leaf[j] {
                     s.joints[j].parent.unwrap_or(j)
                 } else {
                     j
@@ -1559,8 +1618,9 @@ fn correspondences(
     problems: &mut Vec<CharacterProblem>,
 ) -> Vec<Correspondence> {
     let mut out = Vec::new();
+    let mut seen = std::collections::HashSet::with_capacity(specs.len());
     for (index, c) in specs.iter().enumerate() {
-        if specs[..index].iter().any(|o| o.joint == c.joint) {
+        if !seen.insert(c.joint.as_str()) {
             problems.push(CharacterProblem::CorrespondenceTwice {
                 index,
                 joint: c.joint.clone(),
