@@ -36,6 +36,54 @@ pub struct MeshData {
     /// The file's parts, in output order: every glTF triangle primitive, or every run of
     /// an OBJ file's faces under one group.
     pub parts: Vec<MeshPart>,
+    /// glTF: the node each of `parts` hangs from (its world transform placed it); empty
+    /// for OBJ.
+    pub part_nodes: Vec<usize>,
+    /// OBJ: the line (from 1) of each of `positions`' `v` lines; empty for glTF.
+    pub source_lines: Vec<u32>,
+}
+
+/// Where a mesh file gives a vertex, as errors name it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VertexAt {
+    /// An OBJ file's `v` line (from 1).
+    ObjLine(usize),
+    /// A glTF triangle primitive (its part's name) and the node it hangs from.
+    Node { node: usize, part: String },
+    /// Neither is known (a mesh made in memory).
+    InMemory,
+}
+
+impl std::fmt::Display for VertexAt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VertexAt::ObjLine(line) => write!(f, "OBJ line {line}"),
+            VertexAt::Node { node, part } => write!(f, "glTF nodes[{node}], part {part:?}"),
+            VertexAt::InMemory => write!(f, "a mesh made in memory"),
+        }
+    }
+}
+
+impl MeshData {
+    /// Where the file gives vertex `v` of `positions`.
+    pub fn vertex_at(&self, v: usize) -> VertexAt {
+        if let Some(&line) = self.source_lines.get(v) {
+            return VertexAt::ObjLine(line as usize);
+        }
+        let holds = |p: &MeshPart| {
+            (p.first_vertex as usize..(p.first_vertex + p.vertex_count) as usize).contains(&v)
+        };
+        match (
+            self.parts.iter().position(holds),
+            self.part_nodes.is_empty(),
+        ) {
+            (Some(k), false) => VertexAt::Node {
+                node: self.part_nodes.get(k).copied().unwrap_or(0),
+                part: self.parts[k].name.clone(),
+            },
+            _ => VertexAt::InMemory,
+        }
+    }
 }
 
 /// A part of a mesh as its file has it: a glTF triangle primitive, or a run of an OBJ
@@ -371,6 +419,7 @@ pub const MAX_POLYGON_VERTICES: usize = 256;
 pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError> {
     let text = String::from_utf8_lossy(bytes);
     let mut positions: Vec<DVec3> = Vec::new();
+    let mut lines: Vec<u32> = Vec::new();
     let mut faces: Vec<[u32; 3]> = Vec::new();
     let mut found: Vec<String> = Vec::new();
     let mut keep = groups.is_empty();
@@ -398,6 +447,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
                     }
                 }
                 positions.push(DVec3::from_array(c));
+                lines.push(u32::try_from(line).unwrap_or(u32::MAX));
             }
             Some("g") | Some("o") => {
                 let names: Vec<&str> = it.collect();
@@ -467,10 +517,12 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
     }
     let mut remap = vec![u32::MAX; positions.len()];
     let mut out = Vec::new();
+    let mut source_lines = Vec::new();
     for (i, p) in positions.iter().enumerate() {
         if used[i] {
             remap[i] = out.len() as u32;
             out.push(*p);
+            source_lines.push(lines[i]);
         }
     }
     let triangles: Vec<[u32; 3]> = faces.iter().map(|f| f.map(|i| remap[i as usize])).collect();
@@ -497,6 +549,8 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
         skin_joints: Vec::new(),
         rest_from_bind: None,
         parts,
+        part_nodes: Vec::new(),
+        source_lines,
     })
 }
 
@@ -2038,6 +2092,7 @@ fn read_meshes(
                 first_vertex: base,
                 vertex_count: count,
             });
+            out.part_nodes.push(n);
             let Some(ix) = prim.indices.map(|i| i.value()) else {
                 let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
                 out.triangles.extend(tris);
