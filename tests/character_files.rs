@@ -6,13 +6,17 @@ use glam::DVec3;
 use rigless::bench::characters::{demo_hand, hand_bind_params};
 use rigless::character::bind_params::BindParams;
 use rigless::character::demo::{body_bind_params, demo_body};
-use rigless::character::file::{load_character, write_character_files, LoadedCharacter};
+use rigless::character::file::{
+    load_character, write_character_files, CharacterError, CharacterProblem, LoadedCharacter,
+    MeshWarning, MAX_MARKERS,
+};
+use rigless::character::mesh::VertexAt;
 use rigless::character::Character;
 use rigless::markers::MarkerFrame;
 use rigless::rig::bind::Rig;
 use rigless::rig::cache;
 use rigless::solve::frame::{Solver, SolverParams};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -732,4 +736,373 @@ fn a_mesh_or_a_take_given_as_the_character_says_what_to_do() {
     assert!(e.contains("export it as glTF 2.0 (.glb) or OBJ"), "{e}");
     let e = err(&binary);
     assert!(e.contains("not UTF-8 text (byte 11 starts"), "{e}");
+}
+
+/// A tetrahedron's corners (1 m tall) and faces, outward.
+const TET: [[f64; 3]; 4] = [
+    [0.0, 0.0, 0.0],
+    [1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0],
+    [0.3, 1.0, 0.3],
+];
+const TET_FACES: [[u16; 3]; 4] = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]];
+
+/// An OBJ of a tetrahedron with `corners`.
+fn tet_obj(corners: [[f64; 3]; 4]) -> Vec<u8> {
+    let mut o = String::new();
+    for [x, y, z] in corners {
+        o += &format!("v {x:?} {y:?} {z:?}\n");
+    }
+    for f in TET_FACES {
+        o += &format!("f {} {} {}\n", f[0] + 1, f[1] + 1, f[2] + 1);
+    }
+    o.into_bytes()
+}
+
+/// A glTF of tetrahedra with `corners`, one mesh per node, each node with its `scale`
+/// and name, their buffer `NAME.bin` in `dir` (NAME the first node's).
+fn tet_gltf(dir: &Path, nodes: &[(&str, [[f64; 3]; 4], f64)]) -> Vec<u8> {
+    let bin_name = format!("{}.bin", nodes[0].0);
+    let mut bin = Vec::new();
+    let (mut views, mut accessors, mut meshes, mut json_nodes) = (vec![], vec![], vec![], vec![]);
+    for (k, (name, corners, scale)) in nodes.iter().enumerate() {
+        let at = bin.len();
+        for c in corners.iter().flatten() {
+            bin.extend((*c as f32).to_le_bytes());
+        }
+        for i in TET_FACES.iter().flatten() {
+            bin.extend(i.to_le_bytes());
+        }
+        views.push(format!(
+            r#"{{"buffer":0,"byteOffset":{at},"byteLength":48}}"#
+        ));
+        views.push(format!(
+            r#"{{"buffer":0,"byteOffset":{},"byteLength":24}}"#,
+            at + 48
+        ));
+        accessors.push(format!(
+            r#"{{"bufferView":{},"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,1]}}"#,
+            2 * k
+        ));
+        accessors.push(format!(
+            r#"{{"bufferView":{},"componentType":5123,"count":12,"type":"SCALAR"}}"#,
+            2 * k + 1
+        ));
+        meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{}}},"indices":{}}}]}}"#,
+            2 * k,
+            2 * k + 1
+        ));
+        json_nodes.push(format!(
+            r#"{{"name":"{name}","mesh":{k},"scale":[{scale:?},{scale:?},{scale:?}]}}"#
+        ));
+    }
+    std::fs::write(dir.join(&bin_name), &bin).unwrap();
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":"{bin_name}","byteLength":{}}}],"bufferViews":[{}],"accessors":[{}],"meshes":[{}],"nodes":[{}]}}"#,
+        bin.len(),
+        views.join(","),
+        accessors.join(","),
+        meshes.join(","),
+        json_nodes.join(",")
+    )
+    .into_bytes()
+}
+
+/// A character file in `dir` for the mesh `mesh_name` (written with `mesh`; the file is
+/// named as the mesh, `.toml`): two listed joints up the tetrahedron, a marker on the
+/// first bone, then `extra`.
+fn tet_character(dir: &Path, mesh_name: &str, mesh: &[u8], extra: &str) -> PathBuf {
+    std::fs::write(dir.join(mesh_name), mesh).unwrap();
+    let toml = format!(
+        "[mesh]\npath = \"{mesh_name}\"\n\n[[skeleton.joints]]\nname = \"a\"\nrest_m = [0.3, 0.1, 0.3]\n\n\
+         [[skeleton.joints]]\nname = \"b\"\nparent = \"a\"\nrest_m = [0.3, 0.4, 0.3]\n\n\
+         [[markers]]\nname = \"m\"\nbone = \"a\"\n\n{extra}"
+    );
+    let path = dir.join(mesh_name).with_extension("toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+/// The problems of a character file that loads with problems.
+fn problems_of(path: &Path) -> Vec<CharacterProblem> {
+    match load_character(path) {
+        Err(CharacterError::Invalid { problems, .. }) => problems,
+        other => panic!("{}: {other:?}", path.display()),
+    }
+}
+
+/// A character whose size (largest extent after units, scale and node transforms) is
+/// outside 1 mm to 1 km is refused, naming the size and the vertex farthest out with its
+/// OBJ line or glTF node, and nothing else: these bound before (a tetrahedron
+/// "300000000549775575777803994281145270272 m tall", Green rest error 9.7e24 m), and a
+/// vertex at 1e300 was reported as `bind.cell_size_m = inf`, a key the file does not
+/// set. A 1.5 mm and a 1 m tetrahedron, and one in millimetres 1.5 m tall, load.
+#[test]
+fn a_character_of_absurd_size_is_refused_naming_the_vertex_or_node() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let apex = |y: f64| {
+        let mut c = TET;
+        c[3][1] = y;
+        c
+    };
+    let scaled = |k: f64| TET.map(|p| p.map(|x| x * k));
+    let cases: Vec<(PathBuf, f64, usize, VertexAt)> = vec![
+        (
+            tet_character(d, "apex39.obj", &tet_obj(apex(1e39)), ""),
+            1e39,
+            3,
+            VertexAt::ObjLine(4),
+        ),
+        (
+            tet_character(d, "apex300.obj", &tet_obj(apex(1e300)), ""),
+            1e300,
+            3,
+            VertexAt::ObjLine(4),
+        ),
+        (
+            tet_character(d, "tiny.obj", &tet_obj(scaled(1e-4)), ""),
+            1e-4,
+            3,
+            VertexAt::ObjLine(4),
+        ),
+        (
+            tet_character(
+                d,
+                "huge.gltf",
+                &tet_gltf(d, &[("huge", scaled(3e38), 1.0)]),
+                "",
+            ),
+            f64::from(3e38f32),
+            3,
+            VertexAt::Node {
+                node: 0,
+                part: "huge".into(),
+            },
+        ),
+        // A second node scaled by 1e30: its vertices are named, by its node.
+        (
+            tet_character(
+                d,
+                "scaled.gltf",
+                &tet_gltf(d, &[("body", TET, 1.0), ("big", TET, 1e30)]),
+                "",
+            ),
+            f64::from(1e30f32),
+            7,
+            VertexAt::Node {
+                node: 1,
+                part: "big".into(),
+            },
+        ),
+    ];
+    for (path, size, vertex, at) in cases {
+        let problems = problems_of(&path);
+        match &problems[..] {
+            [CharacterProblem::ImplausibleSize {
+                size_m,
+                vertex: v,
+                at: a,
+                ..
+            }] => {
+                assert!((size_m / size - 1.0).abs() < 1e-9, "{size_m} for {size}");
+                assert_eq!((*v, a), (vertex, &at), "{}", path.display());
+            }
+            other => panic!("{}: {other:?}", path.display()),
+        }
+        let said = problems[0].to_string();
+        assert!(!said.contains("bind."), "{said}");
+    }
+    // Units and the mesh's own scale count: a tetrahedron 1.5 units tall in millimetres
+    // is 1.5 mm and loads, as does the 1 m one; with mesh.scale 0.5 it is 0.75 mm and
+    // refused.
+    let in_mm = tet_character(d, "mm.obj", &tet_obj(scaled(1.5)), "");
+    let text = std::fs::read_to_string(&in_mm).unwrap();
+    std::fs::write(&in_mm, text.replacen("\n\n", "\nunits = \"mm\"\n\n", 1)).unwrap();
+    let loaded = load_character(&in_mm).unwrap_or_else(|e| panic!("{e}"));
+    let height = loaded.character.vertices[3].y;
+    assert!((height - 0.0015).abs() < 1e-15, "{height}");
+    let text = std::fs::read_to_string(&in_mm).unwrap();
+    std::fs::write(
+        &in_mm,
+        text.replacen("units = \"mm\"", "units = \"mm\"\nscale = 0.5", 1),
+    )
+    .unwrap();
+    assert!(matches!(
+        problems_of(&in_mm)[..],
+        [CharacterProblem::ImplausibleSize { vertex: 3, .. }]
+    ));
+    let ok = tet_character(d, "tet.obj", &tet_obj(TET), "");
+    load_character(&ok).unwrap_or_else(|e| panic!("{e}"));
+    // One stray vertex in a mesh of many is named by its OBJ line too.
+    let hand = write_hand(&d.join("hand"));
+    let obj = hand.with_extension("obj");
+    let o = std::fs::read_to_string(&obj).unwrap();
+    std::fs::write(&obj, o.replacen("\nv ", "\nv 1e39 0 0\n# ", 1)).unwrap();
+    match &problems_of(&hand)[..] {
+        [CharacterProblem::FarVertices {
+            count: 1,
+            vertex: 0,
+            at: VertexAt::ObjLine(3),
+            ..
+        }] => {}
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A cell size the file gives that is not finite, or more than half the character, is
+/// refused naming `bind.cell_size_m` (9223372036854775807 bound the tetrahedron into a
+/// single cell, with a rest error of 360 m); half the character loads.
+#[test]
+fn a_cell_size_huge_for_the_character_or_not_finite_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = tet_obj(TET);
+    for (value, want) in [
+        ("9223372036854775807", "large"),
+        ("0.51", "large"),
+        ("inf", "finite"),
+        ("nan", "finite"),
+        ("-0.1", "finite"),
+    ] {
+        let path = tet_character(
+            dir.path(),
+            "tet.obj",
+            &mesh,
+            &format!("[bind]\ncell_size_m = {value}\n"),
+        );
+        let problems = problems_of(&path);
+        match (&problems[..], want) {
+            (
+                [CharacterProblem::CellTooLarge {
+                    cell_size_m,
+                    size_m,
+                }],
+                "large",
+            ) => {
+                assert_eq!(*cell_size_m, value.parse::<f64>().unwrap());
+                assert_eq!(*size_m, 1.0);
+            }
+            (
+                [CharacterProblem::NotPositive {
+                    setting: "bind.cell_size_m",
+                    value: v,
+                }],
+                "finite",
+            ) => assert_eq!(v.to_string(), value.parse::<f64>().unwrap().to_string()),
+            (other, _) => panic!("{value}: {other:?}"),
+        }
+    }
+    let path = tet_character(dir.path(), "tet.obj", &mesh, "[bind]\ncell_size_m = 0.5\n");
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(loaded.bind.cell_size_m, 0.5);
+}
+
+/// A mesh whose every triangle has no area (its corners on a line) is said once, as the
+/// only warning about its surface; `bake`, whose bind then fails on the marker, says it
+/// before the error.
+#[test]
+fn a_mesh_of_only_zero_area_triangles_is_warned_about_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let line = [
+        [0.0, 0.0, 0.0],
+        [0.0, 0.5, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.25, 0.0],
+    ];
+    let path = tet_character(dir.path(), "flat.obj", &tet_obj(line), "");
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(loaded.warnings, vec![MeshWarning::NoArea { triangles: 4 }]);
+    // One triangle with an area: no such warning.
+    let mut one = line;
+    one[3] = [0.2, 0.25, 0.0];
+    let path = tet_character(dir.path(), "flat.obj", &tet_obj(one), "");
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        !loaded
+            .warnings
+            .iter()
+            .any(|w| matches!(w, MeshWarning::NoArea { .. })),
+        "{:?}",
+        loaded.warnings
+    );
+    let path = tet_character(dir.path(), "flat.obj", &tet_obj(line), "");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigless"))
+        .args(["bake", path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert_eq!(
+        err.matches("all 4 triangles of the mesh have no area")
+            .count(),
+        1,
+        "{err}"
+    );
+    let warned = err.find("have no area").unwrap();
+    let failed = err.find("from the control mesh").expect("the bind's error");
+    assert!(warned < failed, "{err}");
+}
+
+/// A file listing more markers than a capture stage has is refused with the count and
+/// the cap; one at the cap loads with every marker placed on its bone. (The duplicate
+/// check compared each marker with all before it: 100,000 markers took 17 s to load.)
+#[test]
+fn markers_are_capped_and_a_file_at_the_cap_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_hand(dir.path());
+    let text = std::fs::read_to_string(&path).unwrap();
+    let own = load_character(&path).unwrap().character.markers.len();
+    let with = |extra: usize| {
+        let mut t = text.clone();
+        for k in 0..extra {
+            t += &format!(
+                "\n[[markers]]\nname = \"extra{k}\"\nbone = \"wrist\"\noffset_m = [0.0, {:?}, 0.0]\n",
+                k as f64 * 1e-6
+            );
+        }
+        std::fs::write(&path, t).unwrap();
+    };
+    with(MAX_MARKERS - own);
+    let loaded = load_character(&path).unwrap_or_else(|e| panic!("{e}"));
+    let markers = &loaded.character.markers;
+    assert_eq!(markers.len(), MAX_MARKERS);
+    let wrist = loaded
+        .character
+        .skeleton
+        .joints
+        .iter()
+        .position(|j| j.name == "wrist");
+    let last = &markers[MAX_MARKERS - 1];
+    assert_eq!(
+        (last.name.as_str(), last.joint),
+        (&*format!("extra{}", MAX_MARKERS - own - 1), wrist)
+    );
+    with(MAX_MARKERS - own + 1);
+    assert_eq!(
+        problems_of(&path),
+        vec![CharacterProblem::TooManyMarkers {
+            count: MAX_MARKERS + 1,
+            max: 4096
+        }]
+    );
+    let said = load_character(&path).unwrap_err().to_string();
+    assert!(said.contains("4097 [[markers]] (at most 4096"), "{said}");
+    // Written as an inline array (the file's own markers left out), they are counted
+    // once parsed.
+    let first = text.find("[[markers]]").unwrap();
+    let after = text[first..]
+        .find("\n[bind]")
+        .map_or(text.len(), |b| first + b + 1);
+    let bare = format!("{}{}", &text[..first], &text[after..]);
+    let inline: Vec<String> = (0..=MAX_MARKERS)
+        .map(|k| format!("{{ name = \"x{k}\", position_m = [0.0, 0.0, 0.0] }}"))
+        .collect();
+    std::fs::write(&path, format!("markers = [{}]\n{bare}", inline.join(", "))).unwrap();
+    match &problems_of(&path)[..] {
+        [CharacterProblem::TooManyMarkers { count, max: 4096 }] => {
+            assert_eq!(*count, MAX_MARKERS + 1)
+        }
+        other => panic!("{other:?}"),
+    }
 }

@@ -475,13 +475,19 @@ fn finding_6_buffer_files_are_regular_files_of_their_length() {
     let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
     // SAFETY: a NUL-terminated path; mkfifo only creates the node.
     assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    // A link to /dev/zero leads out of the folder (refused before it is looked at); a
+    // pipe in the folder is not a regular file.
     for name in ["zero.bin", "pipe.bin"] {
         let (r, u) = measure(|| parse_gltf(with_uri(name, 36).as_bytes(), Some(dir.path())));
         match r {
             Err(MeshError::Buffer {
+                problem: BufferProblem::LinkOutsideFolder { uri },
+                ..
+            }) => assert_eq!((name, uri.as_str()), ("zero.bin", name)),
+            Err(MeshError::Buffer {
                 problem: BufferProblem::NotAFile { path },
                 ..
-            }) => assert!(path.ends_with(name), "{path}"),
+            }) => assert!(name == "pipe.bin" && path.ends_with(name), "{path}"),
             other => panic!("{name}: {other:?}"),
         }
         assert!(u.peak < REFUSED, "{u:?}");
@@ -529,6 +535,122 @@ fn finding_6_buffer_files_are_regular_files_of_their_length() {
     let path = dir.path().join("tri.gltf");
     std::fs::write(&path, with_uri("tri.bin", 36)).unwrap();
     assert_eq!(read_gltf(&path).unwrap().triangles, vec![[0, 1, 2]]);
+}
+
+/// A document of one triangle whose positions are buffer 0, read from `uri`.
+fn triangle_at(uri: &str) -> String {
+    json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": 36, "uri": uri}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [positions(0, 3)],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}]
+    })
+    .to_string()
+}
+
+/// A buffer URI reaches only files in the document's folder and below, however the way
+/// out is spelled. A 36-byte file beside the folder (readable as a triangle, so any of
+/// these URIs loaded it before) is refused by every spelling of `..`, and through
+/// symbolic links leading out (to the file, or to the folder above); links that stay
+/// inside, backslashes and `.` components inside are read.
+#[test]
+fn buffer_uris_reach_only_the_documents_folder() {
+    use std::os::unix::fs::symlink;
+    let root = tempfile::tempdir().unwrap();
+    let folder = root.path().join("mesh");
+    std::fs::create_dir_all(folder.join("sub")).unwrap();
+    std::fs::write(root.path().join("secret.bin"), triangle_bytes()).unwrap();
+    std::fs::write(folder.join("sub/tri.bin"), triangle_bytes()).unwrap();
+    symlink(root.path().join("secret.bin"), folder.join("out.bin")).unwrap();
+    symlink("..", folder.join("up")).unwrap();
+    symlink("sub/tri.bin", folder.join("in.bin")).unwrap();
+    symlink(folder.join("sub"), folder.join("sub/again")).unwrap();
+    let read = |uri: &str| parse_gltf(triangle_at(uri).as_bytes(), Some(&folder));
+    for uri in [
+        "../secret.bin".to_string(),
+        "../../../../../../../../../../../..".to_string()
+            + &root.path().display().to_string()
+            + "/secret.bin",
+        "%2e%2e/secret.bin".into(),
+        "%2E%2e/secret.bin".into(),
+        "%2e%2E%2Fsecret.bin".into(),
+        "..\\secret.bin".into(),
+        "..%5Csecret.bin".into(),
+        "sub/../../secret.bin".into(),
+        "sub\\..\\..\\secret.bin".into(),
+    ] {
+        match read(&uri) {
+            Err(MeshError::Buffer {
+                buffer: 0,
+                problem: BufferProblem::OutsideFolder { uri: named },
+            }) => assert!(uri.starts_with(named.trim_end_matches("...")), "{named}"),
+            other => panic!("{uri}: {other:?}"),
+        }
+    }
+    for uri in ["out.bin", "up/secret.bin", "up/mesh/../secret.bin"] {
+        match read(uri) {
+            Err(MeshError::Buffer {
+                buffer: 0,
+                problem: BufferProblem::LinkOutsideFolder { uri: named },
+            }) => assert_eq!(named, uri),
+            other => panic!("{uri}: {other:?}"),
+        }
+    }
+    match read("sub/tri.bin%00.png") {
+        Err(MeshError::Buffer {
+            problem: BufferProblem::NulByte { uri },
+            ..
+        }) => assert_eq!(uri, "sub/tri.bin%00.png"),
+        other => panic!("{other:?}"),
+    }
+    for uri in [
+        "in.bin",
+        "sub\\tri.bin",
+        "./sub/./x/../tri.bin",
+        "sub/again/tri.bin",
+        "up/mesh/sub/tri.bin",
+    ] {
+        let m = read(uri).unwrap_or_else(|e| panic!("{uri}: {e}"));
+        assert_eq!(m.triangles, vec![[0, 1, 2]], "{uri}");
+        assert_eq!(m.positions[1], DVec3::X, "{uri}");
+    }
+}
+
+/// A buffer file of the wrong length, or whose bytes make no triangle, is named by its
+/// path and its numbers, never by what it holds: a 40-byte text file read as the
+/// positions buffer, and the same text where indices were expected.
+#[test]
+fn buffer_errors_never_echo_the_files_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = b"root:x:0:0:root:/root:/bin/bash\nAAAAAAAA";
+    std::fs::write(dir.path().join("words.bin"), text).unwrap();
+    let e = parse_gltf(triangle_at("words.bin").as_bytes(), Some(dir.path()))
+        .expect_err("40 bytes for 36")
+        .to_string();
+    assert!(
+        e.contains("words.bin has 40 bytes, but byteLength is 36"),
+        "{e}"
+    );
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": 36, "uri": data_uri(&triangle_bytes())},
+                    {"byteLength": 40, "uri": "words.bin"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}, {"buffer": 1, "byteLength": 36}],
+        "accessors": [positions(0, 3), {"bufferView": 1, "componentType": 5125, "count": 9, "type": "SCALAR"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "nodes": [{"mesh": 0}]
+    })
+    .to_string();
+    let e = parse_gltf(doc.as_bytes(), Some(dir.path()))
+        .expect_err("indices of text")
+        .to_string();
+    for word in ["root", "bash", "AAAA", "/bin"] {
+        assert!(!e.contains(word), "{word} in {e}");
+    }
+    // The first index is the text's first four bytes, as a number: "root" read as u32.
+    assert!(e.contains(&u32::from_le_bytes(*b"root").to_string()), "{e}");
 }
 
 /// A document with one triangle (nodes[0]) skinned by a skin of `joints` (node indices

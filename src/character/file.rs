@@ -39,7 +39,8 @@
 use super::bind_params::BindParams;
 use super::cell_size::{default_cell_size, CellChoice, Figure};
 use super::mesh::{
-    parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError, MAX_SKIN_JOINTS,
+    parse_gltf_file, parse_obj, surface_issues, weld, MeshData, MeshError, VertexAt,
+    MAX_SKIN_JOINTS,
 };
 use super::roles::{default_limits, recognise, summary as roles_summary, Role, RoleSummary};
 use super::skeleton::{Joint, JointLimits, Skeleton, SkeletonError};
@@ -51,6 +52,13 @@ use glam::{DMat4, DVec3};
 use serde::Deserialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+
+/// Most `[[markers]]` a character file may list. A capture stage labels tens to a few
+/// hundred markers (a full body with fingers and a face about 200; `rigless calibrate`
+/// keeps at most 512 labels of a take), and every marker is a row of the solver's
+/// system each frame: 4,096 is ample room, and a file listing more is refused before any
+/// is placed.
+pub const MAX_MARKERS: usize = 4096;
 
 /// Smallest `calibration.marker_scale`: a character a tenth of its actor's size.
 pub const MIN_MARKER_SCALE: f64 = 0.1;
@@ -132,11 +140,35 @@ impl Units {
             Units::In => 0.0254,
         }
     }
+
+    /// As the file writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Units::M => "m",
+            Units::Dm => "dm",
+            Units::Cm => "cm",
+            Units::Mm => "mm",
+            Units::In => "in",
+        }
+    }
 }
 
 /// Smallest and largest `mesh.scale`.
 pub const MIN_MESH_SCALE: f64 = 1e-3;
 pub const MAX_MESH_SCALE: f64 = 1e3;
+
+/// Smallest and largest size of a character, metres: its largest extent in the world
+/// frame, after `mesh.units`, `mesh.scale` and the file's node transforms. A hand is
+/// about 0.2 m, a body 1.8 m; a millimetre is a mesh in the wrong units twice over, a
+/// kilometre one in millimetres read as metres (or a node scaled by 1e30). Outside this
+/// range the lattice, the weld tolerance and every default setting would follow a size
+/// that no capture stage holds.
+pub const MIN_CHARACTER_SIZE_M: f64 = 1e-3;
+pub const MAX_CHARACTER_SIZE_M: f64 = 1e3;
+
+/// Largest `bind.cell_size_m` as a share of the character's size: a coarser lattice is
+/// one or two cells across and follows no limb.
+pub const MAX_CELL_SHARE: f64 = 0.5;
 
 fn unit_scale() -> f64 {
     1.0
@@ -310,6 +342,11 @@ pub enum MeshWarning {
     /// Skin joints that sat on their parents, merged into them (name, parent).
     #[error("{} joint{} of the skin sat on {} parent{} (bones of no length) and {} merged into {}: {}", .merged.len(), if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "its" } else { "their" }, if .merged.len() == 1 { "" } else { "s" }, if .merged.len() == 1 { "was" } else { "were" }, if .merged.len() == 1 { "it" } else { "them" }, .merged.iter().map(|(j, p)| format!("{j} into {p}")).collect::<Vec<_>>().join(", "))]
     ZeroLengthBones { merged: Vec<(String, String)> },
+    /// Every triangle has no area (its corners coincide or lie on a line, to a
+    /// millionth of the character's size): the mesh encloses nothing, and the lattice
+    /// follows the skeleton alone.
+    #[error("all {triangles} triangles of the mesh have no area (their corners coincide or lie on a line): it encloses nothing for the lattice to follow; check the file's faces")]
+    NoArea { triangles: usize },
     /// The skeleton's hips-to-head line leans far from the declared up axis.
     #[error("the skeleton's hips-to-head line leans {lean_deg:.0}° from up: it looks lying down for up = \"{up}\"; check [mesh] up")]
     TrunkLyingDown { lean_deg: f64, up: UpAxis },
@@ -410,12 +447,26 @@ pub enum CharacterProblem {
     NoHeight,
     /// Vertices far outside the box that holds the rest of the mesh (a stray vertex in
     /// the file), with the first of them.
-    #[error("{count} mesh vertices lie far from the rest of the mesh, e.g. vertex {vertex} (from 0) at {position:?} in the file's units, while the rest fit in a box {extent_m:.3} m across")]
+    #[error("{count} mesh vertices lie far from the rest of the mesh, e.g. vertex {vertex} (from 0, {at}) at {position:?} in the file's units, while the rest fit in a box {extent_m:.3} m across")]
     FarVertices {
         count: usize,
         vertex: usize,
+        at: VertexAt,
         position: DVec3,
         extent_m: f64,
+    },
+    /// The character's size is outside [`MIN_CHARACTER_SIZE_M`] to
+    /// [`MAX_CHARACTER_SIZE_M`]; with the vertex farthest from the middle of the mesh
+    /// (0-based among the mesh's vertices), where the file gives it and its position in
+    /// the file's units.
+    #[error("the character is {size_m:e} m across (its largest extent after mesh.units = {units:?}, mesh.scale = {scale:?} and the file's node transforms), outside the {MIN_CHARACTER_SIZE_M} to {MAX_CHARACTER_SIZE_M} m a character may be; the farthest out is vertex {vertex} (from 0, {at}) at {position:?} in the file's units")]
+    ImplausibleSize {
+        size_m: f64,
+        units: &'static str,
+        scale: f64,
+        vertex: usize,
+        at: VertexAt,
+        position: DVec3,
     },
     /// `skeleton.from_skin = true` for a mesh without a skin.
     #[error("skeleton.from_skin is true but the mesh has no skin")]
@@ -487,6 +538,9 @@ pub enum CharacterProblem {
     /// Two markers share a name.
     #[error("marker name {marker:?} is used twice")]
     DuplicateMarker { marker: String },
+    /// More `[[markers]]` than a character may have.
+    #[error("{count} [[markers]] (at most {max}: a capture stage has tens to a few hundred)")]
+    TooManyMarkers { count: usize, max: usize },
     /// A marker's `bone` names a joint the skeleton does not have.
     #[error("marker {marker:?}: no joint is named {bone:?}")]
     MarkerUnknownBone { marker: String, bone: String },
@@ -496,9 +550,12 @@ pub enum CharacterProblem {
     /// A marker's rest position is NaN or infinite.
     #[error("marker {marker:?}: position is not finite")]
     MarkerNotFinite { marker: String },
-    /// A binding setting (`bind.NAME`, given or defaulted) is not a positive number.
-    #[error("{setting} must be a positive number, got {value}")]
+    /// A binding setting the file gives (`bind.NAME`) is not a positive, finite number.
+    #[error("{setting} must be a positive finite number, got {value}")]
     NotPositive { setting: &'static str, value: f64 },
+    /// `bind.cell_size_m` above [`MAX_CELL_SHARE`] of the character's size (metres).
+    #[error("bind.cell_size_m {cell_size_m:?} is more than {MAX_CELL_SHARE} of the character's size {size_m:.3} m (its longest extent): the lattice would be one or two cells across")]
+    CellTooLarge { cell_size_m: f64, size_m: f64 },
     /// `bind.cell_size_m` below 1/400 of the character's size (longest extent, metres).
     #[error("bind.cell_size_m {cell_size_m:?} is below 1/400 of the character's size {size_m:.3} m (its longest extent): the control mesh would be enormous")]
     CellTooSmall { cell_size_m: f64, size_m: f64 },
@@ -650,6 +707,22 @@ pub fn load_character(path: &Path) -> Result<LoadedCharacter, CharacterError> {
         path: shown.clone(),
         source,
     })?;
+    // Too many markers are refused before the TOML is parsed (its tables take some 40
+    // bytes of memory per byte of text): `[[markers]]` headers are counted by line here,
+    // markers written otherwise (an inline array) by `build`.
+    let count = text
+        .lines()
+        .filter(|l| l.trim_start().starts_with("[[markers]]"))
+        .count();
+    if count > MAX_MARKERS {
+        return Err(CharacterError::Invalid {
+            path: shown,
+            problems: vec![CharacterProblem::TooManyMarkers {
+                count,
+                max: MAX_MARKERS,
+            }],
+        });
+    }
     let spec = read_spec(&text).map_err(|problems| CharacterError::Toml {
         path: shown.clone(),
         problems,
@@ -782,14 +855,14 @@ pub fn build(
     let frame = WorldFrame::of(&spec.mesh);
     let (vertices, height) = world_vertices(&mesh, frame, &mut problems);
     // Settings scale with the character's size (its longest extent), not its height: a
-    // mesh declared with the wrong up axis must not get a lattice from a sliver.
-    let size_m = if problems.is_empty() {
-        extent(&vertices).max_element()
-    } else {
-        height
-    };
+    // mesh declared with the wrong up axis must not get a lattice from a sliver. Only a
+    // size from sound vertices, within the plausible range, is used to judge or default
+    // them (`None` otherwise: its problem is already said).
+    let size = problems.is_empty().then(|| extent(&vertices).max_element());
+    let size = size.filter(|&size_m| plausible_size(spec, &mesh, &vertices, size_m, &mut problems));
+    let size_m = size.unwrap_or(height);
     let weld_tol = spec.mesh.weld_tolerance_m.unwrap_or(1e-6 * size_m);
-    if size_m > 0.0 && !(0.0..=0.01 * size_m).contains(&weld_tol) {
+    if size.is_some() && !(0.0..=0.01 * size_m).contains(&weld_tol) {
         problems.push(CharacterProblem::WeldTolerance {
             value_m: weld_tol,
             size_m,
@@ -798,7 +871,7 @@ pub fn build(
     // The surface is only judged once its vertices and weld tolerance are sound (a stray
     // or non-finite vertex would show up again as a misleading topology problem).
     let warnings = if problems.is_empty() {
-        check_surface(&mesh, &vertices, weld_tol)
+        check_surface(&mesh, &vertices, weld_tol, size_m)
     } else {
         Vec::new()
     };
@@ -853,7 +926,7 @@ pub fn build(
     if problems.is_empty() {
         warnings.extend(lying_down(lean_deg, height, size_m, spec.mesh.up));
     }
-    let params = bind_params(&spec.bind, size_m, cell_choice.as_ref(), &mut problems);
+    let params = bind_params(&spec.bind, size, cell_choice.as_ref(), &mut problems);
     if let Some(v) = spec.calibration.marker_scale {
         if !(v.is_finite() && (MIN_MARKER_SCALE..=MAX_MARKER_SCALE).contains(&v)) {
             problems.push(CharacterProblem::MarkerScale { value: v });
@@ -948,6 +1021,7 @@ fn world_vertices(
         problems.push(CharacterProblem::FarVertices {
             count: far.len(),
             vertex: first,
+            at: mesh.vertex_at(first),
             position: mesh.positions[first],
             extent_m: (hi - lo).max_element(),
         });
@@ -963,6 +1037,39 @@ fn world_vertices(
     (vertices, height)
 }
 
+/// Whether the character's size (`size_m`, its largest extent in the world frame) is
+/// from [`MIN_CHARACTER_SIZE_M`] to [`MAX_CHARACTER_SIZE_M`]; if not, the problem names
+/// the size, the units and scale in force, and the vertex farthest (along an axis) from
+/// the middle of the mesh (its vertices' median on each axis), with where the file gives
+/// it (its OBJ line, or the glTF node whose transform placed it).
+fn plausible_size(
+    spec: &CharacterFile,
+    mesh: &MeshData,
+    vertices: &[DVec3],
+    size_m: f64,
+    problems: &mut Vec<CharacterProblem>,
+) -> bool {
+    if (MIN_CHARACTER_SIZE_M..=MAX_CHARACTER_SIZE_M).contains(&size_m) {
+        return true;
+    }
+    let middle = percentile_point(vertices, 0.5);
+    let farthest = (0..vertices.len())
+        .max_by(|&a, &b| {
+            let d = |v: usize| (vertices[v] - middle).abs().max_element();
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap_or(0);
+    problems.push(CharacterProblem::ImplausibleSize {
+        size_m,
+        units: spec.mesh.units.name(),
+        scale: spec.mesh.scale,
+        vertex: farthest,
+        at: mesh.vertex_at(farthest),
+        position: mesh.positions.get(farthest).copied().unwrap_or_default(),
+    });
+    false
+}
+
 /// Share of the vertices, at each end of each axis, left out of the robust box.
 const ROBUST_TAIL: f64 = 0.01;
 
@@ -973,16 +1080,24 @@ const FAR_BOXES: f64 = 10.0;
 /// The box holding the central 98 % of the vertices along each axis (the 1st to the
 /// 99th percentile), so that a stray vertex does not stretch it.
 fn robust_box(vertices: &[DVec3]) -> (DVec3, DVec3) {
-    let mut lo = DVec3::ZERO;
-    let mut hi = DVec3::ZERO;
+    (
+        percentile_point(vertices, ROBUST_TAIL),
+        percentile_point(vertices, 1.0 - ROBUST_TAIL),
+    )
+}
+
+/// The `q`-th percentile of the vertices along each axis (zero for no vertex).
+fn percentile_point(vertices: &[DVec3], q: f64) -> DVec3 {
+    let mut out = DVec3::ZERO;
     let mut axis: Vec<f64> = Vec::with_capacity(vertices.len());
     for a in 0..3 {
         axis.clear();
         axis.extend(vertices.iter().map(|v| v[a]));
-        lo[a] = crate::runtime::stats::percentile(&mut axis, ROBUST_TAIL);
-        hi[a] = crate::runtime::stats::percentile(&mut axis, 1.0 - ROBUST_TAIL);
+        if !axis.is_empty() {
+            out[a] = crate::runtime::stats::percentile(&mut axis, q);
+        }
     }
-    (lo, hi)
+    out
 }
 
 /// Whether `v` lies more than [`FAR_BOXES`] robust boxes outside `lo..hi`.
@@ -993,8 +1108,25 @@ fn is_far(v: DVec3, lo: DVec3, hi: DVec3) -> bool {
 }
 
 /// Checks that the mesh, its world-frame `vertices` welded within `weld_tol` metres, is
-/// a closed, manifold, consistently oriented surface.
-fn check_surface(mesh: &MeshData, vertices: &[DVec3], weld_tol: f64) -> Vec<MeshWarning> {
+/// a closed, manifold, consistently oriented surface, and that some triangle has an area
+/// (more than a millionth of the size `size_m` squared; a mesh without one is said
+/// once, as the only warning).
+fn check_surface(
+    mesh: &MeshData,
+    vertices: &[DVec3],
+    weld_tol: f64,
+    size_m: f64,
+) -> Vec<MeshWarning> {
+    let tiny = (1e-6 * size_m).powi(2);
+    let flat = mesh.triangles.iter().all(|t| {
+        let [a, b, c] = t.map(|i| vertices[i as usize]);
+        0.5 * (b - a).cross(c - a).length() <= tiny
+    });
+    if flat {
+        return vec![MeshWarning::NoArea {
+            triangles: mesh.triangles.len(),
+        }];
+    }
     let (map, _) = weld(vertices, weld_tol);
     let welded_tris: Vec<[u32; 3]> = mesh
         .triangles
@@ -1433,15 +1565,27 @@ fn finish_skeleton(joints: Vec<Joint>, problems: &mut Vec<CharacterProblem>) -> 
     Some(s)
 }
 
-/// The marker layout of `[[markers]]`, in file order (names unique, positions finite).
+/// The marker layout of `[[markers]]`, in file order (names unique, positions finite;
+/// at most [`MAX_MARKERS`], else none is placed). Linear in the markers: names and
+/// joints are looked up by hash.
 fn place_markers(
     specs: &[MarkerSpec],
     skeleton: Option<&Skeleton>,
     problems: &mut Vec<CharacterProblem>,
 ) -> Vec<MarkerDef> {
+    if specs.len() > MAX_MARKERS {
+        problems.push(CharacterProblem::TooManyMarkers {
+            count: specs.len(),
+            max: MAX_MARKERS,
+        });
+        return Vec::new();
+    }
+    let joints = skeleton.map(JointIndex::of);
+    let skeleton = skeleton.zip(joints.as_ref());
+    let mut seen = std::collections::HashSet::with_capacity(specs.len());
     let mut markers = Vec::with_capacity(specs.len());
-    for (k, m) in specs.iter().enumerate() {
-        if specs[..k].iter().any(|o| o.name == m.name) {
+    for m in specs {
+        if !seen.insert(m.name.as_str()) {
             problems.push(CharacterProblem::DuplicateMarker {
                 marker: m.name.clone(),
             });
@@ -1461,21 +1605,42 @@ fn place_markers(
     markers
 }
 
+/// A skeleton's joints by name (the first of a name, as a search in order finds it), and
+/// which are leaves.
+struct JointIndex<'a> {
+    by_name: HashMap<&'a str, usize>,
+    leaf: Vec<bool>,
+}
+
+impl<'a> JointIndex<'a> {
+    fn of(s: &'a Skeleton) -> Self {
+        let mut by_name = HashMap::with_capacity(s.joints.len());
+        let mut leaf = vec![true; s.joints.len()];
+        for (j, joint) in s.joints.iter().enumerate() {
+            by_name.entry(joint.name.as_str()).or_insert(j);
+            if let Some(p) = joint.parent.and_then(|p| leaf.get_mut(p)) {
+                *p = false;
+            }
+        }
+        Self { by_name, leaf }
+    }
+}
+
 /// A marker's rest position and the joint whose bone carries it: `position_m` (joint
 /// decided at bind time), or its bone's joint plus `offset_m` (a leaf joint's bone is
 /// its parent's). Zero and no joint when the marker cannot be placed.
 fn marker_rest(
     m: &MarkerSpec,
-    skeleton: Option<&Skeleton>,
+    skeleton: Option<(&Skeleton, &JointIndex)>,
     problems: &mut Vec<CharacterProblem>,
 ) -> (DVec3, Option<usize>) {
     match (&m.position_m, &m.bone, skeleton) {
         (Some(p), None, _) => (DVec3::from_array(*p), None),
-        (None, Some(b), Some(s)) => match s.joints.iter().position(|j| &j.name == b) {
-            Some(j) => {
+        (None, Some(b), Some((s, index))) => match index.by_name.get(b.as_str()) {
+            Some(&j) => {
                 let off = DVec3::from_array(m.offset_m.unwrap_or([0.0; 3]));
                 // A leaf joint's bone is the segment that ends at it.
-                let carrier = if s.children(j).next().is_none() {
+                let carrier = if index.leaf[j] {
                     s.joints[j].parent.unwrap_or(j)
                 } else {
                     j
@@ -1500,14 +1665,20 @@ fn marker_rest(
     }
 }
 
-/// The binding settings of `[bind]`, defaults scaled to the character's size (its longest extent,
-/// metres); each must be a positive number, and the cell not absurdly small.
+/// The binding settings of `[bind]`, defaults scaled to the character's size (`size`:
+/// its longest extent, metres, when it is known and plausible). Each setting the file
+/// gives must be a positive, finite number, the cell neither absurdly small nor larger
+/// than [`MAX_CELL_SHARE`] of the size, the skeleton step not absurdly small against the
+/// cell; every problem names the key the file sets. Defaults follow a size from 1 mm to
+/// 1 km and are then positive and finite; without one they are not judged (the size's
+/// problem is said instead of a key the file does not set).
 fn bind_params(
     b: &BindSpec,
-    size_m: f64,
+    size: Option<f64>,
     default_cell: Option<&CellChoice>,
     problems: &mut Vec<CharacterProblem>,
 ) -> BindParams {
+    let size_m = size.unwrap_or(0.0);
     let cell = b
         .cell_size_m
         .or(default_cell.map(|c| c.cell_size_m))
@@ -1520,31 +1691,45 @@ fn bind_params(
         w_skeleton: b.w_skeleton.unwrap_or(1000.0),
         max_marker_distance_m: b.max_marker_distance_m.unwrap_or(0.1 * size_m),
     };
-    for (name, v) in [
-        ("bind.cell_size_m", params.cell_size_m),
-        ("bind.skeleton_step_m", params.skeleton_step_m),
-        ("bind.w_shape", params.w_shape),
-        ("bind.w_marker", params.w_marker),
-        ("bind.w_skeleton", params.w_skeleton),
-        ("bind.max_marker_distance_m", params.max_marker_distance_m),
+    let mut sound = true;
+    for (name, given) in [
+        ("bind.cell_size_m", b.cell_size_m),
+        ("bind.skeleton_step_m", b.skeleton_step_m),
+        ("bind.w_shape", b.w_shape),
+        ("bind.w_marker", b.w_marker),
+        ("bind.w_skeleton", b.w_skeleton),
+        ("bind.max_marker_distance_m", b.max_marker_distance_m),
     ] {
-        if !(v.is_finite() && v > 0.0) {
+        if let Some(value) = given.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            sound = false;
             problems.push(CharacterProblem::NotPositive {
                 setting: name,
-                value: v,
+                value,
             });
         }
     }
-    if params.cell_size_m.is_finite() && size_m > 0.0 && params.cell_size_m < size_m / 400.0 {
-        problems.push(CharacterProblem::CellTooSmall {
-            cell_size_m: params.cell_size_m,
-            size_m,
-        });
+    if !sound {
+        return params;
     }
-    if params.skeleton_step_m.is_finite() && params.skeleton_step_m < params.cell_size_m / 100.0 {
+    let cell_size_m = params.cell_size_m;
+    if let Some(size_m) = size.filter(|_| b.cell_size_m.is_some()) {
+        if cell_size_m < size_m / 400.0 {
+            problems.push(CharacterProblem::CellTooSmall {
+                cell_size_m,
+                size_m,
+            });
+        }
+        if cell_size_m > MAX_CELL_SHARE * size_m {
+            problems.push(CharacterProblem::CellTooLarge {
+                cell_size_m,
+                size_m,
+            });
+        }
+    }
+    if (size.is_some() || b.cell_size_m.is_some()) && params.skeleton_step_m < cell_size_m / 100.0 {
         problems.push(CharacterProblem::StepTooSmall {
             step_m: params.skeleton_step_m,
-            cell_size_m: params.cell_size_m,
+            cell_size_m,
         });
     }
     params
@@ -1559,8 +1744,9 @@ fn correspondences(
     problems: &mut Vec<CharacterProblem>,
 ) -> Vec<Correspondence> {
     let mut out = Vec::new();
+    let mut seen = std::collections::HashSet::with_capacity(specs.len());
     for (index, c) in specs.iter().enumerate() {
-        if specs[..index].iter().any(|o| o.joint == c.joint) {
+        if !seen.insert(c.joint.as_str()) {
             problems.push(CharacterProblem::CorrespondenceTwice {
                 index,
                 joint: c.joint.clone(),

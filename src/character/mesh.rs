@@ -36,6 +36,54 @@ pub struct MeshData {
     /// The file's parts, in output order: every glTF triangle primitive, or every run of
     /// an OBJ file's faces under one group.
     pub parts: Vec<MeshPart>,
+    /// glTF: the node each of `parts` hangs from (its world transform placed it); empty
+    /// for OBJ.
+    pub part_nodes: Vec<usize>,
+    /// OBJ: the line (from 1) of each of `positions`' `v` lines; empty for glTF.
+    pub source_lines: Vec<u32>,
+}
+
+/// Where a mesh file gives a vertex, as errors name it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VertexAt {
+    /// An OBJ file's `v` line (from 1).
+    ObjLine(usize),
+    /// A glTF triangle primitive (its part's name) and the node it hangs from.
+    Node { node: usize, part: String },
+    /// Neither is known (a mesh made in memory).
+    InMemory,
+}
+
+impl std::fmt::Display for VertexAt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VertexAt::ObjLine(line) => write!(f, "OBJ line {line}"),
+            VertexAt::Node { node, part } => write!(f, "glTF nodes[{node}], part {part:?}"),
+            VertexAt::InMemory => write!(f, "a mesh made in memory"),
+        }
+    }
+}
+
+impl MeshData {
+    /// Where the file gives vertex `v` of `positions`.
+    pub fn vertex_at(&self, v: usize) -> VertexAt {
+        if let Some(&line) = self.source_lines.get(v) {
+            return VertexAt::ObjLine(line as usize);
+        }
+        let holds = |p: &MeshPart| {
+            (p.first_vertex as usize..(p.first_vertex + p.vertex_count) as usize).contains(&v)
+        };
+        match (
+            self.parts.iter().position(holds),
+            self.part_nodes.is_empty(),
+        ) {
+            (Some(k), false) => VertexAt::Node {
+                node: self.part_nodes.get(k).copied().unwrap_or(0),
+                part: self.parts[k].name.clone(),
+            },
+            _ => VertexAt::InMemory,
+        }
+    }
 }
 
 /// A part of a mesh as its file has it: a glTF triangle primitive, or a run of an OBJ
@@ -253,6 +301,16 @@ pub enum BufferProblem {
     Absolute { uri: String },
     #[error("uri {uri:?}: a bad percent-escape, or the path is not UTF-8")]
     PercentEncoding { uri: String },
+    /// The decoded path holds a NUL byte (no file name can).
+    #[error("uri {uri:?}: the path holds a NUL byte")]
+    NulByte { uri: String },
+    /// The decoded path's `..` components climb above the mesh's folder.
+    #[error("uri {uri:?}: it climbs out of the mesh's folder (a `..` above it); buffers are read only from the folder and below")]
+    OutsideFolder { uri: String },
+    /// The path stays in the mesh's folder by its text, but a symbolic link on it leads
+    /// out (the folder and the file compared after resolving links).
+    #[error("uri {uri:?}: a symbolic link on the path leads out of the mesh's folder; buffers are read only from the folder and below")]
+    LinkOutsideFolder { uri: String },
     #[error("uri: bad base64 at character {offset} of the data")]
     Base64 { offset: usize },
     #[error("uri {uri:?} names a file, but the document was given without its folder")]
@@ -361,6 +419,7 @@ pub const MAX_POLYGON_VERTICES: usize = 256;
 pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError> {
     let text = String::from_utf8_lossy(bytes);
     let mut positions: Vec<DVec3> = Vec::new();
+    let mut lines: Vec<u32> = Vec::new();
     let mut faces: Vec<[u32; 3]> = Vec::new();
     let mut found: Vec<String> = Vec::new();
     let mut keep = groups.is_empty();
@@ -388,6 +447,7 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
                     }
                 }
                 positions.push(DVec3::from_array(c));
+                lines.push(u32::try_from(line).unwrap_or(u32::MAX));
             }
             Some("g") | Some("o") => {
                 let names: Vec<&str> = it.collect();
@@ -457,10 +517,12 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
     }
     let mut remap = vec![u32::MAX; positions.len()];
     let mut out = Vec::new();
+    let mut source_lines = Vec::new();
     for (i, p) in positions.iter().enumerate() {
         if used[i] {
             remap[i] = out.len() as u32;
             out.push(*p);
+            source_lines.push(lines[i]);
         }
     }
     let triangles: Vec<[u32; 3]> = faces.iter().map(|f| f.map(|i| remap[i as usize])).collect();
@@ -487,6 +549,8 @@ pub fn parse_obj(bytes: &[u8], groups: &[String]) -> Result<MeshData, MeshError>
         skin_joints: Vec::new(),
         rest_from_bind: None,
         parts,
+        part_nodes: Vec::new(),
+        source_lines,
     })
 }
 
@@ -554,7 +618,10 @@ pub fn parse_gltf_file(bytes: &[u8], path: &Path) -> Result<MeshData, MeshError>
 /// 6. Buffers are loaded here: the GLB `BIN` chunk (borrowed), base64 `data:` URIs, and
 ///    relative paths (percent-decoded here, to UTF-8 or an error) to regular files whose
 ///    length is the declared `byteLength` (plus up to 3 bytes of padding), checked before
-///    reading. Other schemes and absolute paths are refused.
+///    reading. A path must stay inside `base`: `/` and `\` separate, a `..` above the
+///    folder, a NUL byte, or a symbolic link leading out of the folder (both resolved
+///    before comparing) is refused before anything is read, and the error names the URI,
+///    never what the file holds. Other schemes and absolute paths are refused.
 /// 7. Triangle primitives: POSITION is VEC3 float, indices SCALAR unsigned 8, 16 or 32
 ///    bits, their count a multiple of three; all of them together within
 ///    [`GLTF_VERTEX_ALLOWANCE`] plus one vertex per four bytes of input and
@@ -1472,7 +1539,8 @@ fn file_length_fits(declared: u64, actual: u64) -> bool {
 }
 
 /// Loads every buffer's data: the GLB `BIN` chunk for the first buffer without a URI,
-/// base64 `data:` URIs, and regular files named by relative paths under `base`.
+/// base64 `data:` URIs, and regular files named by relative paths inside `base`
+/// ([`relative_path`], [`confined_file`]).
 fn load_buffers<'a>(
     root: &gltf::json::Root,
     mut bin: Option<&'a [u8]>,
@@ -1502,7 +1570,7 @@ fn load_buffers<'a>(
                         uri: shown_uri(uri),
                     })
                 })?;
-                let path = base.join(relative);
+                let path = confined_file(base, &relative, uri).map_err(err)?;
                 let source = match files.get(&path) {
                     Some(&s) => s,
                     None => {
@@ -1588,7 +1656,12 @@ fn decode_base64(text: &[u8]) -> Result<Vec<u8>, usize> {
 }
 
 /// The relative path a URI without a scheme names, percent-decoded (to UTF-8, or an
-/// error); URIs with a scheme (`file:`, `http:`) and absolute paths are refused.
+/// error) and resolved by its text inside the folder: `/` and `\` both separate
+/// components (whether written or percent-encoded), `.` and empty components are
+/// dropped, a `..` takes back the component before it. The result holds only plain
+/// names. Refused: URIs with a scheme (`file:`, `http:`, a Windows drive `C:`), absolute
+/// paths, a NUL byte, and a `..` with no component left to take back (above the
+/// folder). Symbolic links are [`confined_file`]'s to check.
 fn relative_path(uri: &str) -> Result<std::path::PathBuf, BufferProblem> {
     if uri.contains(':') {
         return Err(BufferProblem::Scheme {
@@ -1613,12 +1686,70 @@ fn relative_path(uri: &str) -> Result<std::path::PathBuf, BufferProblem> {
         }
     }
     let path = String::from_utf8(decoded).map_err(|_| bad())?;
+    // `%3A` decodes to a drive's colon.
+    if path.contains(':') {
+        return Err(BufferProblem::Scheme {
+            uri: shown_uri(uri),
+        });
+    }
+    if path.contains('\0') {
+        return Err(BufferProblem::NulByte {
+            uri: shown_uri(uri),
+        });
+    }
     if path.starts_with('/') || path.starts_with('\\') {
         return Err(BufferProblem::Absolute {
             uri: shown_uri(uri),
         });
     }
-    Ok(path.into())
+    let mut names: Vec<&str> = Vec::new();
+    for name in path.split(['/', '\\']) {
+        match name {
+            "" | "." => {}
+            ".." => {
+                if names.pop().is_none() {
+                    return Err(BufferProblem::OutsideFolder {
+                        uri: shown_uri(uri),
+                    });
+                }
+            }
+            _ => names.push(name),
+        }
+    }
+    Ok(names.iter().collect())
+}
+
+/// The file `relative` (from [`relative_path`]) names under `folder`, with every
+/// symbolic link on the way resolved, if it lies in the folder (itself resolved): a link
+/// inside the folder to a file inside it is followed, one that leads out is refused
+/// before anything is read. The path to read is the resolved one, so what was checked
+/// is what is opened (a link swapped in between by someone writing the folder at the
+/// same moment is not guarded against).
+fn confined_file(
+    folder: &Path,
+    relative: &Path,
+    uri: &str,
+) -> Result<std::path::PathBuf, BufferProblem> {
+    // A file named without a folder (`mesh.gltf`) has the empty path as its parent.
+    let folder = if folder.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        folder
+    };
+    let resolve = |p: &Path| {
+        std::fs::canonicalize(p).map_err(|source| BufferProblem::Io {
+            path: p.display().to_string(),
+            source,
+        })
+    };
+    let inside = resolve(folder)?;
+    let target = resolve(&folder.join(relative))?;
+    if !target.starts_with(&inside) {
+        return Err(BufferProblem::LinkOutsideFolder {
+            uri: shown_uri(uri),
+        });
+    }
+    Ok(target)
 }
 
 /// A buffer's file: a regular file (not a device or a pipe, which could be endless) of
@@ -1961,6 +2092,7 @@ fn read_meshes(
                 first_vertex: base,
                 vertex_count: count,
             });
+            out.part_nodes.push(n);
             let Some(ix) = prim.indices.map(|i| i.value()) else {
                 let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
                 out.triangles.extend(tris);
@@ -2580,6 +2712,152 @@ f 9 10 11
             shown_uri(&"é".repeat(100)),
             format!("{}...", "é".repeat(64))
         );
+    }
+
+    /// Every spelling of a way out of the folder is refused by the URI's text, with the
+    /// URI named: `..` written or percent-encoded in either case, behind slashes or
+    /// backslashes (written or encoded), after names it takes back; absolute paths,
+    /// drives (written or encoded), NUL bytes. Paths that stay inside resolve to their
+    /// plain names.
+    #[test]
+    fn buffer_uris_that_leave_the_folder_are_refused_by_their_text() {
+        use std::path::PathBuf;
+        let refusal = |uri: &str| match relative_path(uri) {
+            Err(p @ BufferProblem::OutsideFolder { .. }) => ("outside", p),
+            Err(p @ BufferProblem::Absolute { .. }) => ("absolute", p),
+            Err(p @ BufferProblem::Scheme { .. }) => ("scheme", p),
+            Err(p @ BufferProblem::NulByte { .. }) => ("nul", p),
+            other => panic!("{uri}: {other:?}"),
+        };
+        for (uri, want) in [
+            ("../../../../../../etc/passwd", "outside"),
+            ("..", "outside"),
+            ("%2e%2e/etc/passwd", "outside"),
+            ("%2E%2e/etc/passwd", "outside"),
+            (".%2E%2Fx", "outside"),
+            ("..\\..\\x", "outside"),
+            ("..%5cx", "outside"),
+            ("%2e%2e%5C%2e%2e%5Cx", "outside"),
+            ("a/../../x", "outside"),
+            ("a\\b\\..\\..\\..\\x", "outside"),
+            ("././/../x", "outside"),
+            ("/etc/passwd", "absolute"),
+            ("\\etc\\passwd", "absolute"),
+            ("%2fetc/passwd", "absolute"),
+            ("%5Cetc", "absolute"),
+            ("C:\\x.bin", "scheme"),
+            ("C%3a/x.bin", "scheme"),
+            ("a%00/../b.bin", "nul"),
+            ("a\0b.bin", "nul"),
+        ] {
+            let (got, problem) = refusal(uri);
+            assert_eq!(got, want, "{uri}");
+            // The URI is named as given (shortened past 64 characters), nothing else.
+            let text = problem.to_string();
+            assert!(
+                text.starts_with(&format!("uri {:?}: ", shown_uri(uri))),
+                "{text}"
+            );
+        }
+        for (uri, want) in [
+            ("a/../b.bin", "b.bin"),
+            ("./sub//mesh.bin", "sub/mesh.bin"),
+            ("sub\\mesh.bin", "sub/mesh.bin"),
+            ("sub%5Cmesh.bin", "sub/mesh.bin"),
+            ("sub%2F..%2Fmesh.bin", "mesh.bin"),
+            ("..a/b..", "..a/b.."),
+            ("...", "..."),
+        ] {
+            assert_eq!(relative_path(uri).unwrap(), PathBuf::from(want), "{uri}");
+        }
+    }
+
+    /// What the test expects of a URI, computed another way than [`relative_path`]: the
+    /// decoded text (`None` when an escape is bad or the bytes are not UTF-8), and the
+    /// names it leaves inside the folder (`None` when it is refused: a colon, a NUL, a
+    /// leading separator, or a `..` above the folder).
+    fn expected_names(uri: &str) -> Option<Vec<String>> {
+        let mut bytes = Vec::new();
+        let mut rest = uri.as_bytes();
+        while let Some((&c, tail)) = rest.split_first() {
+            if c != b'%' {
+                bytes.push(c);
+                rest = tail;
+                continue;
+            }
+            let hex = std::str::from_utf8(tail.get(..2)?).ok()?;
+            bytes.push(u8::from_str_radix(hex, 16).ok()?);
+            rest = &tail[2..];
+        }
+        let text = String::from_utf8(bytes).ok()?;
+        if text.contains([':', '\0']) || text.starts_with(['/', '\\']) {
+            return None;
+        }
+        let mut depth = 0usize;
+        let mut names: Vec<String> = Vec::new();
+        for name in text.replace('\\', "/").split('/') {
+            if name == ".." {
+                depth = depth.checked_sub(1)?;
+                names.truncate(depth);
+            } else if !name.is_empty() && name != "." {
+                names.push(name.to_string());
+                depth += 1;
+            }
+        }
+        Some(names)
+    }
+
+    /// URI text made of the pieces a way out is spelled with, and anything else.
+    fn uri_text() -> impl Strategy<Value = String> {
+        let piece = prop_oneof![
+            Just(".."),
+            Just("."),
+            Just("/"),
+            Just("\\"),
+            Just("%2e"),
+            Just("%2E"),
+            Just("%2f"),
+            Just("%5C"),
+            Just("%00"),
+            Just("%3a"),
+            Just("%FF"),
+            Just("%"),
+            Just("a"),
+            Just("mesh.bin"),
+            Just("é"),
+        ];
+        prop_oneof![
+            prop::collection::vec(piece, 0..12).prop_map(|p| p.concat()),
+            any::<String>(),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2048))]
+
+        /// Whatever a URI says, what is accepted is plain names that stay in the folder
+        /// (lexically, after decoding), exactly those another resolution finds; what it
+        /// refuses, that one refuses too; nothing panics.
+        #[test]
+        fn accepted_buffer_paths_lie_inside_the_folder(uri in uri_text()) {
+            use std::path::Component;
+            let folder = Path::new("/mesh/folder");
+            match relative_path(&uri) {
+                Ok(path) => {
+                    prop_assert!(
+                        path.components().all(|c| matches!(c, Component::Normal(_))),
+                        "{uri:?} gave {path:?}"
+                    );
+                    prop_assert!(folder.join(&path).starts_with(folder));
+                    let names: Vec<String> = path
+                        .components()
+                        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                        .collect();
+                    prop_assert_eq!(Some(names), expected_names(&uri), "{:?}", uri);
+                }
+                Err(_) => prop_assert_eq!(expected_names(&uri), None, "{:?}", uri),
+            }
+        }
     }
 
     #[test]

@@ -41,7 +41,12 @@ pub fn run(a: BakeArgs) -> Result<()> {
         }
     });
     end_bind_progress(drawn);
-    let (rig, source) = found?;
+    // What is unusual about the mesh may be why the bind failed: said first, once each.
+    let (rig, source) = found.inspect_err(|_| {
+        for w in &loaded.warnings {
+            tracing::warn!("{}: {w}", a.character.display());
+        }
+    })?;
     if a.exercise && a.json {
         return exercise(&loaded, true);
     }
