@@ -409,6 +409,16 @@ fn the_layout_is_written_into_a_character_file() {
     }
 }
 
+/// The body `bare` written as a character file into `dir` (its bind settings with it).
+fn body_file(bare: &Character, dir: &std::path::Path) -> std::path::PathBuf {
+    rigless::character::file::write_character_files(
+        bare,
+        Some(&rigless::character::demo::body_bind_params()),
+        dir,
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// A real take of the shared data folder, or `None` (skipped, with the reason printed).
 fn shared_take(rel: &str) -> Option<Recording> {
     let p = common::shared_path(rel)?;
@@ -1017,12 +1027,7 @@ fn a_layout_the_loader_would_refuse_is_not_written() {
         &CalibrationOptions::default(),
     );
     let dir = tempfile::tempdir().unwrap();
-    let file = rigless::character::file::write_character_files(
-        &bare,
-        Some(&rigless::character::demo::body_bind_params()),
-        dir.path(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let file = body_file(&bare, dir.path());
     let before = std::fs::read_to_string(&file).unwrap();
     cal.scale = 0.001;
     match write_layout(&file, &cal) {
@@ -1068,12 +1073,7 @@ fn a_repeated_label_is_left_out_and_a_take_of_nothing_fails() {
     assert_eq!(cal.placed.len(), 34);
     assert!(cal.placed.iter().all(|p| p.label != "LASI"));
     let dir = tempfile::tempdir().unwrap();
-    let file = rigless::character::file::write_character_files(
-        &bare,
-        Some(&rigless::character::demo::body_bind_params()),
-        dir.path(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let file = body_file(&bare, dir.path());
     write_layout(&file, &cal).unwrap_or_else(|e| panic!("{e}"));
     let loaded = rigless::character::file::load_character(&file).unwrap();
     assert_eq!(loaded.character.markers.len(), 34);

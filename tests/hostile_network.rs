@@ -381,6 +381,55 @@ mod vrpn {
         pings
     }
 
+    /// A server on `listener`: its first connection gets the descriptions and a report,
+    /// then `then` (given the connection and when the report went) has it while the
+    /// client gives it up; the second connection gets the same and is held until `stop`
+    /// (5 s at most). Gives the time from the report to the second connection, and what
+    /// `then` returned.
+    fn serve_twice<T: Send + 'static>(
+        listener: TcpListener,
+        stop: &Arc<AtomicBool>,
+        then: impl FnOnce(TcpStream, Instant) -> T + Send + 'static,
+    ) -> std::thread::JoinHandle<(Duration, T)> {
+        let stop = Arc::clone(stop);
+        std::thread::spawn(move || {
+            let mut first = accept(&listener, Duration::from_secs(5));
+            let mut out = hello();
+            report(&mut out);
+            first.write_all(&out).unwrap();
+            let quiet_from = Instant::now();
+            let during = then(first, quiet_from);
+            let mut second = accept(&listener, Duration::from_secs(15));
+            let gap = quiet_from.elapsed();
+            second.write_all(&out).unwrap();
+            let start = Instant::now();
+            while !stop.load(Ordering::Relaxed) && start.elapsed() < Duration::from_secs(5) {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            (gap, during)
+        })
+    }
+
+    /// The client of `Dev` at `addr` until it has two reports (then it sets `stop`):
+    /// its figures and its log.
+    fn two_reports(
+        addr: std::net::SocketAddr,
+        stop: &AtomicBool,
+    ) -> (VrpnStats, common::LogCapture) {
+        let log = common::LogCapture::default();
+        let stats = VrpnStats::default();
+        let mut reports = 0;
+        tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
+            run(addr, "Dev", stop, &stats, &mut |_, _, _| {
+                reports += 1;
+                if reports == 2 {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+        });
+        (stats, log)
+    }
+
     /// A server sends a report, then nothing while keeping the connection open: the
     /// client pings it once a second, gives it up after the silence timeout and connects
     /// again within the reconnect interval after that; said once.
@@ -389,40 +438,14 @@ mod vrpn {
         let listener = TcpListener::bind("127.0.0.1:0").unwrap();
         let addr = listener.local_addr().unwrap();
         let stop = Arc::new(AtomicBool::new(false));
-        let server = {
-            let stop = Arc::clone(&stop);
+        let server = serve_twice(listener, &stop, |first, silent_from| {
             std::thread::spawn(move || {
-                let mut first = accept(&listener, Duration::from_secs(5));
-                let mut out = hello();
-                report(&mut out);
-                first.write_all(&out).unwrap();
-                let silent_from = Instant::now();
-                let pinger = std::thread::spawn(move || {
-                    read_client(first, silent_from + Duration::from_secs(15), false)
-                });
-                let mut second = accept(&listener, Duration::from_secs(15));
-                let gap = silent_from.elapsed();
-                second.write_all(&out).unwrap();
-                // Until the client is done.
-                let start = Instant::now();
-                while !stop.load(Ordering::Relaxed) && start.elapsed() < Duration::from_secs(5) {
-                    std::thread::sleep(Duration::from_millis(10));
-                }
-                (gap, pinger.join().unwrap())
+                read_client(first, silent_from + Duration::from_secs(15), false)
             })
-        };
-        let log = common::LogCapture::default();
-        let stats = VrpnStats::default();
-        let mut reports = 0;
-        tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
-            run(addr, "Dev", &stop, &stats, &mut |_, _, _| {
-                reports += 1;
-                if reports == 2 {
-                    stop.store(true, Ordering::Relaxed);
-                }
-            });
         });
-        let (gap, pings) = server.join().unwrap();
+        let (stats, log) = two_reports(addr, &stop);
+        let (gap, pinger) = server.join().unwrap();
+        let pings = pinger.join().unwrap();
         println!(
             "connected again {:.2} s after the server went silent (timeout {SILENCE_TIMEOUT_S} s, reconnect {RECONNECT_S} s); {pings} pings meanwhile; the log:\n{}",
             gap.as_secs_f64(),
@@ -447,56 +470,30 @@ mod vrpn {
         let listener = TcpListener::bind("127.0.0.1:0").unwrap();
         let addr = listener.local_addr().unwrap();
         let stop = Arc::new(AtomicBool::new(false));
-        let server = {
-            let stop = Arc::clone(&stop);
-            std::thread::spawn(move || {
-                let mut first = accept(&listener, Duration::from_secs(5));
-                let mut out = hello();
-                report(&mut out);
-                first.write_all(&out).unwrap();
-                let quiet_from = Instant::now();
-                let mut next = Vec::new();
-                report(&mut next);
-                let trickle = {
-                    let mut s = first.try_clone().unwrap();
-                    let stop = Arc::clone(&stop);
-                    std::thread::spawn(move || {
-                        // One byte every 0.9 s, never the whole message.
-                        for b in &next[..next.len() - 1] {
-                            if stop.load(Ordering::Relaxed) || s.write_all(&[*b]).is_err() {
-                                break;
-                            }
-                            std::thread::sleep(Duration::from_millis(900));
-                        }
-                    })
-                };
-                let reader = std::thread::spawn(move || {
-                    read_client(first, quiet_from + Duration::from_secs(15), false)
-                });
-                let mut second = accept(&listener, Duration::from_secs(15));
-                let gap = quiet_from.elapsed();
-                second.write_all(&out).unwrap();
-                let start = Instant::now();
-                while !stop.load(Ordering::Relaxed) && start.elapsed() < Duration::from_secs(5) {
-                    std::thread::sleep(Duration::from_millis(10));
-                }
-                trickle.join().unwrap();
-                reader.join().unwrap();
-                gap
-            })
-        };
-        let log = common::LogCapture::default();
-        let stats = VrpnStats::default();
-        let mut reports = 0;
-        tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
-            run(addr, "Dev", &stop, &stats, &mut |_, _, _| {
-                reports += 1;
-                if reports == 2 {
-                    stop.store(true, Ordering::Relaxed);
+        let trickling = Arc::clone(&stop);
+        let server = serve_twice(listener, &stop, move |first, quiet_from| {
+            let mut next = Vec::new();
+            report(&mut next);
+            let mut s = first.try_clone().unwrap();
+            let trickle = std::thread::spawn(move || {
+                // One byte every 0.9 s, never the whole message.
+                for b in &next[..next.len() - 1] {
+                    if trickling.load(Ordering::Relaxed) || s.write_all(&[*b]).is_err() {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_millis(900));
                 }
             });
+            let reader = std::thread::spawn(move || {
+                read_client(first, quiet_from + Duration::from_secs(15), false)
+            });
+            (trickle, reader)
         });
-        let gap = server.join().unwrap().as_secs_f64();
+        let (stats, log) = two_reports(addr, &stop);
+        let (gap, (trickle, reader)) = server.join().unwrap();
+        trickle.join().unwrap();
+        reader.join().unwrap();
+        let gap = gap.as_secs_f64();
         println!("connected again {gap:.2} s after the last whole message");
         assert!(
             (SILENCE_TIMEOUT_S - 0.05..=SILENCE_TIMEOUT_S + RECONNECT_S + 0.5).contains(&gap),

@@ -208,20 +208,7 @@ fn ws_message(ws: &mut Ws) -> Option<Message> {
 /// served.
 #[test]
 fn clients_over_max_clients_are_told_the_server_is_full() {
-    let loopback = "127.0.0.1:0".parse().unwrap();
-    let slot = Arc::new(LatestSlot::new());
-    let server = StreamServer::start(
-        &StreamOutputConfig {
-            tcp: Some(loopback),
-            websocket: Some(loopback),
-            max_clients: 4,
-            viewer: true,
-            websocket_any_port_if_taken: false,
-        },
-        &common::tiny_topology(),
-        Arc::clone(&slot),
-    )
-    .unwrap();
+    let (server, slot) = small_server(4);
     let (tcp_addr, ws_addr) = (server.local_addr().unwrap(), server.ws_addr().unwrap());
     let tcp_client = || {
         let mut s = TcpStream::connect(tcp_addr).unwrap();
