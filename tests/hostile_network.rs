@@ -201,6 +201,72 @@ fn a_spoofed_server_info_changes_nothing() {
     assert_eq!(log.count("INFO", "NatNet 4.1"), 0);
 }
 
+/// Another socket on the server's host sends 20 frames of its own (numbered from 10,000)
+/// to the client's data port while the server streams: by default they are taken,
+/// counted and said once; with `strict_source` they are dropped (counted and said once
+/// too), and every frame of the server's is still delivered. Before, they were taken
+/// unsaid and uncounted.
+#[test]
+fn frames_from_another_sender_are_counted_and_dropped_when_strict() {
+    for strict in [false, true] {
+        let server = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let server_addr = server.local_addr().unwrap();
+        let data = bind("127.0.0.1:0".parse().unwrap()).unwrap();
+        let data_addr = data.local_addr().unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let log = common::LogCapture::default();
+        let client = {
+            let (stop, log) = (Arc::clone(&stop), log.clone());
+            std::thread::spawn(move || {
+                let command = command_socket(server_addr).unwrap();
+                let stats = NatNetStats::default();
+                let mut cc = CommandClient::new(V3, true);
+                cc.strict_source = strict;
+                let mut frames = Vec::new();
+                tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
+                    run_with_server(
+                        &data,
+                        &command,
+                        server_addr,
+                        &mut cc,
+                        &stop,
+                        &stats,
+                        &mut |_, f, _| frames.push(f.frame),
+                    )
+                    .unwrap();
+                });
+                (frames, stats)
+            })
+        };
+        let spoofer = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let mut spoofs = 0;
+        let sent = serve(
+            &server,
+            data_addr,
+            &server_info(V3, data_addr.port()),
+            &models(&["Thumb", "Index", "Middle"]),
+            Duration::from_millis(1000),
+            &mut |t, _| {
+                if t > Duration::from_millis(500) && spoofs < 20 {
+                    spoofer.send_to(&frame(10_000 + spoofs), data_addr).unwrap();
+                    spoofs += 1;
+                }
+            },
+        );
+        std::thread::sleep(Duration::from_millis(100));
+        stop.store(true, Ordering::Relaxed);
+        let (frames, stats) = client.join().unwrap();
+        let theirs = frames.iter().filter(|&&n| n >= 10_000).count();
+        let ours = frames.len() - theirs;
+        println!("strict {strict}: {sent} sent, {ours} of ours and {theirs} of theirs delivered");
+        assert_eq!(spoofs, 20);
+        assert!(ours as i32 >= sent - 2, "{ours} of {sent} delivered");
+        assert_eq!(theirs, if strict { 0 } else { 20 });
+        assert_eq!(stats.frames_elsewhere.load(Ordering::Relaxed), 20);
+        assert_eq!(log.count("WARN", "not the stream's sender"), 1, "said once");
+    }
+}
+
 /// The server itself states NatNet 4.1, again every 200 ms, but streams 3.0 frames:
 /// every frame is delivered all the same, the client goes back to 3.0 after
 /// `FALLBACK_FRAMES` frames, and says so once.

@@ -97,6 +97,11 @@ pub struct VrpnInputConfig {
 pub struct NatNetInputConfig {
     /// `natnet://HOST:PORT[?version=M.m&server=IP[:PORT]]`: the data port to bind.
     pub url: String,
+    /// With a server in the URL: drop frames from any sender but the stream's (the first
+    /// to send frames from the server's host). Off by default: they are taken, counted
+    /// and said once (a server with several interfaces may send from more than one).
+    #[serde(default)]
+    pub strict_source: bool,
 }
 
 /// `type = "osc"`.
@@ -234,6 +239,7 @@ impl InputConfig {
             }),
             Endpoint::NatNet { .. } => InputConfig::NatNet(NatNetInputConfig {
                 url: url.to_owned(),
+                strict_source: false,
             }),
             Endpoint::Vrpn { .. } => InputConfig::Vrpn(VrpnInputConfig {
                 url: url.to_owned(),

@@ -47,6 +47,10 @@ pub struct NatNetStats {
     /// Server info and model definitions that did not come from the server's command
     /// port (ignored), and packets on the command socket from anyone but the server.
     pub foreign: AtomicU64,
+    /// With a server given: frames from another sender than the stream's (the first
+    /// that sent frames from the server's host), among `frames`; taken, or dropped with
+    /// [`CommandClient::strict_source`].
+    pub frames_elsewhere: AtomicU64,
 }
 
 /// One marker of a frame, named.
@@ -115,6 +119,8 @@ pub struct NatNetInput {
     version: Version,
     /// The server's command port and the socket that talks to it.
     server: Option<(SocketAddr, UdpSocket)>,
+    /// Drop frames from any sender but the stream's ([`CommandClient::strict_source`]).
+    strict_source: bool,
     index: MarkerIndex,
 }
 
@@ -153,6 +159,7 @@ impl NatNetInput {
             data,
             version,
             server,
+            strict_source: cfg.strict_source,
             index,
         })
     }
@@ -215,6 +222,7 @@ impl NatNetInput {
             Some((server, command)) => {
                 let unicast = !self.data.ip().is_multicast();
                 let mut client = CommandClient::new(self.version, unicast);
+                client.strict_source = self.strict_source;
                 run_with_server(
                     &self.socket,
                     command,
@@ -237,9 +245,10 @@ impl NatNetInput {
             }
         }
         Ok(format!(
-            "{}; {} frames, {} other messages, {} ignored (not from the server)",
+            "{}; {} frames ({} from another sender than the stream's), {} other messages, {} ignored (not from the server)",
             stats.packets,
             stats.frames.load(Ordering::Relaxed),
+            stats.frames_elsewhere.load(Ordering::Relaxed),
             stats.other.load(Ordering::Relaxed),
             stats.foreign.load(Ordering::Relaxed)
         ))
@@ -300,6 +309,11 @@ pub struct CommandClient {
     /// The server's answer to the connect request, once it came.
     pub server: Option<ServerInfo>,
     pub names: Option<ModelNames>,
+    /// Drop frames from any sender but the stream's (the first to send frames from the
+    /// server's host); by default they are taken, counted and said once.
+    pub strict_source: bool,
+    /// The stream's sender, once a frame came from the server's host.
+    sender: Option<SocketAddr>,
     /// While no frame has decoded with the version the server stated: the version
     /// frames were decoded with before it.
     on_trial_from: Option<Version>,
@@ -333,6 +347,8 @@ impl CommandClient {
             unicast,
             server: None,
             names: None,
+            strict_source: false,
+            sender: None,
             on_trial_from: None,
             misfits: 0,
             refused: None,
@@ -441,6 +457,7 @@ impl CommandClient {
             on_trial_from: self.on_trial_from,
             misfits: self.misfits,
             refused: self.refused,
+            strict_source: self.strict_source,
             ..Self::new(self.version, self.unicast)
         };
     }
@@ -528,6 +545,8 @@ enum Said {
     ForeignPacket,
     /// Server info or model definitions from anywhere but the server's command port.
     ForeignInfo,
+    /// Frames from another sender than the stream's.
+    OtherSender,
 }
 
 /// What [`run_with_server`] keeps between packets.
@@ -545,6 +564,33 @@ impl Connection<'_> {
         if self.said.first(kind) {
             tracing::warn!("{}", line());
         }
+    }
+
+    /// Whether a frame from `from` is taken: the stream's sender is the first to send
+    /// frames from the server's host; frames from any other are counted and said once,
+    /// and dropped when the client is strict.
+    fn frame_sender(&mut self, from: SocketAddr) -> bool {
+        let server = self.server;
+        let sender = match self.client.sender {
+            Some(s) => s,
+            None if from.ip() == server.ip() => {
+                self.client.sender = Some(from);
+                return true;
+            }
+            None => server,
+        };
+        if from == sender {
+            return true;
+        }
+        self.stats.frames_elsewhere.fetch_add(1, Ordering::Relaxed);
+        let strict = self.client.strict_source;
+        self.say_once(Said::OtherSender, || {
+            format!(
+                "natnet: frames from {from}, not the stream's sender {sender} (the server {server}'s host): {} (said once, the rest are counted)",
+                if strict { "dropped (strict_source)" } else { "taken; set strict_source = true to drop them" }
+            )
+        });
+        !strict
     }
 
     /// Takes one packet from `from`, received on the command socket or the data socket;
@@ -586,6 +632,9 @@ impl Connection<'_> {
         match m {
             Message::Frame(f) => {
                 stats.frames.fetch_add(1, Ordering::Relaxed);
+                if !self.frame_sender(from) {
+                    return false;
+                }
                 on_frame(now, &f, self.client.names.as_ref().unwrap_or(&self.empty));
                 true
             }
