@@ -657,3 +657,57 @@ fn the_loop_counts_the_ticks_its_deadline_stops() {
     let status = pipeline.status(1.0, 0);
     assert_eq!(status.deadline_stops, 1, "{status:?}");
 }
+
+/// A sender far faster than the loop (another thread sending 200,000 samples as fast as
+/// the channel takes them) never keeps a frame's drain going: each frame takes at most
+/// what was queued when it began (the channel holds 4,096), so the loop keeps its rate,
+/// and the sender's samples that find the queue full are its to drop. Measured: at most
+/// 4,096 (the bound); with the drain unbounded, as it was, one frame took 137,086 while
+/// the sender kept up.
+#[test]
+fn a_flood_never_keeps_a_frame_draining() {
+    use rigless::markers::MarkerSample;
+    use std::sync::atomic::Ordering;
+    let mut s = setup(0.0, 1.0);
+    let (tx, stop) = (s.tx.clone(), Arc::new(AtomicBool::new(false)));
+    let flood = {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let mut sent = 0u64;
+            while sent < 200_000 && !stop.load(Ordering::Relaxed) {
+                let sample = MarkerSample {
+                    marker: (sent % 8) as u32,
+                    time_s: 0.001,
+                    source_time_s: 0.001,
+                    position_m: glam::DVec3::new(0.0, 0.1, 0.0),
+                    occluded: false,
+                };
+                if tx.try_send(sample).is_ok() {
+                    sent += 1;
+                }
+            }
+            sent
+        })
+    };
+    // Frames, one after another, for as long as the flood lasts.
+    let start = Instant::now();
+    let (mut most, mut total, mut frames) = (0, 0, 0u64);
+    while !flood.is_finished() {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the flood never ended"
+        );
+        let drained = s.pipeline.feed(0.001 * frames as f64);
+        most = most.max(drained);
+        total += drained;
+        frames += 1;
+    }
+    stop.store(true, Ordering::Relaxed);
+    let sent = flood.join().unwrap();
+    println!(
+        "{sent} sent over {frames} frames, {total} drained; the most one frame drained: {most}"
+    );
+    assert_eq!(sent, 200_000);
+    assert!(most <= 4096, "{most} samples drained in one frame");
+    assert!(total > 0, "nothing drained");
+}

@@ -365,8 +365,15 @@ impl Pipeline {
     /// brings the buffer's history (gap filling, gating) up to `t_s` without solving: an
     /// export's part that starts mid-take replays the take's earlier samples this way.
     pub fn feed(&mut self, t_s: f64) -> usize {
+        // What is queued now, and no more: a sender faster than the loop (a flood) must
+        // not keep the drain going. What it sends meanwhile waits for the next frame;
+        // what the queue has no room for, the input drops and counts.
+        let queued = self.rx.len();
         let mut drained = 0;
-        while let Ok(s) = self.rx.try_recv() {
+        while drained < queued {
+            let Ok(s) = self.rx.try_recv() else {
+                break;
+            };
             // The buffer works in the character's metres; the recorder keeps the
             // capture's.
             self.buffer.push(&MarkerSample {
