@@ -72,9 +72,9 @@ pub struct StreamOutputConfig {
     /// address sets it, so that two daemons on one machine both start.
     #[serde(skip)]
     pub websocket_any_port_if_taken: bool,
-    /// Most clients served at once, over TCP and WebSocket together (a connection still
-    /// in its WebSocket handshake counts); the next one is sent a goodbye saying the
-    /// server is full, and closed.
+    /// Most clients served at once, over TCP and WebSocket together (a connection to the
+    /// WebSocket port counts once its handshake is done; page requests never do); the
+    /// next one is sent a goodbye saying the server is full, and closed.
     pub max_clients: usize,
 }
 
