@@ -755,7 +755,7 @@ fn read_influences_all(
     let mut weighted_node = vec![false; root.nodes.len()];
     let mut read_any = false;
     let (mut joints, mut weights) = (Vec::new(), Vec::new());
-    for (part, (node, m, mesh, p, prim)) in triangle_primitives(root).enumerate() {
+    for (part, (_, node, m, mesh, p, prim)) in triangle_primitives(root).enumerate() {
         let range = out.parts.get(part).map(|q| {
             let first = q.first_vertex as usize;
             first..first + q.vertex_count as usize
@@ -1844,6 +1844,7 @@ fn triangle_primitives(
     root: &gltf::json::Root,
 ) -> impl Iterator<
     Item = (
+        usize,
         &gltf::json::Node,
         usize,
         &gltf::json::Mesh,
@@ -1853,17 +1854,34 @@ fn triangle_primitives(
 > {
     root.nodes
         .iter()
-        .filter_map(|node| {
+        .enumerate()
+        .filter_map(|(n, node)| {
             let m = node.mesh?.value();
-            Some((node, m, root.meshes.get(m)?))
+            Some((n, node, m, root.meshes.get(m)?))
         })
-        .flat_map(|(node, m, mesh)| {
+        .flat_map(|(n, node, m, mesh)| {
             mesh.primitives
                 .iter()
                 .enumerate()
                 .filter(|(_, prim)| is_triangles(prim))
-                .map(move |(p, prim)| (node, m, mesh, p, prim))
+                .map(move |(p, prim)| (n, node, m, mesh, p, prim))
         })
+}
+
+/// The error of primitive `p` of mesh `m` (`mesh`) for a problem with it.
+fn primitive_error(
+    m: usize,
+    mesh: &gltf::json::Mesh,
+    p: usize,
+) -> impl Fn(PrimitiveProblem) -> MeshError + Copy + '_ {
+    move |problem| MeshError::Primitive {
+        at: PrimitiveAt {
+            mesh: m,
+            name: mesh.name.clone(),
+            primitive: p,
+        },
+        problem,
+    }
 }
 
 /// Whether a primitive is read (a triangle list).
@@ -1881,15 +1899,8 @@ fn check_primitives(
     let vertex_budget = (GLTF_VERTEX_ALLOWANCE + input_len / 4).min(u32::MAX.into());
     let index_budget = GLTF_INDEX_ALLOWANCE.saturating_add(input_len);
     let (mut vertices, mut indices, mut largest) = (0u64, 0u64, 0usize);
-    for (_, m, mesh, p, prim) in triangle_primitives(root) {
-        let err = |problem| MeshError::Primitive {
-            at: PrimitiveAt {
-                mesh: m,
-                name: mesh.name.clone(),
-                primitive: p,
-            },
-            problem,
-        };
+    for (_, _, m, mesh, p, prim) in triangle_primitives(root) {
+        let err = primitive_error(m, mesh, p);
         let a = position_accessor(prim, layouts).map_err(err)?;
         let count = layouts[a].count;
         let (n, indexed) = match prim.indices {
@@ -2048,80 +2059,60 @@ fn read_meshes(
         ..MeshData::default()
     };
     let mut indices: Vec<u32> = Vec::with_capacity(totals.largest);
-    for (n, node) in root.nodes.iter().enumerate() {
-        let Some((m, mesh)) = node
-            .mesh
-            .and_then(|m| Some((m.value(), root.meshes.get(m.value())?)))
-        else {
-            continue;
-        };
+    for (n, node, m, mesh, p, prim) in triangle_primitives(root) {
         let xf = match node.skin {
             Some(_) => DMat4::IDENTITY,
             None => world.get(n).copied().unwrap_or(DMat4::IDENTITY),
         };
-        for (p, prim) in mesh
-            .primitives
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| is_triangles(p))
-        {
-            let err = |problem| MeshError::Primitive {
-                at: PrimitiveAt {
-                    mesh: m,
-                    name: mesh.name.clone(),
-                    primitive: p,
-                },
-                problem,
-            };
-            let a = position_accessor(prim, layouts).map_err(err)?;
-            let base = out.positions.len() as u32;
-            let first_triangle = out.triangles.len() as u32;
-            let point = |b: &[u8]| {
-                let p = [le_f32(b, 0), le_f32(b, 1), le_f32(b, 2)];
-                xf.transform_point3(DVec3::from_array(p.map(f64::from)))
-            };
-            read_accessor(&layouts[a], a, buffers, point, &mut out.positions)?;
-            let count = out.positions.len() as u32 - base;
-            let name = node.name.clone().or(mesh.name.clone());
-            let name = name.unwrap_or_else(|| format!("nodes[{n}]"));
-            let several = mesh.primitives.iter().filter(|p| is_triangles(p)).count() > 1;
-            out.parts.push(MeshPart {
-                name: if several { format!("{name}/{p}") } else { name },
-                first_triangle,
-                triangle_count: 0,
-                first_vertex: base,
-                vertex_count: count,
-            });
-            out.part_nodes.push(n);
-            let Some(ix) = prim.indices.map(|i| i.value()) else {
-                let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
-                out.triangles.extend(tris);
-                if let Some(part) = out.parts.last_mut() {
-                    part.triangle_count = out.triangles.len() as u32 - first_triangle;
-                }
-                continue;
-            };
-            let size = layouts[ix].component.size();
-            indices.clear();
-            read_accessor(
-                &layouts[ix],
-                ix,
-                buffers,
-                |b| le_uint(b, size),
-                &mut indices,
-            )?;
-            for t in indices.chunks_exact(3) {
-                if let Some(&index) = t.iter().find(|&&i| i >= count) {
-                    return Err(err(PrimitiveProblem::IndexOutOfRange {
-                        index,
-                        vertices: count,
-                    }));
-                }
-                out.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
-            }
+        let err = primitive_error(m, mesh, p);
+        let a = position_accessor(prim, layouts).map_err(err)?;
+        let base = out.positions.len() as u32;
+        let first_triangle = out.triangles.len() as u32;
+        let point = |b: &[u8]| {
+            let p = [le_f32(b, 0), le_f32(b, 1), le_f32(b, 2)];
+            xf.transform_point3(DVec3::from_array(p.map(f64::from)))
+        };
+        read_accessor(&layouts[a], a, buffers, point, &mut out.positions)?;
+        let count = out.positions.len() as u32 - base;
+        let name = node.name.clone().or(mesh.name.clone());
+        let name = name.unwrap_or_else(|| format!("nodes[{n}]"));
+        let several = mesh.primitives.iter().filter(|p| is_triangles(p)).count() > 1;
+        out.parts.push(MeshPart {
+            name: if several { format!("{name}/{p}") } else { name },
+            first_triangle,
+            triangle_count: 0,
+            first_vertex: base,
+            vertex_count: count,
+        });
+        out.part_nodes.push(n);
+        let Some(ix) = prim.indices.map(|i| i.value()) else {
+            let tris = (0..count / 3).map(|t| [0, 1, 2].map(|k| base + 3 * t + k));
+            out.triangles.extend(tris);
             if let Some(part) = out.parts.last_mut() {
                 part.triangle_count = out.triangles.len() as u32 - first_triangle;
             }
+            continue;
+        };
+        let size = layouts[ix].component.size();
+        indices.clear();
+        read_accessor(
+            &layouts[ix],
+            ix,
+            buffers,
+            |b| le_uint(b, size),
+            &mut indices,
+        )?;
+        for t in indices.chunks_exact(3) {
+            if let Some(&index) = t.iter().find(|&&i| i >= count) {
+                return Err(err(PrimitiveProblem::IndexOutOfRange {
+                    index,
+                    vertices: count,
+                }));
+            }
+            out.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+        }
+        if let Some(part) = out.parts.last_mut() {
+            part.triangle_count = out.triangles.len() as u32 - first_triangle;
         }
     }
     Ok(out)
@@ -2312,7 +2303,7 @@ fn inverse_binds(
 /// order: mesh nodes in document order, their triangle primitives in order).
 fn skinned_vertices(root: &gltf::json::Root, out: &MeshData) -> Vec<bool> {
     let mut skinned = vec![false; out.positions.len()];
-    for (part, (node, ..)) in triangle_primitives(root).enumerate() {
+    for (part, (_, node, ..)) in triangle_primitives(root).enumerate() {
         if let (Some(q), true) = (out.parts.get(part), node.skin.is_some()) {
             let first = q.first_vertex as usize;
             let range = first..first + q.vertex_count as usize;
