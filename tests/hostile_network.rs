@@ -201,6 +201,56 @@ fn a_spoofed_server_info_changes_nothing() {
     assert_eq!(log.count("INFO", "NatNet 4.1"), 0);
 }
 
+/// A NatNet client (`strict_source` as given) on a fresh loopback data port, talking to
+/// the server socket it returns: its thread records each frame's number until `stop`,
+/// then gives them with its command client and figures; what it logs goes to `log`.
+struct Client {
+    server: UdpSocket,
+    data_addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    log: common::LogCapture,
+    thread: std::thread::JoinHandle<(Vec<i32>, CommandClient, NatNetStats)>,
+}
+
+fn start_client(strict: bool) -> Client {
+    let server = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let server_addr = server.local_addr().unwrap();
+    let data = bind("127.0.0.1:0".parse().unwrap()).unwrap();
+    let data_addr = data.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let log = common::LogCapture::default();
+    let thread = {
+        let (stop, log) = (Arc::clone(&stop), log.clone());
+        std::thread::spawn(move || {
+            let command = command_socket(server_addr).unwrap();
+            let stats = NatNetStats::default();
+            let mut cc = CommandClient::new(V3, true);
+            cc.strict_source = strict;
+            let mut frames = Vec::new();
+            tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
+                run_with_server(
+                    &data,
+                    &command,
+                    server_addr,
+                    &mut cc,
+                    &stop,
+                    &stats,
+                    &mut |_, f, _| frames.push(f.frame),
+                )
+                .unwrap();
+            });
+            (frames, cc, stats)
+        })
+    };
+    Client {
+        server,
+        data_addr,
+        stop,
+        log,
+        thread,
+    }
+}
+
 /// Another socket on the server's host sends 20 frames of its own (numbered from 10,000)
 /// to the client's data port while the server streams: by default they are taken,
 /// counted and said once; with `strict_source` they are dropped (counted and said once
@@ -209,35 +259,14 @@ fn a_spoofed_server_info_changes_nothing() {
 #[test]
 fn frames_from_another_sender_are_counted_and_dropped_when_strict() {
     for strict in [false, true] {
-        let server = UdpSocket::bind("127.0.0.1:0").unwrap();
-        let server_addr = server.local_addr().unwrap();
-        let data = bind("127.0.0.1:0".parse().unwrap()).unwrap();
-        let data_addr = data.local_addr().unwrap();
-        let stop = Arc::new(AtomicBool::new(false));
-        let log = common::LogCapture::default();
-        let client = {
-            let (stop, log) = (Arc::clone(&stop), log.clone());
-            std::thread::spawn(move || {
-                let command = command_socket(server_addr).unwrap();
-                let stats = NatNetStats::default();
-                let mut cc = CommandClient::new(V3, true);
-                cc.strict_source = strict;
-                let mut frames = Vec::new();
-                tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
-                    run_with_server(
-                        &data,
-                        &command,
-                        server_addr,
-                        &mut cc,
-                        &stop,
-                        &stats,
-                        &mut |_, f, _| frames.push(f.frame),
-                    )
-                    .unwrap();
-                });
-                (frames, stats)
-            })
-        };
+        let Client {
+            server,
+            data_addr,
+            stop,
+            log,
+            thread,
+            ..
+        } = start_client(strict);
         let spoofer = UdpSocket::bind("127.0.0.1:0").unwrap();
         let mut spoofs = 0;
         let sent = serve(
@@ -255,7 +284,7 @@ fn frames_from_another_sender_are_counted_and_dropped_when_strict() {
         );
         std::thread::sleep(Duration::from_millis(100));
         stop.store(true, Ordering::Relaxed);
-        let (frames, stats) = client.join().unwrap();
+        let (frames, _, stats) = thread.join().unwrap();
         let theirs = frames.iter().filter(|&&n| n >= 10_000).count();
         let ours = frames.len() - theirs;
         println!("strict {strict}: {sent} sent, {ours} of ours and {theirs} of theirs delivered");
@@ -272,34 +301,14 @@ fn frames_from_another_sender_are_counted_and_dropped_when_strict() {
 /// `FALLBACK_FRAMES` frames, and says so once.
 #[test]
 fn frames_that_only_decode_with_the_version_before_bring_it_back_once() {
-    let server = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let server_addr = server.local_addr().unwrap();
-    let data = bind("127.0.0.1:0".parse().unwrap()).unwrap();
-    let data_addr = data.local_addr().unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let log = common::LogCapture::default();
-    let client = {
-        let (stop, log) = (Arc::clone(&stop), log.clone());
-        std::thread::spawn(move || {
-            let command = command_socket(server_addr).unwrap();
-            let stats = NatNetStats::default();
-            let mut cc = CommandClient::new(V3, true);
-            let mut frames = Vec::new();
-            tracing::subscriber::with_default(log.subscriber(tracing::Level::INFO), || {
-                run_with_server(
-                    &data,
-                    &command,
-                    server_addr,
-                    &mut cc,
-                    &stop,
-                    &stats,
-                    &mut |_, f, _| frames.push(f.frame),
-                )
-                .unwrap();
-            });
-            (frames, cc.version, stats)
-        })
-    };
+    let Client {
+        server,
+        data_addr,
+        stop,
+        log,
+        thread,
+        ..
+    } = start_client(false);
     let lie = server_info(Version(4, 1), data_addr.port());
     let mut next_lie = Duration::from_millis(200);
     let sent = serve(
@@ -317,7 +326,8 @@ fn frames_that_only_decode_with_the_version_before_bring_it_back_once() {
     );
     std::thread::sleep(Duration::from_millis(100));
     stop.store(true, Ordering::Relaxed);
-    let (frames, version, stats) = client.join().unwrap();
+    let (frames, cc, stats) = thread.join().unwrap();
+    let version = cc.version;
     println!(
         "{sent} frames sent, {} decoded, {} not decodable; the log:\n{}",
         frames.len(),
