@@ -14,13 +14,16 @@
 
 use super::assets::gltf_file;
 use super::{json_line, BenchError};
+use crate::calibrate::landmarks::body_axes;
 use crate::calibrate::marker_sets::{candidate_joints, normalise};
 use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
 use crate::character::file::{load_character, LoadedCharacter};
 use crate::character::roles::{Part, Role, Side};
+use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
 use crate::geom::polar::{rotation_angle_between, rotation_of};
+use crate::geom::ray::leaves_skin;
 use crate::replay::recording::Recording;
 use crate::solve::frame::SolverParams;
 use glam::{DMat3, DMat4, DQuat, DVec3};
@@ -138,6 +141,55 @@ pub struct TruthRecord {
     pub rest_off_bind: f64,
     pub calibrate_s: f64,
     pub solve_s: f64,
+    /// The same take solved with the markers' true layout and scale: what the solve
+    /// alone reaches, the floor under every calibrated figure.
+    pub true_layout: Reference,
+}
+
+/// Figures of a solve with the true layout (see [`TruthRecord`] for each).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Reference {
+    pub vertex_share_mean: f64,
+    pub vertex_share_worst_frame: f64,
+    pub head_deg_max: f64,
+    pub trunk_deg_max: f64,
+}
+
+/// `rec` solved with the markers where they truly are (each on the joint it was put on
+/// by) at scale 1, held against `truth`.
+fn true_layout_solve(
+    loaded: &LoadedCharacter,
+    markers: &[(String, SkinPoint, usize)],
+    truth: &mut Truth<'_>,
+    rec: &Recording,
+    watched: &[Vec<usize>; 3],
+    what: &str,
+) -> Result<Reference, BenchError> {
+    let ch = &loaded.character;
+    let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
+    let layout: Vec<MarkerDef> = markers
+        .iter()
+        .map(|(name, point, joint)| MarkerDef {
+            name: name.clone(),
+            rest: point.at(&ch.vertices),
+            joint: Some(*joint),
+        })
+        .collect();
+    let bind = loaded.bind_for(&layout);
+    let laid = Character {
+        markers: layout,
+        ..ch.clone()
+    };
+    let rig = crate::rig::bind::Rig::bind(&laid, &bind).map_err(|e| BenchError::case(what, e))?;
+    let tally = solve_against(truth, Arc::new(rig), rec, 1.0, watched, hi.y - lo.y)
+        .map_err(|e| BenchError::case(what, e))?;
+    let n = tally.frame_means.len().max(1) as f64;
+    Ok(Reference {
+        vertex_share_mean: tally.frame_means.iter().sum::<f64>() / n,
+        vertex_share_worst_frame: tally.frame_means.iter().copied().fold(0.0, f64::max),
+        head_deg_max: tally.head_deg,
+        trunk_deg_max: tally.trunk_deg,
+    })
 }
 
 /// The file space to the character's world frame (units and up axis), fitted on the
@@ -201,11 +253,7 @@ impl SkinPoint {
     }
 }
 
-/// Where a ray from `o` along `d` leaves the skin: of the triangles it meets
-/// (Möller–Trumbore), the outermost of the first run of hits closer than `layer_m` to one
-/// another. A clothed character has layers (a body under its armour), and a marker sits
-/// on the outermost; a gap wider than a layer is air before another part (an arm beside
-/// the trunk).
+/// Where a ray from `o` along `d` leaves the skin ([`leaves_skin`]), `out_m` out.
 fn cast(
     o: DVec3,
     d: DVec3,
@@ -214,78 +262,40 @@ fn cast(
     out_m: f64,
     layer_m: f64,
 ) -> Option<SkinPoint> {
-    let mut hits: Vec<(f64, SkinPoint)> = Vec::new();
-    for t in tris {
-        let [a, b, c] = t.map(|i| v[i as usize]);
-        let (e1, e2) = (b - a, c - a);
-        let p = d.cross(e2);
-        let det = e1.dot(p);
-        if det.abs() < 1e-14 {
-            continue;
-        }
-        let s = o - a;
-        let u = s.dot(p) / det;
-        let q = s.cross(e1);
-        let w = d.dot(q) / det;
-        let dist = e2.dot(q) / det;
-        if u < 0.0 || w < 0.0 || u + w > 1.0 || dist <= 0.0 {
-            continue;
-        }
-        let side = if e1.cross(e2).dot(d) >= 0.0 {
-            1.0
-        } else {
-            -1.0
-        };
-        let point = SkinPoint {
-            triangle: *t,
-            bary: [1.0 - u - w, u, w],
-            out_m,
-            side,
-        };
-        hits.push((dist, point));
-    }
-    hits.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut outer = hits.first()?;
-    for h in &hits[1..] {
-        if h.0 - outer.0 > layer_m {
-            break;
-        }
-        outer = h;
-    }
-    Some(outer.1)
+    let h = leaves_skin(o, d, v, tris, layer_m)?;
+    Some(SkinPoint {
+        triangle: h.triangle,
+        bary: h.bary,
+        out_m,
+        side: h.side,
+    })
 }
 
-/// The body's axes at rest (front, up, left), from the hips, the head and the hips'
-/// sides; `None` without them.
-fn body_axes(loaded: &LoadedCharacter) -> Option<(DVec3, DVec3, DVec3)> {
-    let roles = &loaded.joint_roles;
-    let at = |r: Role| {
-        let j = candidate_joints(r, roles);
-        j.first().map(|&j| loaded.character.skeleton.joints[j].rest)
-    };
-    let part = |p| Role {
-        part: p,
-        side: None,
-    };
-    let sided = |p, s| Role {
-        part: p,
-        side: Some(s),
-    };
-    let hips = at(part(Part::Hips))?;
-    let head = at(part(Part::Head))?;
-    let left = at(sided(Part::UpperLeg, Side::Left))? - at(sided(Part::UpperLeg, Side::Right))?;
-    let up = (head - hips).normalize_or_zero();
-    let left = (left - left.dot(up) * up).normalize_or_zero();
-    let front = left.cross(up);
-    (up != DVec3::ZERO && left != DVec3::ZERO).then_some((front, up, left))
+/// How far a marker is turned about its bone from where [`LANDMARKS`] puts it, degrees
+/// at most: people place markers by touch, and the calibration's own template of the
+/// set ([`crate::calibrate::landmarks`]) must not be the truth.
+const MAX_TURN_DEG: f64 = 20.0;
+/// How far it slides along its bone, as a share of the bone at most.
+const MAX_SLIDE: f64 = 0.05;
+
+/// Two numbers in −1..1 fixed by `label` (FNV-1a), for [`MAX_TURN_DEG`] and
+/// [`MAX_SLIDE`].
+fn placement_jitter(label: &str) -> [f64; 2] {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in label.bytes() {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+    }
+    let unit = |x: u64| (x & 0xffff) as f64 / 32767.5 - 1.0;
+    [unit(h), unit(h >> 16)]
 }
 
-/// The marker set on the rest skin of `loaded`: labels and points (those whose part the
-/// skeleton lacks, or whose ray finds no skin, are not put on).
-fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoint)> {
+/// The marker set on the rest skin of `loaded`: labels, points and the joints that carry
+/// them (those whose part the skeleton lacks, or whose ray finds no skin, are not put
+/// on).
+fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoint, usize)> {
     let ch = &loaded.character;
     let sk = &ch.skeleton;
-    let Some((front, up, left)) = body_axes(loaded) else {
+    let Some((front, up, left)) = body_axes(sk, &loaded.joint_roles) else {
         return Vec::new();
     };
     let out_m = MARKER_OUT_M;
@@ -323,11 +333,23 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
                 d = front * f.signum() - up * 0.0;
                 d -= d.dot(bone) * bone;
             }
-            let p = start + (end - start) * along;
+            // Where a person puts it, not where the manual says: a turn about the bone
+            // and a slide along it, the same for every run.
+            let label = pattern.replace("{S}", letter);
+            let [turn, slide] = placement_jitter(&label);
+            let d = DQuat::from_axis_angle(bone, turn * MAX_TURN_DEG.to_radians()) * d;
+            let p = start + (end - start) * (along + slide * MAX_SLIDE);
             let layer_m = LAYER_M * height / ACTOR_HEIGHT_M;
             let ray = d.normalize_or_zero();
             if let Some(sp) = cast(p, ray, &ch.vertices, &ch.triangles, out_m, layer_m) {
-                placed.push((pattern.replace("{S}", letter), sp));
+                // Before its joint, a landmark rides the bone above (a pelvis marker
+                // placed by the hip joint rides the pelvis).
+                let carrier = if along < 0.0 {
+                    sk.joints[j].parent.unwrap_or(j)
+                } else {
+                    j
+                };
+                placed.push((label, sp, carrier));
             }
         }
     }
@@ -367,7 +389,7 @@ impl Truth<'_> {
 /// [`MIN_TAKE_S`], at [`RATE_HZ`].
 fn truth_take(
     truth: &mut Truth<'_>,
-    markers: &[(String, SkinPoint)],
+    markers: &[(String, SkinPoint, usize)],
     name: String,
 ) -> (Recording, f64) {
     let d = truth.clip.duration_s;
@@ -523,6 +545,7 @@ fn case(
     let mut tally = solve_against(&mut truth, rig, &rec, cal.scale, &watched, height)
         .map_err(|e| BenchError::case(what(), e))?;
     let solve_s = t1.elapsed().as_secs_f64();
+    let reference = true_layout_solve(loaded, &markers, &mut truth, &rec, &watched, &what())?;
     let n = tally.frame_means.len().max(1) as f64;
     let mut floor_abs: Vec<f64> = tally.floor_mm.iter().map(|x| x.abs()).collect();
     let floor_median = crate::runtime::stats::percentile(&mut tally.floor_mm, 0.5);
@@ -548,6 +571,7 @@ fn case(
         carrying_deg_max: tally.carrying_deg,
         floor_mm_median: floor_median,
         floor_mm_worst: crate::runtime::stats::percentile(&mut floor_abs, 1.0),
+        true_layout: reference,
         rest_off_bind: asset.rest_off_bind(),
         calibrate_s,
         solve_s,
@@ -577,6 +601,12 @@ fn print(r: &TruthRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
         100.0 * r.vertex_share_mean, 100.0 * r.vertex_share_worst_frame, 100.0 * r.vertex_share_max,
         r.head_deg_max, r.trunk_deg_max, r.carrying_deg_max, r.floor_mm_median, r.floor_mm_worst,
         r.calibrate_s, r.solve_s
+    )?;
+    let t = &r.true_layout;
+    writeln!(
+        out,
+        "{:<22} with the true layout: vertices {:.2} % mean {:.2} % worst frame  head {:>5.1}° trunk {:>5.1}°",
+        "", 100.0 * t.vertex_share_mean, 100.0 * t.vertex_share_worst_frame, t.head_deg_max, t.trunk_deg_max
     )?;
     for c in &r.concerns {
         writeln!(out, "{:<22} {c}", "")?;

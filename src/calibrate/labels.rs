@@ -44,6 +44,9 @@ pub struct LabelPlan {
     pub candidates: Vec<usize>,
     /// Its rest position, when the layout gives one (metres, world frame).
     pub rest: Option<DVec3>,
+    /// Where its marker set's manual puts it on the character's skin at rest, when the
+    /// set's landmarks are known ([`super::landmarks`]; metres, world frame).
+    pub template: Option<DVec3>,
 }
 
 /// Why a label is left out.
@@ -388,6 +391,7 @@ pub fn plan(
             source,
             candidates,
             rest,
+            template: None,
         });
     }
     Ok(out)

@@ -21,6 +21,7 @@
 pub mod config;
 pub mod frames;
 pub mod labels;
+pub mod landmarks;
 pub mod layout;
 pub mod marker_sets;
 pub mod points;
@@ -187,6 +188,9 @@ pub struct Calibration {
     /// label rides). A person standing as the character does faces forward; a hand or a
     /// foot may be bent there, and is not judged so.
     pub rest_turns: Vec<(String, f64)>,
+    /// Joints the fitted postures hold at one of their limits in more than half of the
+    /// frames used ([`strained_joints`]), each with in how many, and the frames used.
+    pub strained: (Vec<(String, usize)>, usize),
 }
 
 /// How far a calibration can be trusted.
@@ -246,6 +250,11 @@ pub enum Concern {
     TurnedAtRest { joints: Vec<(String, f64)> },
     /// Limbs, the head or the trunk of a standing character that no placed label rides.
     Undriven { parts: Vec<String> },
+    /// Joints held at a limit in most frames used ([`Calibration::strained`]).
+    Strained {
+        joints: Vec<(String, usize)>,
+        frames: usize,
+    },
 }
 
 /// How far from rest a head whose turn only its own labels see may be turned in the
@@ -321,7 +330,8 @@ impl Concern {
             | Concern::ActorSize { .. }
             | Concern::Floor(_)
             | Concern::TurnedAtRest { .. }
-            | Concern::Undriven { .. } => Verdict::Doubtful,
+            | Concern::Undriven { .. }
+            | Concern::Strained { .. } => Verdict::Doubtful,
         }
     }
 }
@@ -378,6 +388,20 @@ impl std::fmt::Display for Concern {
                 floor.lowest_skin_m.abs() * 100.0,
                 if floor.lowest_skin_m < 0.0 { "under" } else { "above" },
                 floor.lowest_marker_m * 100.0
+            ),
+            Concern::Strained { joints, frames } => write!(
+                f,
+                "the fitted postures hold {} at a joint limit in most of the {frames} frames \
+                 used, where an actor does not stay: labels sit elsewhere on the character \
+                 than on the actor (on the other side of a limb, or slid along it), and the \
+                 pose turns to reach them; look at those joints in a replay (--rerun), name \
+                 their labels' bones in [calibration.bones], or calibrate on a span with a T \
+                 or A pose or a range of motion (--frames)",
+                joints
+                    .iter()
+                    .map(|(j, n)| format!("{j} ({n})"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
             Concern::Undriven { parts } => write!(
                 f,
@@ -476,6 +500,12 @@ impl Calibration {
             .collect();
         if !parts.is_empty() {
             out.push(Concern::Undriven { parts });
+        }
+        if !self.strained.0.is_empty() {
+            out.push(Concern::Strained {
+                joints: self.strained.0.clone(),
+                frames: self.strained.1,
+            });
         }
         if let Some(whole_mm) = self.whole_span_mm {
             out.push(Concern::WholeSpan {
@@ -700,6 +730,9 @@ pub fn calibrate(
     if plan.markers == 0 {
         return Err(no_markers(rec, &plan.left_out));
     }
+    if opts.markers_on_skin {
+        put_templates(ch, roles, stance_of(ch, roles), &mut plan);
+    }
     let known: Vec<&LabelPlan> = plan
         .labels
         .iter()
@@ -736,6 +769,7 @@ pub fn calibrate(
     }
     let problem = Problem {
         ch,
+        roles,
         plan: &plan,
         rec,
         span,
@@ -841,6 +875,25 @@ fn body_parts(ch: &Character, roles: &[Option<Role>]) -> Vec<(String, Vec<usize>
     out
 }
 
+/// Each label a landmark table knows ([`landmarks::SETS`]) gets its template on the
+/// character's skin.
+fn put_templates(ch: &Character, roles: &[Option<Role>], stance: Stance, plan: &mut labels::Plan) {
+    let Some(t) = landmarks::Templates::new(
+        &ch.skeleton,
+        roles,
+        &ch.vertices,
+        &ch.triangles,
+        stance.height,
+    ) else {
+        return;
+    };
+    for l in &mut plan.labels {
+        if matches!(l.source, Source::Table { set, .. } if landmarks::SETS.contains(&set)) {
+            l.template = t.at(&l.label);
+        }
+    }
+}
+
 /// Moves the labels of `plan` that no table, map or layout places and that the take's
 /// geometry shows are no markers on the actor ([`screen_by_geometry`]) to its left-out
 /// labels.
@@ -862,6 +915,7 @@ fn exclude_by_geometry(plan: &mut labels::Plan, rec: Take, filter: &PointFilter)
 /// Everything a solve from one first guess needs.
 struct Problem<'a> {
     ch: &'a Character,
+    roles: &'a [Option<Role>],
     plan: &'a labels::Plan,
     rec: Take<'a>,
     span: std::ops::Range<usize>,
@@ -968,6 +1022,7 @@ impl Problem<'_> {
                 joint: p.joint,
                 offset: p.offset_m,
                 guess: Some(ch.skeleton.joints[p.joint].rest + p.offset_m),
+                template: fit.initial_placing(l, &first).template,
             })
         };
         let (mut placed, mut moving): (Vec<Placing>, Vec<Placing>) = plan
@@ -1005,7 +1060,7 @@ impl Problem<'_> {
         }
         let rest_frame = chosen.get(first.frame).copied().unwrap_or(0);
         let cal = finish(
-            ch,
+            (ch, self.roles),
             &solve,
             &placed,
             plan.clone(),
@@ -1347,6 +1402,12 @@ fn headings(
         .collect()
 }
 
+/// How far, as a share of the character's height, a label seen on its bone's skin in the
+/// rest-like frame may lie from its template ([`landmarks`]) and still be placed where it
+/// was seen: 5 cm on a 1.75 m actor, the most a marker put on by touch strays from where
+/// its manual says (a turn of 20° about a limb and a slide of a few per cent along it).
+const TEMPLATE_AGREES: f64 = 0.05 / 1.75;
+
 /// A label on its current joint with its current offset.
 #[derive(Clone, Debug)]
 struct Placing {
@@ -1354,8 +1415,11 @@ struct Placing {
     joint: usize,
     offset: DVec3,
     /// Its rest position by the rest-like frame (or the layout), when it was seen there
-    /// near a candidate bone.
+    /// near a candidate bone, or by its template.
     guess: Option<DVec3>,
+    /// Its template when no frame placed it: the fit holds it loosely near there (a
+    /// label the rest-like frame shows on its skin is held by that frame).
+    template: Option<DVec3>,
 }
 
 /// What every stage of the fit shares.
@@ -1373,8 +1437,8 @@ struct Fit<'a> {
 
 impl<'a> Fit<'a> {
     /// A label's first placing: its rest position by the layout, or by the rest-like
-    /// frame when it lies on the skin of a candidate's bone, else the first candidate's
-    /// anchor.
+    /// frame when it lies on the skin of a candidate's bone, else by its template, else
+    /// the first candidate's anchor.
     fn initial_placing(&self, l: &LabelPlan, first: &FirstGuess) -> Placing {
         let sk = &self.ch.skeleton;
         let m = self.frames[first.frame][l.take_index];
@@ -1400,12 +1464,31 @@ impl<'a> Fit<'a> {
             }),
             (None, None) => None,
         };
+        // Not seen on its skin: where its marker set's manual puts it, on the nearest
+        // candidate.
+        // Seen on its bone's skin far from where its marker set puts it: that part of
+        // the actor is posed otherwise than at rest there (an arm turned, a label seen
+        // on the other side of the limb), and the template is the better start.
+        let near = near.filter(|(_, x)| {
+            l.template
+                .is_none_or(|t| (*x - t).length() <= TEMPLATE_AGREES * self.height)
+        });
+        let template = near.is_none().then_some(l.template).flatten();
+        let near = near.or_else(|| {
+            let t = template?;
+            l.candidates
+                .iter()
+                .map(|&j| (j, bone_distance(sk, j, t)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| (j, t))
+        });
         match near {
             Some((j, x)) => Placing {
                 plan: l.clone(),
                 joint: j,
                 offset: x - sk.joints[j].rest,
                 guess: Some(x),
+                template,
             },
             None => {
                 let j = l.candidates[0];
@@ -1414,6 +1497,7 @@ impl<'a> Fit<'a> {
                     joint: j,
                     offset: anchor(self.ch, j) - sk.joints[j].rest,
                     guess: None,
+                    template: None,
                 }
             }
         }
@@ -1452,6 +1536,7 @@ impl<'a> Fit<'a> {
             }
         }
         solve.hold_rest(self.hold.0, &self.hold.1);
+        solve.hold_templates(placed.iter().map(|p| p.template).collect());
         solve.fit_postures();
         solve
     }
@@ -1570,7 +1655,7 @@ fn bone_distance(sk: &crate::character::skeleton::Skeleton, j: usize, x: DVec3) 
 
 /// The result of a finished solve, with each label's misfit and flags.
 fn finish(
-    ch: &Character,
+    (ch, roles): (&Character, &[Option<Role>]),
     solve: &OffsetSolve,
     placed: &[Placing],
     plan: labels::Plan,
@@ -1651,7 +1736,51 @@ fn finish(
         body_parts: Vec::new(),
         floor: FloorCheck::from_frames(&solve.lowest_m()),
         rest_turns,
+        strained: strained_joints(ch, roles, solve),
     }
+}
+
+/// Least frames used for [`Calibration::strained`] to be judged: in fewer, a pose held
+/// at a limit may be the actor's.
+const STRAINED_MIN_FRAMES: usize = 4;
+
+/// The joints `solve`'s fitted postures hold at one of their limits in more than half
+/// of its frames, with in how many, and the frames: an actor moves through a take, and
+/// a joint that stays at its limit is pushed there by labels placed where the actor's
+/// are not (a leg's lateral labels on its inner side turn the hip to its twist limit).
+/// Knees and elbows are not judged: a standing leg is straight, at the end of its bend,
+/// and a hinge's twist and sideways ranges are a few degrees wide, touched whenever a
+/// pose bends it a little out of its plane.
+fn strained_joints(
+    ch: &Character,
+    roles: &[Option<Role>],
+    solve: &OffsetSolve,
+) -> (Vec<(String, usize)>, usize) {
+    use crate::rig::ik_model::Dofs;
+    let (m, frames) = (&solve.model, solve.states.len());
+    if frames < STRAINED_MIN_FRAMES {
+        return (Vec::new(), frames);
+    }
+    let mut out = Vec::new();
+    for (j, d) in m.dofs.iter().enumerate() {
+        let Dofs::Angles { first } = *d else { continue };
+        let hinge = roles
+            .get(j)
+            .copied()
+            .flatten()
+            .is_some_and(|r| matches!(r.part, Part::LowerLeg | Part::LowerArm));
+        if hinge {
+            continue;
+        }
+        let at_limit = |st: &crate::solve::ik::IkState| {
+            (first..first + 3).any(|i| st.angles[i] <= m.lo[i] || st.angles[i] >= m.hi[i])
+        };
+        let n = solve.states.iter().filter(|st| at_limit(st)).count();
+        if 2 * n > frames {
+            out.push((ch.skeleton.joints[j].name.clone(), n));
+        }
+    }
+    (out, frames)
 }
 
 /// Per joint whose turn only its own labels see ([`Calibration::rest_turns`]; the labels

@@ -10,7 +10,7 @@
 //! ```text
 //! E = Σ_f Σ_k ‖(P_J(θ_f) + Q_J(θ_f) o_k) / s − m_fk‖² + (ε_rest h)² Σ_f ‖θ_f‖²
 //!   + Σ_k w_band² band(d_k)² + w_pull² (d_k − d_0)² + w_band² own(e_k)²
-//!   + w_s² (s / s⁰ − 1)²
+//!   + Σ_k w_t² ‖r_J + o_k − t_k‖² + w_s² (s / s⁰ − 1)²
 //! ```
 //!
 //! The misfit is measured in the take's units: measured in the character's, shrinking
@@ -28,7 +28,12 @@
 //! `e_k` is the distance of the rest position from the skin of the marker's own part
 //! or its neighbours' ([`Parts`]) and `own(e)` its excess over the farthest a marker may
 //! sit there: a finger's marker fits as well near the palm's skin, with the finger bent
-//! into it and the scale off, and the bind refuses it there.
+//! into it and the scale off, and the bind refuses it there. `t_k` is where the marker's
+//! set puts it on this character ([`super::landmarks`]), for a marker no frame placed:
+//! MoSh's marker placement prior, weak (5 cm from it costs as much as 1 mm of misfit in
+//! every frame), so that the take moves the marker wherever its motion shows it, and
+//! the template holds only what the motion leaves free (a marker slid along a limb that
+//! barely bends, turned about one that never twists).
 //!
 //! One frame may be held near the rest pose: in a frame where the actor stands as the
 //! character does at rest (a T or A pose at the start of a take), the joints whose
@@ -76,6 +81,9 @@ pub struct SolveParams {
     /// Misfit (metres, on every marker in every frame) that a 5 % change of the scale
     /// from its start is worth.
     pub scale_prior_m: f64,
+    /// Misfit (metres, on the marker in every frame) that its rest position 5 cm from
+    /// its template ([`OffsetSolve::hold_templates`]) is worth.
+    pub template_prior_m: f64,
     /// `ε_hold`: the rest prior of the joints a frame holds near rest (see the module
     /// doc), in the units of [`IkParams::rest_prior`].
     pub rest_hold_prior: f64,
@@ -101,6 +109,7 @@ impl Default for SolveParams {
             skin_pull_weight: 0.3,
             rest_hold_prior: 0.05,
             scale_prior_m: 0.001,
+            template_prior_m: 0.001,
             max_iterations: 60,
             step_tolerance_m: 2e-5,
             cost_tolerance: 1e-4,
@@ -137,6 +146,8 @@ pub struct OffsetSolve<'a> {
     start_scale: f64,
     /// Scratch: scaled targets of one frame.
     targets: Vec<DVec3>,
+    /// Per marker, where its marker set puts it at rest, if known.
+    templates: Vec<Option<DVec3>>,
 }
 
 /// What [`OffsetSolve::run`] did.
@@ -254,17 +265,18 @@ impl Skin<'_> {
     }
 }
 
-/// The skin prior of one marker: three residuals, each with its gradient `∂r/∂o`:
+/// The priors of one marker's rest position: six residuals, each with its gradient
+/// `∂r/∂o`: the three coordinates of `w_t (r_J + o_k − t_k)` (zero without a template);
 /// `w_band band(d)`, `w_pull (d − d_0)` (both along the outward direction from the
 /// nearest skin point) and `w_band` times the excess of the distance to its own part
 /// over [`SolveParams::own_part_max_m`] (away from that part's nearest point).
 struct SkinTerm {
-    rows: [(f64, DVec3); 3],
+    rows: [(f64, DVec3); 6],
 }
 
 impl SkinTerm {
     const NONE: Self = Self {
-        rows: [(0.0, DVec3::ZERO); 3],
+        rows: [(0.0, DVec3::ZERO); 6],
     };
 
     fn cost(&self) -> f64 {
@@ -302,6 +314,7 @@ impl<'a> OffsetSolve<'a> {
             params,
             start_scale: scale,
             targets,
+            templates: Vec::new(),
         }
     }
 
@@ -325,6 +338,13 @@ impl<'a> OffsetSolve<'a> {
                 st.rest_scale[first..first + 3].fill(factor);
             }
         }
+    }
+
+    /// Holds each marker loosely near its template (`templates[k]`, a rest position,
+    /// metres; `None`: no template): the `w_t² ‖r_J + o_k − t_k‖²` term of the module
+    /// doc.
+    pub fn hold_templates(&mut self, templates: Vec<Option<DVec3>>) {
+        self.templates = templates;
     }
 
     /// Marker `k`'s current offset from its joint at rest (world axes, metres).
@@ -390,8 +410,17 @@ impl<'a> OffsetSolve<'a> {
             }
             _ => (0.0, DVec3::ZERO),
         };
+        let wt = p.template_prior_m * n_frames.sqrt() / 0.05;
+        let t = match self.templates.get(k).copied().flatten() {
+            Some(t) => wt * (x - t),
+            None => DVec3::ZERO,
+        };
+        let tw = if t == DVec3::ZERO { 0.0 } else { wt };
         SkinTerm {
             rows: [
+                (t.x, DVec3::X * tw),
+                (t.y, DVec3::Y * tw),
+                (t.z, DVec3::Z * tw),
                 (
                     wb * excess,
                     if excess != 0.0 {
@@ -436,7 +465,7 @@ impl<'a> OffsetSolve<'a> {
             }
             // Out of the skin band or off its own part: onto the usual distance from the
             // nearest skin of its part (of any part when its own is empty).
-            let [band, _, own] = self.skin_term(k).rows;
+            let [_, _, _, band, _, own] = self.skin_term(k).rows;
             if band.0 != 0.0 || own.0 != 0.0 {
                 let j = self.model.marker_joint[k];
                 let x = self.model.rest[j] + self.model.marker_offset[k];

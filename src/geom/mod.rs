@@ -4,5 +4,6 @@
 pub mod axes;
 pub mod lattice;
 pub mod polar;
+pub mod ray;
 pub mod shapes;
 pub mod winding;
