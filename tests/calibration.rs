@@ -9,7 +9,9 @@ mod common;
 use glam::DVec3;
 use rigless::calibrate::labels::{LeftOut, MapEntry, Source};
 use rigless::calibrate::layout::write_into;
-use rigless::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Flag};
+use rigless::calibrate::{
+    calibrate, Calibration, CalibrationError, CalibrationOptions, Flag, Verdict,
+};
 use rigless::character::body::BodyMotion;
 use rigless::character::demo::{demo_body, Motion};
 use rigless::character::procedural::skin_pose;
@@ -244,6 +246,13 @@ fn a_reach_take_places_every_label_on_its_bone() {
     let mean = errs.iter().map(|e| e.1).sum::<f64>() / errs.len() as f64;
     assert!(mean < 0.015, "mean offset error {mean} m");
     assert!((cal.scale - 1.0).abs() < 0.01, "scale {}", cal.scale);
+    // The arm raised through most of the take holds the right clavicle at its limit in
+    // 15 of the 20 frames used, as the actor does: a joint is called strained only when
+    // held there in all but a tenth of them, and this layout (offsets 3.4 mm off on
+    // average) is good.
+    assert_eq!(cal.strained.1, 20);
+    assert!(cal.strained.0.is_empty(), "{:?}", cal.strained);
+    assert_eq!(cal.verdict(), Verdict::Good, "{:?}", cal.concerns());
 }
 
 /// Renamed labels: a user map (`"XL*" = "leftHand"`) places them; without it, the ones
@@ -685,7 +694,7 @@ mod hostile {
 #[test]
 fn points_that_are_no_markers_are_left_out_with_their_reason() {
     use rigless::calibrate::points::NotAMarker;
-    use rigless::calibrate::Verdict;
+
     let (bare, _) = bodies();
     let clean = take("body_rom", 1.0);
     let mut rec = clean.clone();
@@ -977,7 +986,7 @@ fn limbs_no_label_rides_are_named() {
 /// is said: the head's own markers alone see its turn, and a fit that turns it there
 /// turns it in every frame. On the body's own range of motion the head stays within a
 /// few degrees (measured 0.1°) and nothing is said; the Qualisys take onto the body
-/// turns it 86° (the four head markers of a person on a larger round head), and the
+/// turns it 60° (the four head markers of a person on a larger round head), and the
 /// calibration names it.
 #[test]
 fn a_head_turned_where_the_actor_stands_at_rest_is_named() {
@@ -1004,9 +1013,9 @@ fn a_head_turned_where_the_actor_stands_at_rest_is_named() {
     let turned = turned.expect("the turned head named");
     assert_eq!(turned.len(), 1);
     assert_eq!(turned[0].0, "head");
-    // Measured 86.5°.
+    // Measured 59.7°.
     assert!(turned[0].1 > TURNED_AT_REST_DEG, "{turned:?}");
-    assert!((turned[0].1 - 86.5).abs() < 5.0, "{turned:?}");
+    assert!((turned[0].1 - 59.7).abs() < 5.0, "{turned:?}");
 }
 
 /// The lowest point's height in a calibration's floor check.
@@ -1107,7 +1116,7 @@ fn a_repeated_label_is_left_out_and_a_take_of_nothing_fails() {
 #[test]
 fn a_plug_in_gait_trial_places_its_markers_and_leaves_out_its_model_outputs() {
     use rigless::calibrate::points::NotAMarker;
-    use rigless::calibrate::Verdict;
+
     let Some(rec) = shared_take("c3d/real/pycgm_pig_movement_trial.c3d") else {
         return;
     };
@@ -1139,7 +1148,6 @@ fn a_plug_in_gait_trial_places_its_markers_and_leaves_out_its_model_outputs() {
 /// most); scales 1.006 and 0.973.
 #[test]
 fn a_cmu_take_calibrates_without_help_about_as_well_as_by_hand() {
-    use rigless::calibrate::Verdict;
     use rigless::daemon::offline::{replay_offline, OfflineOptions};
     let Some(rec) = shared_take("c3d/real/cmu_85_02.c3d") else {
         return;

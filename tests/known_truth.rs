@@ -38,20 +38,20 @@ fn cesium_man_known_truth_is_measured_and_judged_honestly() {
     assert_eq!(r.placed, 39);
     // Its own file at rest is its bind pose (skinning matrices 2e-7 off identity).
     assert!(r.rest_off_bind < 1e-5, "{}", r.rest_off_bind);
-    // Measured: scale 1.3 % off, vertices 1.5 % of the height in the mean frame and
-    // 1.6 % in the worst, head within 5.7°, lowest vertex 0.4 mm from the truth's in
+    // Measured: scale 0.6 % off, vertices 1.4 % of the height in the mean frame and
+    // 1.5 % in the worst, head within 6.6°, lowest vertex 0.4 mm from the truth's in
     // the median frame. The targets (2 %, 1 %, 3 %, 5°): scale and worst frame
     // met, the mean vertex error and the head not. Without the marker set's templates
     // (every label the rest-like frame does not show on its skin started on its bone)
     // the same case measured 5.9 % and 52°.
-    assert!(r.scale_error < 0.026, "{}", r.scale_error);
+    assert!(r.scale_error < 0.013, "{}", r.scale_error);
     assert!(r.vertex_share_mean < 0.03, "{}", r.vertex_share_mean);
     assert!(
         r.vertex_share_worst_frame < 0.03,
         "{}",
         r.vertex_share_worst_frame
     );
-    assert!(r.head_deg_max < 11.0, "{}", r.head_deg_max);
+    assert!(r.head_deg_max < 13.0, "{}", r.head_deg_max);
     assert!(r.floor_mm_median.abs() < 15.0, "{}", r.floor_mm_median);
     // What the solve alone reaches with the markers' true layout, the floor under
     // these figures: 0.40 % mean, 0.62 % worst frame.
@@ -81,10 +81,11 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
     assert_eq!(records.len(), 4);
     // The bounds on known truth: scale within 2 %, vertices 1 % mean and 3 % in
     // the worst frame. A "good" outside them is the worst outcome there is; each is
-    // counted. Measured: none. All four are doubtful: the actor's size at 0.22 m; the
-    // feet 11.5 cm under the floor on the idle; on the run (2.9 % of the height) a left
-    // knee and hand held at a joint limit in most frames, which alone call it doubtful
-    // (without that check it was called good); on the walk a hand so held.
+    // counted. Measured: none. All four are doubtful: the actor's size at 0.22 m; at a
+    // person's size, the idle (2.3 % of the height), the run (2.2 %) and the walk
+    // (2.3 %) each with hands held at a joint limit in all 20 frames used, which alone
+    // calls them doubtful: their misfits (1.6 to 4.4 mm) and feet would call them good
+    // (the run was so called without that check).
     let wrong_but_good: Vec<String> = records
         .iter()
         .filter(|r| {
@@ -96,22 +97,26 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
         .map(|r| format!("{} {}", r.asset, r.clip))
         .collect();
     assert!(wrong_but_good.is_empty(), "{wrong_but_good:?}");
-    let run = records.iter().find(|r| r.clip == "Run").expect("run");
-    assert!(
-        run.concerns.iter().any(|c| c.contains("at a joint limit")),
-        "{:?}",
-        run.concerns
-    );
+    for r in &records[1..] {
+        assert!(
+            r.concerns.iter().any(|c| c.contains("at a joint limit")),
+            "{} {}: {:?}",
+            r.asset,
+            r.clip,
+            r.concerns
+        );
+    }
     // The walk at a person's size, started from the set's templates where no frame
     // shows a label on its skin (its arms hang where the character's are level):
-    // measured scale 1.4 % off, vertices 2.1 % of the height, head within 6.6°; from
-    // the labels' bones instead, 3.2 %, 5.7 % and 52°.
+    // measured scale 0.3 % off, vertices 2.3 % of the height, head within 6.7°; from
+    // the labels' bones instead (and a scale prior of 1 mm per 5 %), 3.2 %, 5.7 % and
+    // 52°.
     let walk = records
         .iter()
         .find(|r| r.clip == "Walk" && r.asset.contains('×'))
         .expect("walk at a person's size");
-    assert!(walk.scale_error < 0.02, "{}", walk.scale_error);
-    assert!(walk.vertex_share_mean < 0.04, "{}", walk.vertex_share_mean);
+    assert!(walk.scale_error < 0.01, "{}", walk.scale_error);
+    assert!(walk.vertex_share_mean < 0.045, "{}", walk.vertex_share_mean);
     assert!(walk.head_deg_max < 13.0, "{}", walk.head_deg_max);
     // At its exported size the actor would be 0.2 m tall: said so, so not good.
     assert_ne!(records[0].verdict, Verdict::Good);
@@ -123,15 +128,10 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
         "{:?}",
         records[0].concerns
     );
-    // The idle at a person's size: scale 5.2 % off, vertices 5.6 % of the height; the
-    // misfit (1.7 mm) alone would call it good. Its feet come 11.5 cm under the take's
-    // floor (its lowest markers 3.7 cm above it).
+    // The idle at a person's size: scale 0.7 % off, feet 2 cm under the take's floor,
+    // vertices 2.3 % of the height (its forearms' and hands' labels placed by a take
+    // that barely moves them).
     let idle = records.iter().find(|r| r.clip == "Idle").expect("idle");
-    assert!(
-        idle.concerns
-            .iter()
-            .any(|c| c.contains("under the take's floor")),
-        "{:?}",
-        idle.concerns
-    );
+    assert!(idle.scale_error < 0.013, "{}", idle.scale_error);
+    assert!(idle.vertex_share_mean < 0.045, "{}", idle.vertex_share_mean);
 }

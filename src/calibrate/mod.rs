@@ -188,7 +188,7 @@ pub struct Calibration {
     /// label rides). A person standing as the character does faces forward; a hand or a
     /// foot may be bent there, and is not judged so.
     pub rest_turns: Vec<(String, f64)>,
-    /// Joints the fitted postures hold at one of their limits in more than half of the
+    /// Joints the fitted postures hold at one of their limits in all but a tenth of the
     /// frames used ([`strained_joints`]), each with in how many, and the frames used.
     pub strained: (Vec<(String, usize)>, usize),
 }
@@ -391,8 +391,8 @@ impl std::fmt::Display for Concern {
             ),
             Concern::Strained { joints, frames } => write!(
                 f,
-                "the fitted postures hold {} at a joint limit in most of the {frames} frames \
-                 used, where an actor does not stay: labels sit elsewhere on the character \
+                "the fitted postures hold {} at a joint limit in nearly all of the {frames} \
+                 frames used, where an actor does not stay: labels sit elsewhere on the character \
                  than on the actor (on the other side of a limb, or slid along it), and the \
                  pose turns to reach them; look at those joints in a replay (--rerun), name \
                  their labels' bones in [calibration.bones], or calibrate on a span with a T \
@@ -1743,14 +1743,19 @@ fn finish(
 /// Least frames used for [`Calibration::strained`] to be judged: in fewer, a pose held
 /// at a limit may be the actor's.
 const STRAINED_MIN_FRAMES: usize = 4;
+/// Least share of the frames used in which a joint must sit at a limit to be called
+/// strained: a take that reaches (an arm raised through most of it) holds a clavicle at
+/// its limit in three frames of four, and is right to.
+const STRAINED_SHARE: f64 = 0.9;
 
-/// The joints `solve`'s fitted postures hold at one of their limits in more than half
-/// of its frames, with in how many, and the frames: an actor moves through a take, and
+/// The joints `solve`'s fitted postures hold at one of their limits in all but a tenth
+/// of its frames ([`STRAINED_SHARE`]), with in how many, and the frames: an actor moves
+/// through a take, and
 /// a joint that stays at its limit is pushed there by labels placed where the actor's
 /// are not (a leg's lateral labels on its inner side turn the hip to its twist limit).
-/// Knees and elbows are not judged: a standing leg is straight, at the end of its bend,
-/// and a hinge's twist and sideways ranges are a few degrees wide, touched whenever a
-/// pose bends it a little out of its plane.
+/// Knees, elbows and finger joints are not judged: a standing leg or a relaxed finger is
+/// straight, at the end of its bend, and a hinge's twist and sideways ranges are a few
+/// degrees wide, touched whenever a pose bends it a little out of its plane.
 fn strained_joints(
     ch: &Character,
     roles: &[Option<Role>],
@@ -1764,11 +1769,10 @@ fn strained_joints(
     let mut out = Vec::new();
     for (j, d) in m.dofs.iter().enumerate() {
         let Dofs::Angles { first } = *d else { continue };
-        let hinge = roles
-            .get(j)
-            .copied()
-            .flatten()
-            .is_some_and(|r| matches!(r.part, Part::LowerLeg | Part::LowerArm));
+        let hinge =
+            roles.get(j).copied().flatten().is_some_and(|r| {
+                matches!(r.part, Part::LowerLeg | Part::LowerArm | Part::Finger(..))
+            });
         if hinge {
             continue;
         }
@@ -1776,7 +1780,7 @@ fn strained_joints(
             (first..first + 3).any(|i| st.angles[i] <= m.lo[i] || st.angles[i] >= m.hi[i])
         };
         let n = solve.states.iter().filter(|st| at_limit(st)).count();
-        if 2 * n > frames {
+        if n as f64 >= STRAINED_SHARE * frames as f64 {
             out.push((ch.skeleton.joints[j].name.clone(), n));
         }
     }
