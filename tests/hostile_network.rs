@@ -55,21 +55,49 @@ fn models(names: &[&str]) -> Vec<u8> {
     .unwrap()
 }
 
+/// [`serve`] as NatNet 3.0 for `run_for`, calling `spoof(client's command address, k)`
+/// once a turn for `k` in `0..SPOOFS` from half a second on. Returns the frames sent
+/// and the spoofs made.
+fn serve_spoofed(
+    server: &UdpSocket,
+    data: SocketAddr,
+    run_for: Duration,
+    spoof: &mut dyn FnMut(SocketAddr, i32),
+) -> (i32, i32) {
+    let mut spoofs = 0;
+    let sent = serve(
+        server,
+        data,
+        &server_info(V3, data.port()),
+        run_for,
+        &mut |t, command| {
+            if t > Duration::from_millis(500) && spoofs < SPOOFS {
+                spoof(command, spoofs);
+                spoofs += 1;
+            }
+        },
+    );
+    (sent, spoofs)
+}
+
+/// Spoofs [`serve_spoofed`] makes.
+const SPOOFS: i32 = 20;
+
 /// A loopback NatNet server for `run_for`: answers connect requests with `info` and
-/// model-definition requests with `models`, streams a frame every 10 ms to `data` once a
-/// client connected, and calls `each(elapsed, client's command address)` every turn.
-/// Returns the frames it sent.
+/// model-definition requests with three markersets (`Thumb`, `Index`, `Middle`), streams
+/// a frame every 10 ms to `data` once a client connected, and calls `each(elapsed,
+/// client's command address)` every turn. Returns the frames it sent.
 fn serve(
     server: &UdpSocket,
     data: SocketAddr,
     info: &[u8],
-    models: &[u8],
     run_for: Duration,
     each: &mut dyn FnMut(Duration, SocketAddr),
 ) -> i32 {
     server
         .set_read_timeout(Some(Duration::from_millis(2)))
         .unwrap();
+    let models = models(&["Thumb", "Index", "Middle"]);
     let start = Instant::now();
     let mut client = None;
     let mut sent = 0;
@@ -83,7 +111,7 @@ fn serve(
                     server.send_to(info, from).unwrap();
                 }
                 NAT_REQUEST_MODELDEF => {
-                    server.send_to(models, from).unwrap();
+                    server.send_to(&models, from).unwrap();
                 }
                 _ => {}
             }
@@ -151,20 +179,14 @@ fn a_spoofed_server_info_changes_nothing() {
         server_info(Version(4, 1), data_addr.port()),
         models(&["X", "Y", "Z"]),
     );
-    let mut spoofs = 0;
-    let sent = serve(
+    let (sent, spoofs) = serve_spoofed(
         &server,
         data_addr,
-        &server_info(V3, data_addr.port()),
-        &models(&["Thumb", "Index", "Middle"]),
         Duration::from_millis(2000),
-        &mut |t, command| {
-            if t > Duration::from_millis(500) && spoofs < 20 {
-                for to in [command, data_addr] {
-                    spoofer.send_to(&lie, to).unwrap();
-                    spoofer.send_to(&renamed, to).unwrap();
-                }
-                spoofs += 1;
+        &mut |command, _| {
+            for to in [command, data_addr] {
+                spoofer.send_to(&lie, to).unwrap();
+                spoofer.send_to(&renamed, to).unwrap();
             }
         },
     );
@@ -268,18 +290,12 @@ fn frames_from_another_sender_are_counted_and_dropped_when_strict() {
             ..
         } = start_client(strict);
         let spoofer = UdpSocket::bind("127.0.0.1:0").unwrap();
-        let mut spoofs = 0;
-        let sent = serve(
+        let (sent, spoofs) = serve_spoofed(
             &server,
             data_addr,
-            &server_info(V3, data_addr.port()),
-            &models(&["Thumb", "Index", "Middle"]),
             Duration::from_millis(1000),
-            &mut |t, _| {
-                if t > Duration::from_millis(500) && spoofs < 20 {
-                    spoofer.send_to(&frame(10_000 + spoofs), data_addr).unwrap();
-                    spoofs += 1;
-                }
+            &mut |_, k| {
+                spoofer.send_to(&frame(10_000 + k), data_addr).unwrap();
             },
         );
         std::thread::sleep(Duration::from_millis(100));
@@ -315,7 +331,6 @@ fn frames_that_only_decode_with_the_version_before_bring_it_back_once() {
         &server,
         data_addr,
         &lie,
-        &models(&["Thumb", "Index", "Middle"]),
         Duration::from_millis(1500),
         &mut |t, command| {
             if t >= next_lie {

@@ -325,28 +325,16 @@ fn the_websocket_port_serves_the_viewer_page() {
     }
 }
 
-/// A stream server on loopback over TCP and WebSocket serving at most `max_clients`.
+/// A stream server on loopback over TCP and WebSocket serving at most `max_clients`,
+/// and the slot that feeds it.
 fn small_server(
     max_clients: usize,
 ) -> (
     StreamServer,
     Arc<LatestSlot<rigless::output::frame::DeformedFrame>>,
 ) {
-    let loopback = "127.0.0.1:0".parse().unwrap();
     let slot = Arc::new(LatestSlot::new());
-    let server = StreamServer::start(
-        &StreamOutputConfig {
-            tcp: Some(loopback),
-            websocket: Some(loopback),
-            max_clients,
-            viewer: true,
-            websocket_any_port_if_taken: false,
-        },
-        &common::tiny_topology(),
-        Arc::clone(&slot),
-    )
-    .unwrap();
-    (server, slot)
+    (common::loopback_stream(max_clients, &slot), slot)
 }
 
 /// A slowloris on the viewer's port: 64 sockets that each sent half a request head

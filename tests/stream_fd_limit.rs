@@ -178,22 +178,6 @@ fn wait_for(what: &str, done: impl Fn() -> bool) {
     }
 }
 
-fn start(max_clients: usize, slot: &Arc<LatestSlot<DeformedFrame>>) -> StreamServer {
-    let loopback: SocketAddr = "127.0.0.1:0".parse().unwrap();
-    StreamServer::start(
-        &StreamOutputConfig {
-            tcp: Some(loopback),
-            websocket: Some(loopback),
-            max_clients,
-            viewer: true,
-            websocket_any_port_if_taken: false,
-        },
-        &common::tiny_topology(),
-        Arc::clone(slot),
-    )
-    .unwrap()
-}
-
 #[test]
 fn the_stream_server_survives_few_file_descriptors() {
     if let Ok(spec) = std::env::var(CHILD_ENV) {
@@ -205,7 +189,7 @@ fn the_stream_server_survives_few_file_descriptors() {
 
     // The default cap: 64 served, the rest refused, no accept fails.
     let slot = Arc::new(LatestSlot::new());
-    let server = start(StreamOutputConfig::default().max_clients, &slot);
+    let server = common::loopback_stream(StreamOutputConfig::default().max_clients, &slot);
     let stats = Arc::clone(server.stats());
     let (clients, opened) = spawn_clients(server.ws_addr().unwrap(), CLIENTS);
     assert_eq!(opened, CLIENTS);
@@ -248,7 +232,7 @@ fn the_stream_server_survives_few_file_descriptors() {
 
     // No effective cap: the descriptors run out.
     let slot = Arc::new(LatestSlot::new());
-    let server = start(10_000, &slot);
+    let server = common::loopback_stream(10_000, &slot);
     let stats = Arc::clone(server.stats());
     let mut served = TcpStream::connect(server.local_addr().unwrap()).unwrap();
     served.set_read_timeout(Some(TIMEOUT)).unwrap();

@@ -102,8 +102,12 @@ const MARKER_OUT_M: f64 = 0.008;
 const LAYER_SHARE: f64 = 0.03 / 1.75;
 /// A joint without children: its bone's length as a share of the height (a head
 /// without a top joint: the skull above its base).
-const LEAF_BONE_SHARE: [(Part, f64); 1] = [(Head, 0.12)];
-const LEAF_BONE_DEFAULT_SHARE: f64 = 0.06;
+fn leaf_bone_share(part: Part) -> f64 {
+    match part {
+        Head => 0.12,
+        _ => 0.06,
+    }
+}
 
 /// The body's axes at rest (front, up, left), from the hips, the head and the upper
 /// legs' sides; `None` without them.
@@ -206,7 +210,7 @@ impl<'a> Templates<'a> {
     }
 
     /// Joint `j`'s rest position and bone (to the mean of its children; a leaf's along
-    /// its parent's bone, [`LEAF_BONE_SHARE`] of the height long).
+    /// its parent's bone, [`leaf_bone_share`] of the height long).
     fn bone(&self, j: usize, part: Part) -> (DVec3, DVec3) {
         let sk = self.sk;
         let start = sk.joints[j].rest;
@@ -215,10 +219,7 @@ impl<'a> Templates<'a> {
             let end = kids.iter().sum::<DVec3>() / kids.len() as f64;
             return (start, end - start);
         }
-        let share = LEAF_BONE_SHARE
-            .iter()
-            .find(|l| l.0 == part)
-            .map_or(LEAF_BONE_DEFAULT_SHARE, |l| l.1);
+        let share = leaf_bone_share(part);
         // The hips' children spread three ways (spine and legs): its bone is the body's
         // up, as for a leaf without a parent.
         let dir = match (sk.joints[j].parent, part) {

@@ -730,8 +730,9 @@ pub fn calibrate(
     if plan.markers == 0 {
         return Err(no_markers(rec, &plan.left_out));
     }
+    let stance = stance_of(ch, roles);
     if opts.markers_on_skin {
-        put_templates(ch, roles, stance_of(ch, roles), &mut plan);
+        put_templates(ch, roles, stance, &mut plan);
     }
     let known: Vec<&LabelPlan> = plan
         .labels
@@ -750,7 +751,6 @@ pub fn calibrate(
         return Err(CalibrationError::NoJoints);
     }
     let span = frame_span(rec, opts.span_s);
-    let stance = stance_of(ch, roles);
     let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
     let surface = WindingNumber::new(&unique, &oriented);
     let parts = Parts::new(&ch.skeleton, &unique, &oriented);

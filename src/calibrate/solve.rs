@@ -395,7 +395,7 @@ impl<'a> OffsetSolve<'a> {
         }
     }
 
-    /// The skin prior's terms of marker `k` at its current offset.
+    /// The priors' terms of marker `k` (its template and the skin) at its current offset.
     fn skin_term(&self, k: usize) -> SkinTerm {
         let p = &self.params;
         let n_frames = self.frames.len().max(1) as f64;

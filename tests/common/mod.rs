@@ -266,3 +266,26 @@ pub fn assert_hand_at_rest(frame: &rigless::output::frame::DeformedFrame) -> f64
     assert!(worst < 5e-4, "the hand is {worst} m from its rest pose");
     worst
 }
+
+/// A vertex-stream server on loopback (TCP and WebSocket, with the viewer page) serving
+/// the tiny topology to at most `max_clients`, fed from `slot`.
+pub fn loopback_stream(
+    max_clients: usize,
+    slot: &std::sync::Arc<
+        rigless::runtime::slot::LatestSlot<rigless::output::frame::DeformedFrame>,
+    >,
+) -> rigless::output::stream::StreamServer {
+    let loopback: std::net::SocketAddr = "127.0.0.1:0".parse().unwrap();
+    rigless::output::stream::StreamServer::start(
+        &rigless::output::config::StreamOutputConfig {
+            tcp: Some(loopback),
+            websocket: Some(loopback),
+            max_clients,
+            viewer: true,
+            websocket_any_port_if_taken: false,
+        },
+        &tiny_topology(),
+        std::sync::Arc::clone(slot),
+    )
+    .unwrap()
+}
