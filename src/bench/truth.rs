@@ -10,7 +10,9 @@
 //! (each placed label's rest position against its true one); the vertex error (mean over
 //! the mesh, as a share of the character's height) of the mean frame and the worst; the
 //! worst head and trunk orientation error (each joint's rotation from rest against the
-//! skinning's); and the lowest vertex against the true lowest.
+//! skinning's); the lowest vertex against the true lowest; and how far the animation
+//! itself takes a joint past the human range the solve holds it to. A clip whose end
+//! meets its start loops to a few seconds; any other is played once ([`truth_take`]).
 
 use super::assets::gltf_file;
 use super::{json_line, BenchError};
@@ -20,6 +22,7 @@ use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
 use crate::character::file::{load_character, LoadedCharacter};
 use crate::character::roles::{Part, Role, Side};
+use crate::character::skeleton::clamp_to_limits;
 use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
 use crate::geom::polar::{rotation_angle_between, rotation_of};
@@ -35,8 +38,13 @@ use std::time::Instant;
 
 /// The take's rate, Hz (the replay's too: tick `i` is frame `i`).
 const RATE_HZ: f64 = 120.0;
-/// Shortest take, seconds: a short clip is played again until it lasts this long.
+/// Shortest take, seconds: a short clip that loops is played again until it lasts this
+/// long.
 const MIN_TAKE_S: f64 = 4.0;
+/// A clip loops when no marker moves across its seam (last frame to first) more than
+/// this many times the clip's longest step between two frames: the seam then looks like
+/// any other frame.
+const SEAM_STEPS: f64 = 1.5;
 /// A marker's centre above the skin, metres (a 14 mm marker: 7 mm, plus its base),
 /// whatever the character's size: the take is at the character's size, and a marker is
 /// a marker.
@@ -139,6 +147,10 @@ pub struct TruthRecord {
     /// How far the file's rest pose is from its bind pose (largest skinning-matrix
     /// entry off the identity; an armature's unit scale and axis turn count).
     pub rest_off_bind: f64,
+    /// The animation's own worst excursion past the character's joint limits (the human
+    /// ranges of its joints' roles; fingers left out): the joint and how far, degrees.
+    /// A solve held to human ranges cannot follow it there (see [`beyond_limits`]).
+    pub beyond_limits: Option<(String, f64)>,
     pub calibrate_s: f64,
     pub solve_s: f64,
     /// The same take solved with the markers' true layout and scale: what the solve
@@ -363,14 +375,21 @@ struct Truth<'a> {
     to_world: Similarity,
     worlds: Vec<DMat4>,
     file: Vec<DVec3>,
+    /// Whether the clip plays again from its start after its end (set by
+    /// [`truth_take`]).
+    looped: bool,
 }
 
 impl Truth<'_> {
+    /// The clip at `t_s`: looped when [`Self::looped`], else held at its ends.
     fn at(&mut self, t_s: f64, out: &mut Vec<DVec3>) {
-        let t = if self.clip.duration_s > 0.0 {
-            t_s % self.clip.duration_s
-        } else {
+        let d = self.clip.duration_s;
+        let t = if d <= 0.0 {
             0.0
+        } else if self.looped {
+            t_s % d
+        } else {
+            t_s.clamp(0.0, d)
         };
         self.asset.node_worlds(Some(self.clip), t, &mut self.worlds);
         self.asset.pose(&self.worlds, &mut self.file);
@@ -385,27 +404,62 @@ impl Truth<'_> {
     }
 }
 
-/// The take the markers on `truth`'s skin make: the clip looped to at least
-/// [`MIN_TAKE_S`], at [`RATE_HZ`].
+/// The take the markers on `truth`'s skin make, at [`RATE_HZ`]: a clip whose end meets
+/// its start (no marker moves further across the seam than [`SEAM_STEPS`] of the
+/// clip's longest step between frames) played again until the take lasts
+/// [`MIN_TAKE_S`]; any other clip played once. Looping a clip whose last pose is not its
+/// first would move the markers in one frame as far as the two poses lie apart (21 cm
+/// in the soldier's run), and playing it back and forth would turn every marker round
+/// in one frame; no actor does either.
 fn truth_take(
     truth: &mut Truth<'_>,
     markers: &[(String, SkinPoint, usize)],
     name: String,
 ) -> (Recording, f64) {
     let d = truth.clip.duration_s;
-    let take_s = (d * (MIN_TAKE_S / d.max(1e-3)).ceil()).max(MIN_TAKE_S);
-    let frames = (take_s * RATE_HZ).round() as usize;
+    let once = (d * RATE_HZ).floor() as usize + 1;
+    let at = |truth: &mut Truth<'_>, t: f64, mesh: &mut Vec<DVec3>| -> Vec<DVec3> {
+        truth.at(t, mesh);
+        markers.iter().map(|m| m.1.at(mesh)).collect()
+    };
+    let mut mesh = Vec::new();
+    truth.looped = false;
+    let once_frames: Vec<Vec<DVec3>> = (0..once)
+        .map(|i| at(truth, i as f64 / RATE_HZ, &mut mesh))
+        .collect();
+    let apart = |a: &[DVec3], b: &[DVec3]| {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0, f64::max)
+    };
+    let step = once_frames
+        .windows(2)
+        .map(|w| apart(&w[0], &w[1]))
+        .fold(0.0, f64::max);
+    let seam = match (once_frames.first(), once_frames.last()) {
+        (Some(a), Some(b)) => apart(a, b),
+        _ => 0.0,
+    };
+    truth.looped = d <= 0.0 || seam <= SEAM_STEPS * step;
+    let (frames, take_s) = if truth.looped {
+        let take_s = (d * (MIN_TAKE_S / d.max(1e-3)).ceil()).max(MIN_TAKE_S);
+        ((take_s * RATE_HZ).round() as usize, take_s)
+    } else {
+        (once, once as f64 / RATE_HZ)
+    };
     let mut mesh = Vec::new();
     let rec = Recording {
         name,
         rate_hz: RATE_HZ,
         labels: markers.iter().map(|m| m.0.clone()).collect(),
-        frames: (0..frames)
-            .map(|i| {
-                truth.at(i as f64 / RATE_HZ, &mut mesh);
-                markers.iter().map(|m| m.1.at(&mesh)).collect()
-            })
-            .collect(),
+        frames: if truth.looped {
+            (0..frames)
+                .map(|i| at(truth, i as f64 / RATE_HZ, &mut mesh))
+                .collect()
+        } else {
+            once_frames
+        },
         warnings: Vec::new(),
         file_units: "m".into(),
         point_groups: Vec::new(),
@@ -453,6 +507,11 @@ fn solve_against(
         ..OfflineOptions::default()
     };
     replay_offline_with(rig, SolverParams::default(), rec, opts, &mut |tick| {
+        // The replay's last tick comes a frame after the take's last sample: the take
+        // holds no truth for it.
+        if tick.index >= rec.frames.len() {
+            return ControlFlow::Continue(());
+        }
         truth.at(tick.index as f64 / RATE_HZ, &mut mesh);
         let errs = mesh
             .iter()
@@ -512,6 +571,7 @@ fn case(
         to_world,
         worlds: Vec::new(),
         file: Vec::new(),
+        looped: false,
     };
     let (rec, take_s) = truth_take(&mut truth, &markers, format!("{name}-{}", clip.name));
     let mut bare = ch.clone();
@@ -573,6 +633,7 @@ fn case(
         floor_mm_worst: crate::runtime::stats::percentile(&mut floor_abs, 1.0),
         true_layout: reference,
         rest_off_bind: asset.rest_off_bind(),
+        beyond_limits: beyond_limits(&mut truth, loaded, rec.frames.len()),
         calibrate_s,
         solve_s,
     })
@@ -608,10 +669,60 @@ fn print(r: &TruthRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
         "{:<22} with the true layout: vertices {:.2} % mean {:.2} % worst frame  head {:>5.1}° trunk {:>5.1}°",
         "", 100.0 * t.vertex_share_mean, 100.0 * t.vertex_share_worst_frame, t.head_deg_max, t.trunk_deg_max
     )?;
+    if let Some((joint, deg)) = &r.beyond_limits {
+        writeln!(
+            out,
+            "{:<22} the animation takes {joint} {deg:.0}° past its human range",
+            ""
+        )?;
+    }
     for c in &r.concerns {
         writeln!(out, "{:<22} {c}", "")?;
     }
     Ok(())
+}
+
+/// Past this, degrees, an animation's excursion beyond a joint's limits is reported.
+const BEYOND_LIMITS_DEG: f64 = 1.0;
+
+/// The worst excursion of the first `frames` frames of `truth` past the limits of
+/// `loaded`'s skeleton (each joint's rotation from rest relative to its parent's, as
+/// [`crate::character::skeleton`] limits it), fingers left out: the joint and degrees,
+/// `None` below [`BEYOND_LIMITS_DEG`]. Stylised animations go where no person's joint
+/// goes (CesiumMan's walk swings a thigh back past a hip's extension), and a solve held
+/// to human ranges must then turn another joint instead: this says when.
+fn beyond_limits(
+    truth: &mut Truth<'_>,
+    loaded: &LoadedCharacter,
+    frames: usize,
+) -> Option<(String, f64)> {
+    let sk = &loaded.character.skeleton;
+    let mut mesh = Vec::new();
+    let mut world = vec![DQuat::IDENTITY; sk.joints.len()];
+    let mut worst: Option<(usize, f64)> = None;
+    for i in 0..frames {
+        truth.at(i as f64 / RATE_HZ, &mut mesh);
+        for (j, joint) in sk.joints.iter().enumerate() {
+            let parent = joint.parent.map_or(DQuat::IDENTITY, |p| world[p]);
+            world[j] = truth
+                .asset
+                .node_of_joint(&joint.name)
+                .and_then(|n| truth.rotation(n))
+                .unwrap_or(parent);
+            let finger = loaded.joint_roles[j].is_some_and(|r| matches!(r.part, Part::Finger(..)));
+            let Some(limits) = joint.limits.as_ref().filter(|_| !finger) else {
+                continue;
+            };
+            let local = parent.conjugate() * world[j];
+            let (_, excess) = clamp_to_limits(local, sk.twist_axis(j), joint.bend_axis, limits);
+            if worst.is_none_or(|(_, e)| excess > e) {
+                worst = Some((j, excess));
+            }
+        }
+    }
+    let (j, excess) = worst?;
+    let deg = excess.to_degrees();
+    (deg > BEYOND_LIMITS_DEG).then(|| (sk.joints[j].name.clone(), deg))
 }
 
 /// The assets of the shared data folder the suite plays: file, the clips (empty: every

@@ -685,8 +685,12 @@ enum Flex {
 /// direction.
 type RoleLimits = ([f64; 2], [f64; 2], [f64; 2], Flex);
 
-/// Default limits of a part. Ranges are from the rest pose, so they are wide where rest
-/// poses differ (T or A pose).
+/// Default limits of a part. Ranges are from the anatomical neutral where
+/// [`neutral_direction`] knows it (a straight knee, elbow or finger, a thigh hanging
+/// down; hip extension 30° and toe extension 70° as the American Academy of Orthopaedic
+/// Surgeons' normal ranges give them, Greene and Heckman 1994: a walk's trailing thigh and
+/// toe-off reach past tighter ones); elsewhere from the rest pose, wide where rest poses
+/// differ (T or A pose).
 fn table(part: Part) -> Option<RoleLimits> {
     use Flex::*;
     Some(match part {
@@ -698,10 +702,10 @@ fn table(part: Part) -> Option<RoleLimits> {
         Part::UpperArm => ([-90.0, 90.0], [-45.0, 130.0], [-100.0, 100.0], Forward),
         Part::LowerArm => ([-80.0, 80.0], [-5.0, 150.0], [-5.0, 5.0], Forward),
         Part::Hand => ([-20.0, 20.0], [-70.0, 70.0], [-30.0, 30.0], Palm),
-        Part::UpperLeg => ([-40.0, 40.0], [-20.0, 120.0], [-45.0, 45.0], Forward),
+        Part::UpperLeg => ([-40.0, 40.0], [-30.0, 120.0], [-45.0, 45.0], Forward),
         Part::LowerLeg => ([-10.0, 10.0], [-5.0, 150.0], [-5.0, 5.0], Backward),
         Part::Foot => ([-20.0, 20.0], [-45.0, 45.0], [-30.0, 30.0], Lateral),
-        Part::Toes => ([-5.0, 5.0], [-40.0, 40.0], [-10.0, 10.0], Lateral),
+        Part::Toes => ([-5.0, 5.0], [-40.0, 70.0], [-10.0, 10.0], Lateral),
         Part::LimbSegment => ([-45.0, 45.0], [-3.0, 3.0], [-3.0, 3.0], Lateral),
         Part::Finger(Digit::Thumb, Segment::Metacarpal) => {
             ([-25.0, 25.0], [-40.0, 40.0], [-40.0, 40.0], Palm)
@@ -802,10 +806,48 @@ fn palm_normal(
     }
 }
 
+/// The rest direction of joint `j`'s segment at the anatomical neutral of its part
+/// (world frame, unit), where one is known: a lower limb segment or a finger's middle or
+/// end bone in line with the bone above it (a straight knee, elbow, finger), a thigh
+/// hanging straight down. A rig's rest pose may bend those (a knee bent 25° at rest, an
+/// elbow 20°): ranges from the rest would then forbid a straight leg. Not the hand: its
+/// twist axis points at the mean of its fingers' bases, thumb included, which lies off
+/// the forearm's line on a straight wrist (35° on MakeHuman's).
+fn neutral_direction(joints: &[Joint], part: Part, j: usize) -> Option<DVec3> {
+    match part {
+        Part::UpperLeg => Some(-DVec3::Y),
+        Part::LowerLeg
+        | Part::LowerArm
+        | Part::Finger(
+            Digit::Index | Digit::Middle | Digit::Ring | Digit::Little,
+            Segment::Intermediate | Segment::Distal,
+        ) => {
+            let p = joints[j].parent?;
+            (joints[j].rest - joints[p].rest).try_normalize()
+        }
+        _ => None,
+    }
+}
+
+/// The rest pose's own bend and side (radians) from the neutral direction `n` of a
+/// segment whose rest direction is the twist axis `t`, about the bend axis `a` and the
+/// side axis `t × a` (as [`crate::character::skeleton::decompose`] splits a swing): the
+/// rotation vector taking `n` to `t`, on those axes.
+fn rest_swing(n: DVec3, t: DVec3, a: DVec3) -> (f64, f64) {
+    let angle = n.angle_between(t);
+    let Some(axis) = n.cross(t).try_normalize() else {
+        return (0.0, 0.0);
+    };
+    let r = axis * angle;
+    (r.dot(a), r.dot(t.cross(a)))
+}
+
 /// Default limits and bend axes (world frame, rest pose) for joints with a role and
 /// children, `None` elsewhere; a role's positive bend is flexion ([`table`]'s
 /// directions), with the bend axis `a` chosen so that a bend turns the twist axis `t`
-/// towards the flexion direction `f`: `a = t × f`.
+/// towards the flexion direction `f`: `a = t × f`. The limits are rotations from the
+/// rest pose: a range from the anatomical neutral is moved by the rest pose's own swing
+/// from it ([`neutral_direction`], [`rest_swing`]).
 pub fn default_limits(
     joints: &[Joint],
     roles: &[Option<Role>],
@@ -860,11 +902,22 @@ pub fn default_limits(
                     ((-m, m), a)
                 }
             };
+            let (rest_bend, rest_side) = neutral_direction(joints, role.part, i)
+                .map_or((0.0, 0.0), |n| rest_swing(n, t, axis));
+            // The rest pose stays inside its limits (the solve starts there): a rest
+            // beyond the human range (a stylised rig) keeps the ranges from the rest.
+            let from_rest = |(lo, hi): (f64, f64), rest: f64| {
+                if lo - rest <= 0.0 && hi - rest >= 0.0 {
+                    (lo - rest, hi - rest)
+                } else {
+                    (lo, hi)
+                }
+            };
             Some((
                 JointLimits {
                     twist: r(twist),
-                    bend,
-                    side: r(side),
+                    bend: from_rest(bend, rest_bend),
+                    side: from_rest(r(side), rest_side),
                 },
                 axis,
             ))
@@ -944,6 +997,7 @@ impl std::fmt::Display for RoleSummary {
 mod tests {
     use super::*;
     use crate::character::skeleton::{compose, SwingTwist};
+    use glam::DQuat;
 
     /// Joints from (name, parent name, rest position); parents listed first.
     fn tree(spec: &[(&str, Option<&str>, [f64; 3])]) -> Vec<Joint> {
@@ -1156,6 +1210,75 @@ mod tests {
         }
         assert!(moved("Spine").z > 0.4, "the spine flexes forward");
         assert!(limits[0].is_none(), "the hips are free");
+    }
+
+    /// A rig whose rest pose bends the knee 25° and the hip 10° (as CesiumMan's does)
+    /// gets ranges that still reach a straight knee and a thigh 30° behind the vertical:
+    /// the table's ranges are from the anatomical neutral, and the rest's own bend is
+    /// taken off them. The straight T pose gets the table's ranges unchanged.
+    #[test]
+    fn ranges_count_from_the_neutral_not_from_a_bent_rest() {
+        let straight = mixamo_t_pose();
+        let mut bent_rest = straight.clone();
+        let index = |n: &str| {
+            straight
+                .iter()
+                .position(|j| j.name == format!("mixamorig:Left{n}"))
+                .unwrap()
+        };
+        let (hip, knee) = (index("UpLeg"), index("Leg"));
+        let below = |root: usize, i: usize| {
+            let mut p = Some(i);
+            while let Some(k) = p {
+                if k == root {
+                    return true;
+                }
+                p = straight[k].parent;
+            }
+            false
+        };
+        // Flexion turns a leg segment's far end forward (+Z) at the hip, back at the knee.
+        let turn = |joints: &mut [Joint], root: usize, deg: f64| {
+            let q = DQuat::from_axis_angle(DVec3::X, deg.to_radians());
+            let o = joints[root].rest;
+            for (i, j) in joints.iter_mut().enumerate() {
+                if i != root && below(root, i) {
+                    j.rest = o + q * (j.rest - o);
+                }
+            }
+        };
+        turn(&mut bent_rest, knee, 25.0);
+        turn(&mut bent_rest, hip, -10.0);
+        let roles = recognise(&straight, &[]);
+        let table_bend = |part| {
+            let (_, [lo, hi], _, _) = table(part).unwrap();
+            (lo.to_radians(), hi.to_radians())
+        };
+        let straight_limits = default_limits(&straight, &roles);
+        assert_eq!(
+            straight_limits[knee].unwrap().0.bend,
+            table_bend(Part::LowerLeg)
+        );
+        assert_eq!(
+            straight_limits[hip].unwrap().0.bend,
+            table_bend(Part::UpperLeg)
+        );
+        let limits = default_limits(&bent_rest, &roles);
+        // The rest pose turned in floating point: within a microradian (2e-9 measured).
+        let close = |got: (f64, f64), want: (f64, f64)| {
+            (got.0 - want.0).abs() < 1e-6 && (got.1 - want.1).abs() < 1e-6
+        };
+        let shift = |(lo, hi): (f64, f64), deg: f64| (lo - deg.to_radians(), hi - deg.to_radians());
+        let (k, _) = limits[knee].unwrap();
+        let (h, _) = limits[hip].unwrap();
+        assert!(
+            close(k.bend, shift(table_bend(Part::LowerLeg), 25.0)),
+            "{k:?}"
+        );
+        assert!(
+            close(h.bend, shift(table_bend(Part::UpperLeg), 10.0)),
+            "{h:?}"
+        );
     }
 
     #[test]

@@ -56,6 +56,11 @@ pub struct BufferConfig {
     pub gate_floor_m: f64,
     /// See `gate_floor_m`, metres per second squared.
     pub gate_max_accel_m_s2: f64,
+    /// Fastest a marker plausibly moves, metres per second: while its velocity is not
+    /// known yet (its first samples, and those after a re-acquisition), its gate widens
+    /// by this speed times `dt`, and a run of rejected samples agrees within that
+    /// radius. 10 m/s is a runner's foot in its swing.
+    pub gate_max_speed_m_s: f64,
     /// Consecutive rejected samples that agree with each other before the marker is
     /// re-acquired at their position.
     pub reacquire_samples: u32,
@@ -77,6 +82,7 @@ impl Default for BufferConfig {
             history_len: 32,
             gate_floor_m: 0.02,
             gate_max_accel_m_s2: 200.0,
+            gate_max_speed_m_s: 10.0,
             reacquire_samples: 3,
             volume_min_m: [-20.0, -5.0, -20.0],
             volume_max_m: [20.0, 10.0, 20.0],
@@ -85,9 +91,15 @@ impl Default for BufferConfig {
 }
 
 impl BufferConfig {
-    /// Gate radius for a prediction `dt` seconds past the last sample, metres.
-    pub fn gate_m(&self, dt: f64) -> f64 {
-        self.gate_floor_m + 0.5 * self.gate_max_accel_m_s2 * dt * dt
+    /// Gate radius for a prediction `dt` seconds past the last sample, metres; wider
+    /// by `gate_max_speed_m_s · dt` when the prediction knows no velocity.
+    pub fn gate_m(&self, dt: f64, velocity_known: bool) -> f64 {
+        let coast = if velocity_known {
+            0.0
+        } else {
+            self.gate_max_speed_m_s * dt
+        };
+        self.gate_floor_m + coast + 0.5 * self.gate_max_accel_m_s2 * dt * dt
     }
 
     /// Whether `p` is finite and inside the stage volume (bounds included).
@@ -116,6 +128,7 @@ impl BufferConfig {
         positive("velocity_window_secs", self.velocity_window_secs);
         positive("gate_floor_m", self.gate_floor_m);
         positive("gate_max_accel_m_s2", self.gate_max_accel_m_s2);
+        positive("gate_max_speed_m_s", self.gate_max_speed_m_s);
         if !(self.rigid_after_secs.is_finite() && self.rigid_after_secs >= 0.0) {
             out.push((
                 "rigid_after_secs".into(),
@@ -235,14 +248,13 @@ impl Track {
     }
 
     /// Least-squares velocity over the samples within `window_s` of the newest, m/s;
-    /// zero with fewer than two, or when they span less than half the window. Receive
-    /// times are what the samples carry, and a network stall delivers its queued packets
-    /// microseconds apart: a slope over such a burst would be the real motion over the
-    /// stall divided by microseconds, and the prediction would fly off with it.
-    fn velocity(&self, window_s: f64) -> DVec3 {
-        let Some((t_new, _)) = self.newest() else {
-            return DVec3::ZERO;
-        };
+    /// `None` (not known) with fewer than two, or when they span less than half the
+    /// window. Receive times are what the samples carry, and a network stall delivers
+    /// its queued packets microseconds apart: a slope over such a burst would be the real
+    /// motion over the stall divided by microseconds, and the prediction would fly off
+    /// with it.
+    fn velocity(&self, window_s: f64) -> Option<DVec3> {
+        let (t_new, _) = self.newest()?;
         let (mut n, mut st, mut sp) = (0usize, 0.0, DVec3::ZERO);
         while n < self.len {
             let (t, p) = self.nth_newest(n);
@@ -254,7 +266,7 @@ impl Track {
             n += 1;
         }
         if n < 2 || t_new - self.nth_newest(n - 1).0 < 0.5 * window_s {
-            return DVec3::ZERO;
+            return None;
         }
         let (tm, pm) = (st / n as f64, sp / n as f64);
         let (mut stt, mut stp) = (0.0, DVec3::ZERO);
@@ -263,22 +275,33 @@ impl Track {
             stt += (t - tm) * (t - tm);
             stp += (p - pm) * (t - tm);
         }
-        if stt <= 0.0 {
-            DVec3::ZERO
-        } else {
-            stp / stt
-        }
+        (stt > 0.0).then(|| stp / stt)
     }
 
-    /// Damped constant-velocity prediction at `t` and its confidence in `(0, 1]`.
-    fn predict(&self, t: f64, cfg: &BufferConfig) -> Option<(DVec3, f64)> {
+    /// Damped constant-velocity prediction at `t` (at rest where the velocity is not
+    /// known), its confidence in `(0, 1]`, and the gate radius about it.
+    fn predict(&self, t: f64, cfg: &BufferConfig) -> Option<Prediction> {
         let (t_last, p_last) = self.newest()?;
         let gap = (t - t_last).max(0.0);
         let tau = cfg.prediction_decay_secs;
         let decay = (-gap / tau).exp();
         let v = self.velocity(cfg.velocity_window_secs);
-        Some((p_last + v * (tau * (1.0 - decay)), decay))
+        Some(Prediction {
+            position_m: p_last + v.unwrap_or(DVec3::ZERO) * (tau * (1.0 - decay)),
+            confidence: decay,
+            gate_m: cfg.gate_m(gap, v.is_some()),
+        })
     }
+}
+
+/// A track's prediction at some time.
+#[derive(Clone, Copy, Debug)]
+struct Prediction {
+    position_m: DVec3,
+    /// In `(0, 1]`: `exp(−gap / prediction_decay_secs)`.
+    confidence: f64,
+    /// The innovation gate's radius about `position_m`.
+    gate_m: f64,
 }
 
 /// Markers of one body segment (same joint) and their reference layout.
@@ -426,12 +449,11 @@ impl MarkerBuffer {
         if let Some((t_last, _)) = newest {
             let dt = s.time_s - t_last;
             if dt <= self.cfg.predict_max_gap_secs {
-                let (pred, _) = self.tracks[k]
+                let pred = self.tracks[k]
                     .predict(s.time_s, &self.cfg)
                     .expect("track has a sample");
-                let gate = self.cfg.gate_m(dt);
-                if (s.position_m - pred).length() > gate {
-                    self.reject(k, s, gate);
+                if (s.position_m - pred.position_m).length() > pred.gate_m {
+                    self.reject(k, s);
                     return;
                 }
             }
@@ -469,13 +491,13 @@ impl MarkerBuffer {
 
     /// Handles a sample the gate rejected: counts it, checks for a label swap, and
     /// re-acquires the marker once enough rejected samples agree.
-    fn reject(&mut self, k: usize, s: &MarkerSample, gate: f64) {
+    fn reject(&mut self, k: usize, s: &MarkerSample) {
         self.counters.gate_rejected += 1;
         let swapped = (0..self.tracks.len()).any(|o| {
             o != k
                 && self.tracks[o]
                     .predict(s.time_s, &self.cfg)
-                    .is_some_and(|(p, _)| (p - s.position_m).length() <= gate)
+                    .is_some_and(|p| (p.position_m - s.position_m).length() <= p.gate_m)
         });
         if swapped {
             self.counters.label_swaps += 1;
@@ -483,7 +505,9 @@ impl MarkerBuffer {
         let cfg = &self.cfg;
         let tr = &mut self.tracks[k];
         let run = match tr.candidate {
-            Some((t, p, count)) if (s.position_m - p).length() <= cfg.gate_m(s.time_s - t) => {
+            Some((t, p, count))
+                if (s.position_m - p).length() <= cfg.gate_m(s.time_s - t, false) =>
+            {
                 count + 1
             }
             _ => 1,
@@ -564,10 +588,10 @@ impl MarkerBuffer {
                 }
             }
             if gap <= cfg.predict_max_gap_secs {
-                if let Some((p, c)) = tr.predict(t, cfg) {
-                    out.positions[k] = p;
+                if let Some(p) = tr.predict(t, cfg) {
+                    out.positions[k] = p.position_m;
                     out.states[k] = FillState::Predicted;
-                    out.confidence[k] = c;
+                    out.confidence[k] = p.confidence;
                 }
             }
         }
@@ -755,6 +779,45 @@ mod tests {
         assert_eq!(f.states[4], FillState::Predicted);
         assert_eq!(b.counters().occluded, 2);
         assert_eq!(b.counters().accepted, 1);
+    }
+
+    /// A marker already moving fast when its track starts (a take or a stream joined
+    /// mid-run, a marker back from occlusion) is followed from its first sample: the gate
+    /// allows for the velocity it cannot know yet. Without the allowance (the speed set
+    /// to 1 mm/s) the same samples are rejected in runs and re-acquired from rest.
+    #[test]
+    fn a_marker_moving_from_its_first_sample_is_followed() {
+        let (rest, joint) = layout();
+        // A runner's foot: 5.6 m/s, 47 mm a frame at 120 Hz (the soldier's run).
+        let v = DVec3::new(5.6, 0.0, 0.0);
+        let rate_hz = 120.0;
+        let run = |cfg: BufferConfig| {
+            let mut b = MarkerBuffer::new(cfg, &rest, &joint);
+            for i in 0..24 {
+                let t = i as f64 / rate_hz;
+                b.push(&sample(4, t, rest[4] + v * t));
+            }
+            b.counters().gate_rejected
+        };
+        assert_eq!(run(BufferConfig::default()), 0);
+        let blind = BufferConfig {
+            gate_max_speed_m_s: 1e-3,
+            ..BufferConfig::default()
+        };
+        assert!(
+            run(blind) >= 8,
+            "the check would pass without the allowance"
+        );
+        // The allowance is for speed, not for jumps: 20 cm at the second sample (24 m/s)
+        // is still rejected.
+        let mut b = MarkerBuffer::new(BufferConfig::default(), &rest, &joint);
+        b.push(&sample(4, 0.0, rest[4]));
+        b.push(&sample(
+            4,
+            1.0 / rate_hz,
+            rest[4] + DVec3::new(0.2, 0.0, 0.0),
+        ));
+        assert_eq!(b.counters().gate_rejected, 1);
     }
 
     #[test]
