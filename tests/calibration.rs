@@ -1193,3 +1193,45 @@ fn a_cmu_take_calibrates_without_help_about_as_well_as_by_hand() {
     assert_eq!(cal.placed.len(), 41);
     assert_ne!(cal.verdict(), Verdict::Failed, "{:?}", cal.concerns());
 }
+
+/// A gait trial with no frame like the rest pose, on a character whose legs are long
+/// for its height against the actor's (the Mixamo soldier at a person's size, 1.86 m,
+/// on FP_Type1): the fit bends its knees in every frame used to reach the foot labels
+/// (measured: at least 34° and 64°), which a walking actor does not, and it is said. The
+/// body, of a person's proportions, on the same take keeps no knee bent throughout.
+#[test]
+fn knees_bent_in_every_frame_are_named() {
+    use rigless::calibrate::{Concern, BENT_KNEES_DEG};
+    use rigless::character::file::load_character;
+    let (Some(rec), Some(glb)) = (
+        shared_take("c3d/FP_Type1.c3d"),
+        common::shared_path("meshes/real/threejs_soldier_mixamo.glb"),
+    ) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let file = rigless::bench::assets::gltf_file(&glb, dir.path()).unwrap();
+    let text = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(&file, format!("{text}scale = 8.5\n")).unwrap();
+    let soldier = load_character(&file).unwrap_or_else(|e| panic!("{e}"));
+    let mut bare = soldier.character.clone();
+    bare.markers.clear();
+    let cal = calibrate(
+        &bare,
+        &soldier.joint_roles,
+        rec.as_take(),
+        &CalibrationOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    println!("soldier: {:?}", cal.bent_knees);
+    assert_eq!(cal.bent_knees.len(), 2, "{:?}", cal.concerns());
+    assert!(cal.bent_knees.iter().all(|(_, deg)| *deg > BENT_KNEES_DEG));
+    let said = cal
+        .concerns()
+        .iter()
+        .any(|c| matches!(c, Concern::BentKnees { .. }));
+    assert!(said, "{:?}", cal.concerns());
+    let (body, _) = bodies();
+    let on_body = run(&body, &rec, &CalibrationOptions::default());
+    assert!(on_body.bent_knees.is_empty(), "{:?}", on_body.bent_knees);
+}

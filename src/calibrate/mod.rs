@@ -191,6 +191,10 @@ pub struct Calibration {
     /// Joints the fitted postures hold at one of their limits in all but a tenth of the
     /// frames used ([`strained_joints`]), each with in how many, and the frames used.
     pub strained: (Vec<(String, usize)>, usize),
+    /// Each knee's least bend over the frames used, degrees (the angle between thigh and
+    /// shin in the fitted postures), when every knee stays bent more than
+    /// [`BENT_KNEES_DEG`] in every frame used ([`bent_knees`]); empty otherwise.
+    pub bent_knees: Vec<(String, f64)>,
 }
 
 /// How far a calibration can be trusted.
@@ -255,6 +259,8 @@ pub enum Concern {
         joints: Vec<(String, usize)>,
         frames: usize,
     },
+    /// Every knee bent in every frame used ([`Calibration::bent_knees`]).
+    BentKnees { knees: Vec<(String, f64)> },
 }
 
 /// How far from rest a head whose turn only its own labels see may be turned in the
@@ -331,7 +337,8 @@ impl Concern {
             | Concern::Floor(_)
             | Concern::TurnedAtRest { .. }
             | Concern::Undriven { .. }
-            | Concern::Strained { .. } => Verdict::Doubtful,
+            | Concern::Strained { .. }
+            | Concern::BentKnees { .. } => Verdict::Doubtful,
         }
     }
 }
@@ -400,6 +407,20 @@ impl std::fmt::Display for Concern {
                 joints
                     .iter()
                     .map(|(j, n)| format!("{j} ({n})"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            Concern::BentKnees { knees } => write!(
+                f,
+                "the fitted postures keep the knees bent in every frame used (at least {}), \
+                 where a standing or walking actor straightens them: the character's legs are \
+                 long for its height against the actor's (or its pelvis labels sit higher), \
+                 and the avatar crouches to reach the foot labels; look at the legs in a \
+                 replay (--rerun), try --frames on a span where the actor stands straight, or \
+                 a character of the actor's proportions",
+                knees
+                    .iter()
+                    .map(|(j, deg)| format!("{j} {deg:.0}°"))
                     .collect::<Vec<_>>()
                     .join(", ")
             ),
@@ -505,6 +526,11 @@ impl Calibration {
             out.push(Concern::Strained {
                 joints: self.strained.0.clone(),
                 frames: self.strained.1,
+            });
+        }
+        if !self.bent_knees.is_empty() {
+            out.push(Concern::BentKnees {
+                knees: self.bent_knees.clone(),
             });
         }
         if let Some(whole_mm) = self.whole_span_mm {
@@ -1737,7 +1763,47 @@ fn finish(
         floor: FloorCheck::from_frames(&solve.lowest_m()),
         rest_turns,
         strained: strained_joints(ch, roles, solve),
+        bent_knees: bent_knees(ch, roles, solve),
     }
+}
+
+/// Least bend, degrees, that every knee must keep in every frame used for the fit to be
+/// called crouched: a walk straightens the knee to about 5° at heel strike and bends it
+/// 15 to 20° in stance (Perry and Burnfield, "Gait Analysis", 2010), a person standing
+/// holds it within 5°; a crouch held through a whole take is rare.
+pub const BENT_KNEES_DEG: f64 = 30.0;
+
+/// Each knee's least bend over `solve`'s fitted postures (the angle between the thigh,
+/// from the bone above the knee, and the shin, to the knee's first child), degrees,
+/// when every knee stays bent more than [`BENT_KNEES_DEG`] in every frame ([`Calibration::bent_knees`]);
+/// empty otherwise, and with fewer than [`STRAINED_MIN_FRAMES`] frames.
+fn bent_knees(ch: &Character, roles: &[Option<Role>], solve: &OffsetSolve) -> Vec<(String, f64)> {
+    let sk = &ch.skeleton;
+    if solve.states.len() < STRAINED_MIN_FRAMES {
+        return Vec::new();
+    }
+    let knees = (0..sk.len()).filter_map(|j| {
+        let knee = roles.get(j).copied().flatten()?.part == Part::LowerLeg;
+        let (p, c) = (sk.joints[j].parent?, sk.children(j).next()?);
+        knee.then_some((j, p, c))
+    });
+    let mut out = Vec::new();
+    for (j, p, c) in knees {
+        let least = solve
+            .states
+            .iter()
+            .map(|st| {
+                let thigh = st.world_pos[j] - st.world_pos[p];
+                let shin = st.world_pos[c] - st.world_pos[j];
+                thigh.angle_between(shin).to_degrees()
+            })
+            .fold(f64::INFINITY, f64::min);
+        if least.is_nan() || least <= BENT_KNEES_DEG {
+            return Vec::new();
+        }
+        out.push((sk.joints[j].name.clone(), least));
+    }
+    out
 }
 
 /// Least frames used for [`Calibration::strained`] to be judged: in fewer, a pose held

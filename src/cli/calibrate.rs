@@ -401,6 +401,7 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
         "rest_frame": cal.rest_frame,
         "whole_span_mm_rms": cal.whole_span_mm,
         "rest_turns_deg": cal.rest_turns.iter().map(|(j, deg)| serde_json::json!({"joint": j, "deg": deg})).collect::<Vec<_>>(),
+        "bent_knees_deg": cal.bent_knees.iter().map(|(j, deg)| serde_json::json!({"joint": j, "least_deg": deg})).collect::<Vec<_>>(),
         "floor": cal.floor.map(|f| serde_json::json!({
             "lowest_skin_m": f.lowest_skin_m,
             "lowest_marker_m": f.lowest_marker_m,
