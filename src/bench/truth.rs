@@ -22,7 +22,6 @@ use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
 use crate::character::file::{load_character, LoadedCharacter};
 use crate::character::roles::{Part, Role, Side};
-use crate::character::skeleton::clamp_to_limits;
 use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
 use crate::geom::polar::{rotation_angle_between, rotation_of};
@@ -383,6 +382,15 @@ struct Truth<'a> {
 impl Truth<'_> {
     /// The clip at `t_s`: looped when [`Self::looped`], else held at its ends.
     fn at(&mut self, t_s: f64, out: &mut Vec<DVec3>) {
+        self.pose_at(t_s);
+        self.asset.pose(&self.worlds, &mut self.file);
+        out.clear();
+        out.extend(self.file.iter().map(|&p| self.to_world.point(p)));
+    }
+
+    /// The nodes' poses at `t_s` (what [`Self::rotation`] reads), without the mesh: the
+    /// clip looped when [`Self::looped`], else held at its ends.
+    fn pose_at(&mut self, t_s: f64) {
         let d = self.clip.duration_s;
         let t = if d <= 0.0 {
             0.0
@@ -392,12 +400,10 @@ impl Truth<'_> {
             t_s.clamp(0.0, d)
         };
         self.asset.node_worlds(Some(self.clip), t, &mut self.worlds);
-        self.asset.pose(&self.worlds, &mut self.file);
-        out.clear();
-        out.extend(self.file.iter().map(|&p| self.to_world.point(p)));
     }
 
-    /// Node `node`'s rotation from bind in the character's frame (after [`Self::at`]).
+    /// Node `node`'s rotation from bind in the character's frame (after [`Self::at`] or
+    /// [`Self::pose_at`]).
     fn rotation(&self, node: usize) -> Option<DQuat> {
         let q = self.asset.joint_rotation(&self.worlds, node)?;
         Some(self.to_world.rotation * q * self.to_world.rotation.conjugate())
@@ -697,11 +703,11 @@ fn beyond_limits(
     frames: usize,
 ) -> Option<(String, f64)> {
     let sk = &loaded.character.skeleton;
-    let mut mesh = Vec::new();
     let mut world = vec![DQuat::IDENTITY; sk.joints.len()];
+    let mut local = world.clone();
     let mut worst: Option<(usize, f64)> = None;
     for i in 0..frames {
-        truth.at(i as f64 / RATE_HZ, &mut mesh);
+        truth.pose_at(i as f64 / RATE_HZ);
         for (j, joint) in sk.joints.iter().enumerate() {
             let parent = joint.parent.map_or(DQuat::IDENTITY, |p| world[p]);
             world[j] = truth
@@ -710,11 +716,14 @@ fn beyond_limits(
                 .and_then(|n| truth.rotation(n))
                 .unwrap_or(parent);
             let finger = loaded.joint_roles[j].is_some_and(|r| matches!(r.part, Part::Finger(..)));
-            let Some(limits) = joint.limits.as_ref().filter(|_| !finger) else {
-                continue;
+            // A finger at rest is inside its limits: left out.
+            local[j] = if finger {
+                DQuat::IDENTITY
+            } else {
+                parent.conjugate() * world[j]
             };
-            let local = parent.conjugate() * world[j];
-            let (_, excess) = clamp_to_limits(local, sk.twist_axis(j), joint.bend_axis, limits);
+        }
+        if let Some((j, excess)) = sk.worst_limit_excess(&local) {
             if worst.is_none_or(|(_, e)| excess > e) {
                 worst = Some((j, excess));
             }
