@@ -74,6 +74,31 @@ fn cesium_man_known_truth_is_measured_and_judged_honestly() {
         "{}",
         r.true_layout.trunk_deg_max
     );
+    // The regions split the mesh: their shares of the vertices sum to one, and their
+    // errors weighted by those shares give back the mean (every frame has every vertex).
+    for (what, regions, mean) in [
+        ("solve", &r.by_region, r.vertex_share_mean),
+        (
+            "true layout",
+            &r.true_layout.by_region,
+            r.true_layout.vertex_share_mean,
+        ),
+    ] {
+        let share: f64 = regions.iter().map(|x| x.1).sum();
+        let weighted: f64 = regions.iter().map(|x| x.1 * x.2).sum();
+        assert!((share - 1.0).abs() < 1e-9, "{what}: {share}");
+        assert!(
+            (weighted - mean).abs() < 1e-9 * mean,
+            "{what}: {weighted} {mean}"
+        );
+        let names: Vec<&str> = regions.iter().map(|x| x.0).collect();
+        // CesiumMan has no finger joints, and every joint of it has a role.
+        assert_eq!(
+            names,
+            ["head", "trunk", "arms", "hands", "legs", "feet"],
+            "{what}"
+        );
+    }
     // Over the trunk's target, so the calibration must not call itself good: it is
     // doubtful (the pelvis markers fit badly).
     assert_ne!(r.verdict, Verdict::Good, "{:?}", r.concerns);

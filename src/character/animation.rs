@@ -240,6 +240,22 @@ impl SkinnedAsset {
             })
     }
 
+    /// The node that moves vertex `v` most: an unskinned mesh's node, or the skin joint
+    /// of largest weight; `None` past the last vertex.
+    pub fn dominant_node(&self, v: usize) -> Option<usize> {
+        match *self.binding.get(v)? {
+            Binding::Rigid { node } => Some(node),
+            Binding::Skinned {
+                skin,
+                joints,
+                weights,
+            } => {
+                let k = (0..4).max_by(|&a, &b| weights[a].total_cmp(&weights[b]))?;
+                self.skins[skin].joints.get(joints[k] as usize).copied()
+            }
+        }
+    }
+
     /// Largest distance of a skinning matrix at rest from the identity (how far the
     /// file's rest pose is from its bind pose; 0 when they agree), over every joint.
     pub fn rest_off_bind(&self) -> f64 {
