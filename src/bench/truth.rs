@@ -16,7 +16,7 @@
 
 use super::assets::gltf_file;
 use super::{json_line, BenchError};
-use crate::calibrate::landmarks::body_axes;
+use crate::calibrate::landmarks::{body_axes, segment_axes};
 use crate::calibrate::marker_sets::{candidate_joints, normalise};
 use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
@@ -25,7 +25,8 @@ use crate::character::roles::{Part, Role, Side};
 use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
 use crate::geom::polar::{rotation_angle_between, rotation_of};
-use crate::geom::ray::leaves_skin;
+use crate::geom::ray::{leaves_volume, Reach};
+use crate::geom::winding::WindingNumber;
 use crate::replay::recording::Recording;
 use crate::solve::frame::SolverParams;
 use glam::{DMat3, DMat4, DQuat, DVec3};
@@ -102,9 +103,9 @@ const LANDMARKS: &[Landmark] = &[
         -0.2,
         [-1.0, 0.0, 0.3],
     ),
-    ("{S}THI", Part::UpperLeg, Pick::First, 0.5, [0.3, 0.0, 1.0]),
+    ("{S}THI", Part::UpperLeg, Pick::First, 0.65, [0.3, 0.0, 1.0]),
     ("{S}KNE", Part::UpperLeg, Pick::First, 1.0, [0.0, 0.0, 1.0]),
-    ("{S}TIB", Part::LowerLeg, Pick::First, 0.5, [0.3, 0.0, 1.0]),
+    ("{S}TIB", Part::LowerLeg, Pick::First, 0.65, [0.3, 0.0, 1.0]),
     ("{S}ANK", Part::LowerLeg, Pick::First, 1.0, [0.0, 0.0, 1.0]),
     ("{S}HEE", Part::Foot, Pick::First, 0.0, [-1.0, -0.3, 0.0]),
     ("{S}TOE", Part::Foot, Pick::First, 0.9, [0.0, 1.0, 0.0]),
@@ -285,16 +286,26 @@ impl SkinPoint {
     }
 }
 
-/// Where a ray from `o` along `d` leaves the skin ([`leaves_skin`]), `out_m` out.
+/// Where a ray from `o` along `d` leaves the body's volume ([`leaves_volume`], `surface`
+/// saying what is inside), `out_m` out: a marker sits on whatever covers the skin, as
+/// far out again as a layer reaches.
 fn cast(
     o: DVec3,
     d: DVec3,
     v: &[DVec3],
     tris: &[[u32; 3]],
+    surface: &WindingNumber,
     out_m: f64,
     layer_m: f64,
 ) -> Option<SkinPoint> {
-    let h = leaves_skin(o, d, v, tris, layer_m)?;
+    let inside = |p: DVec3| surface.at(p) > 0.5;
+    let reach_m = crate::calibrate::landmarks::REACH_LAYERS * layer_m;
+    let reach = Reach {
+        layer_m,
+        out_m,
+        reach_m,
+    };
+    let h = leaves_volume(o, d, v, tris, reach, inside)?;
     Some(SkinPoint {
         triangle: h.triangle,
         bary: h.bary,
@@ -331,6 +342,7 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
         return Vec::new();
     };
     let out_m = MARKER_OUT_M;
+    let surface = WindingNumber::new(&ch.vertices, &ch.triangles);
     let mut placed = Vec::new();
     for &(pattern, part, pick, along, [f, u, o]) in LANDMARKS {
         let sides: &[(Option<Side>, &str, f64)] = if pattern.contains("{S}") {
@@ -359,7 +371,11 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
                     None => start + up * 0.06 * height,
                 });
             let bone = (end - start).normalize_or_zero();
-            let mut d = front * f + up * u + left * (o * sign);
+            // Away from the midline as the templates take it: up for an arm held out
+            // level (its lateral side, palms down), where the body's left runs along
+            // the bone.
+            let (_, away) = segment_axes((front, up, left), end - start, sign);
+            let mut d = front * f + up * u + away * o;
             d -= d.dot(bone) * bone;
             if d.length() < 0.2 {
                 d = front * f.signum() - up * 0.0;
@@ -373,7 +389,15 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
             let p = start + (end - start) * (along + slide * MAX_SLIDE);
             let layer_m = LAYER_M * height / ACTOR_HEIGHT_M;
             let ray = d.normalize_or_zero();
-            if let Some(sp) = cast(p, ray, &ch.vertices, &ch.triangles, out_m, layer_m) {
+            if let Some(sp) = cast(
+                p,
+                ray,
+                &ch.vertices,
+                &ch.triangles,
+                &surface,
+                out_m,
+                layer_m,
+            ) {
                 // Before its joint, a landmark rides the bone above (a pelvis marker
                 // placed by the hip joint rides the pelvis).
                 let carrier = if along < 0.0 {

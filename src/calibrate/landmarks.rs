@@ -21,7 +21,8 @@
 use super::marker_sets::{candidate_joints, normalise};
 use crate::character::roles::{Part, Role, Side};
 use crate::character::skeleton::Skeleton;
-use crate::geom::ray::leaves_skin;
+use crate::geom::ray::{leaves_volume, Reach};
+use crate::geom::winding::WindingNumber;
 use glam::DVec3;
 
 /// Which joint of a part's chain carries a landmark.
@@ -69,10 +70,11 @@ pub const PLUG_IN_GAIT: &[Landmark] = &[
     ("{S}WRB", LowerArm, First, 1.0, [-1.0, 0.0, 0.0]),
     // The back of the hand below the second metacarpal's head.
     ("{S}FIN", Hand, First, 0.5, [0.0, 1.0, 0.0]),
-    // The anterior and posterior superior iliac spines, the sacrum.
-    ("{S}ASI", Hips, First, 0.0, [1.0, 0.6, 0.0]),
-    ("{S}PSI", Hips, First, 0.0, [-1.0, 0.3, 0.0]),
-    ("SACR", Hips, First, 0.0, [-1.0, 0.0, 0.0]),
+    // The anterior and posterior superior iliac spines, the sacrum: from the spines'
+    // level ([`PELVIS`]).
+    ("{S}ASI", Hips, First, 0.0, [0.0; 3]),
+    ("{S}PSI", Hips, First, 0.0, [0.0; 3]),
+    ("SACR", Hips, First, 0.0, [0.0; 3]),
     // The lateral thigh's lower third, the lateral femoral epicondyle.
     ("{S}THI", UpperLeg, First, 0.65, [0.0, 1.0, 0.0]),
     ("{S}KNE", UpperLeg, First, 1.0, [0.0, 1.0, 0.0]),
@@ -80,16 +82,28 @@ pub const PLUG_IN_GAIT: &[Landmark] = &[
     ("{S}TIB", LowerLeg, First, 0.65, [0.0, 1.0, 0.0]),
     ("{S}ANK", LowerLeg, First, 1.0, [0.0, 1.0, 0.0]),
     // The calcaneus, behind and below the ankle; the second metatarsal head, on top.
-    ("{S}HEE", Foot, First, 0.0, [-0.5, 0.0, -1.0]),
+    ("{S}HEE", Foot, First, 0.0, [0.0; 3]),
     ("{S}TOE", Foot, First, 0.8, [1.0, 0.0, 0.0]),
     // CMU's variant: the top of the head, the waist, the front of the shin, the fifth
     // metatarsal head.
     ("ARIEL", Head, First, 0.0, [0.0, 0.0, 1.0]),
     ("RBAC", Spine, Last, 0.5, [-1.0, -0.6, 0.0]),
-    ("{S}FWT", Hips, First, 0.0, [1.0, 0.8, 0.0]),
-    ("{S}BWT", Hips, First, 0.0, [-1.0, 0.5, 0.0]),
+    ("{S}FWT", Hips, First, 0.0, [0.0; 3]),
+    ("{S}BWT", Hips, First, 0.0, [0.0; 3]),
     ("{S}SHN", LowerLeg, First, 0.5, [1.0, 0.0, 0.0]),
     ("{S}MT5", Foot, First, 0.6, [0.0, 1.0, 0.0]),
+];
+
+/// The pelvis's landmarks ([`Templates::pelvis_ray`]): label pattern, distance from the
+/// midline as a share of the inter-ASIS width, and whether on the back. The posterior
+/// spines lie about 9 cm apart on an adult whose anterior ones lie 24 cm apart, the
+/// sacrum marker between them; CMU's waist markers over the spines.
+const PELVIS: &[(&str, f64, bool)] = &[
+    ("{S}ASI", 0.5, false),
+    ("{S}PSI", 0.19, true),
+    ("SACR", 0.0, true),
+    ("{S}FWT", 0.5, false),
+    ("{S}BWT", 0.19, true),
 ];
 
 /// The tables ([`super::marker_sets`]) whose labels [`PLUG_IN_GAIT`] places.
@@ -100,6 +114,10 @@ const MARKER_OUT_M: f64 = 0.008;
 /// Thickest layer of a character's surface (clothing over a body, armour over
 /// clothing) as a share of its height (3 cm on a 1.75 m actor).
 const LAYER_SHARE: f64 = 0.03 / 1.75;
+/// How far past the skin a marker may sit on what covers it (a collar, a belt, a
+/// glove's cuff: a character's armour is 4 to 8 cm thick over the Mixamo soldier's
+/// neck, waist and wrists), as a multiple of [`LAYER_SHARE`] of the height.
+pub const REACH_LAYERS: f64 = 4.0;
 /// A joint without children: its bone's length as a share of the height (a head
 /// without a top joint: the skull above its base).
 fn leaf_bone_share(part: Part) -> f64 {
@@ -146,6 +164,8 @@ pub struct Templates<'a> {
     /// (front, up, left) at rest.
     axes: (DVec3, DVec3, DVec3),
     height: f64,
+    /// What is inside the skin.
+    surface: WindingNumber,
 }
 
 impl<'a> Templates<'a> {
@@ -165,6 +185,7 @@ impl<'a> Templates<'a> {
             triangles,
             axes: body_axes(sk, roles)?,
             height,
+            surface: WindingNumber::new(vertices, triangles),
         })
     }
 
@@ -191,22 +212,71 @@ impl<'a> Templates<'a> {
         if self.roles.get(j).copied().flatten().map(|r| r.part) != Some(part) {
             return None;
         }
-        let (start, bone) = self.bone(j, part);
-        let (front, side_axis) = self.segment_axes(bone, sign);
-        let axial = bone.normalize_or_zero();
-        let d = (front * dir[0] + side_axis * dir[1] + axial * dir[2]).normalize_or_zero();
+        let (origin, d) = match (part, pattern) {
+            (Hips, _) => self.pelvis_ray(pattern, sign)?,
+            (Foot, "{S}HEE") => self.heel_ray(j, sign)?,
+            _ => {
+                let (start, bone) = self.bone(j, part);
+                let (front, side_axis) = segment_axes(self.axes, bone, sign);
+                let axial = bone.normalize_or_zero();
+                (
+                    start + bone * along,
+                    front * dir[0] + side_axis * dir[1] + axial * dir[2],
+                )
+            }
+        };
+        let d = d.normalize_or_zero();
         if d == DVec3::ZERO {
             return None;
         }
         let layer = LAYER_SHARE * self.height;
-        let hit = leaves_skin(
-            start + bone * along,
-            d,
-            self.vertices,
-            self.triangles,
-            layer,
-        )?;
+        let reach = Reach {
+            layer_m: layer,
+            out_m: MARKER_OUT_M,
+            reach_m: REACH_LAYERS * layer,
+        };
+        let hit = leaves_volume(origin, d, self.vertices, self.triangles, reach, |p| {
+            self.surface.at(p) > 0.5
+        })?;
         Some(hit.point(self.vertices, MARKER_OUT_M))
+    }
+
+    /// A pelvis landmark's ray: from the level of the anterior superior iliac spines,
+    /// at its share of the pelvis's width from the midline ([`PELVIS`]), straight to
+    /// the front or the back. The spines are placed from the hip joints by inverting
+    /// Bell, Pedersen and Brand's regression ("A comparison of the accuracy of several
+    /// hip center location prediction methods", J. Biomech. 23(6), 1990), which puts each
+    /// hip joint centre 30 % of the inter-ASIS width below, 19 % behind and 36 % lateral
+    /// of the spines' midpoint: the width is the hips' distance apart over 0.72, and the
+    /// spines lie 0.30 of it above the hip joints. `None` without both hip joints.
+    fn pelvis_ray(&self, pattern: &str, sign: f64) -> Option<(DVec3, DVec3)> {
+        let (front, up, left) = self.axes;
+        let &(_, lateral, back) = PELVIS.iter().find(|p| p.0 == pattern)?;
+        let hip = |side| {
+            let chain = candidate_joints(
+                Role {
+                    part: UpperLeg,
+                    side: Some(side),
+                },
+                self.roles,
+            );
+            chain.first().map(|&j| self.sk.joints[j].rest)
+        };
+        let (l, r) = (hip(Side::Left)?, hip(Side::Right)?);
+        let width = (l - r).dot(left).abs() / 0.72;
+        let mid = (l + r) / 2.0;
+        let origin = mid + up * (0.30 * width) + left * (sign * lateral * width);
+        Some((origin, if back { -front } else { front }))
+    }
+
+    /// The heel's ray: as the manual has it, on the calcaneus at the height of the toe
+    /// marker above the sole, so from under the ankle joint `ankle` at the toe
+    /// template's height, straight back. `None` without a toe template.
+    fn heel_ray(&self, ankle: usize, sign: f64) -> Option<(DVec3, DVec3)> {
+        let (front, up, _) = self.axes;
+        let toe = self.at(if sign > 0.0 { "LTOE" } else { "RTOE" })?;
+        let a = self.sk.joints[ankle].rest;
+        Some((a + up * (toe - a).dot(up), -front))
     }
 
     /// Joint `j`'s rest position and bone (to the mean of its children; a leaf's along
@@ -228,24 +298,25 @@ impl<'a> Templates<'a> {
         };
         (start, dir * share * self.height)
     }
+}
 
-    /// A segment's front and side axes at rest (see the module doc); `sign` is `1` for
-    /// the body's left side (or an unsided label), `−1` for the right.
-    fn segment_axes(&self, bone: DVec3, sign: f64) -> (DVec3, DVec3) {
-        let (front, up, left) = self.axes;
-        let a = bone.normalize_or(up);
-        let square = |v: DVec3| v - v.dot(a) * a;
-        let f = square(front);
-        let f = if f.length() >= 0.5 { f } else { square(up) }.normalize_or_zero();
-        let s = square(square(left) - square(left).dot(f) * f);
-        let s = if s.length() >= 0.3 {
-            s.normalize() * sign
-        } else {
-            // An arm held out level: the front turned about the bone, up on both sides.
-            f.cross(a).normalize_or_zero() * sign
-        };
-        (f, s)
-    }
+/// A segment's front and side axes at rest, from the body's `axes` (front, up, left) and
+/// the segment's `bone` (see the module doc); `sign` is `1` for the body's left side (or
+/// an unsided label), `−1` for the right.
+pub fn segment_axes(axes: (DVec3, DVec3, DVec3), bone: DVec3, sign: f64) -> (DVec3, DVec3) {
+    let (front, up, left) = axes;
+    let a = bone.normalize_or(up);
+    let square = |v: DVec3| v - v.dot(a) * a;
+    let f = square(front);
+    let f = if f.length() >= 0.5 { f } else { square(up) }.normalize_or_zero();
+    let s = square(square(left) - square(left).dot(f) * f);
+    let s = if s.length() >= 0.3 {
+        s.normalize() * sign
+    } else {
+        // An arm held out level: the front turned about the bone, up on both sides.
+        f.cross(a).normalize_or_zero() * sign
+    };
+    (f, s)
 }
 
 #[cfg(test)]
@@ -318,6 +389,47 @@ mod tests {
         assert!((at("LASI") - at("LPSI")).dot(front) > 0.1);
         assert!((at("CLAV") - at("C7")).dot(front) > 0.05);
         assert!((at("LWRA") - at("LWRB")).dot(front) > 0.02);
+        // The heel at the toe marker's height, behind the ankle (the manual's calcaneus
+        // marker); the spines of the pelvis by Bell's regression from the hip joints:
+        // the anterior ones 0.30 of their width above the hips and as far apart as the
+        // hips over 0.72, the posterior ones 0.38 of it apart, each give or take its
+        // 8 mm out along a skin normal that leans outwards (measured below).
+        let up = t.axes.1;
+        for (heel, toe, ankle) in [("LHEE", "LTOE", Side::Left), ("RHEE", "RTOE", Side::Right)] {
+            let a = sk.joints[candidate_joints(
+                Role {
+                    part: Foot,
+                    side: Some(ankle),
+                },
+                &roles,
+            )[0]]
+                .rest;
+            // Within the marker's 8 mm out from the skin, which the heel's slant tilts
+            // (measured 4.7 mm higher).
+            let dy = (at(heel) - at(toe)).dot(up);
+            assert!(dy.abs() < 0.008, "{heel}: {dy}");
+            assert!((at(heel) - a).dot(front) < -0.02, "{heel}");
+        }
+        let hip = |side| {
+            sk.joints[candidate_joints(
+                Role {
+                    part: UpperLeg,
+                    side: Some(side),
+                },
+                &roles,
+            )[0]]
+                .rest
+        };
+        let width = (hip(Side::Left) - hip(Side::Right)).dot(left) / 0.72;
+        let apart = |a: &str, b: &str| (at(a) - at(b)).dot(left);
+        // Measured: the anterior spines 9.5 mm wider apart than the width, the
+        // posterior ones 3.7 mm, the anterior ones 3.4 mm higher.
+        let asis = apart("LASI", "RASI") - width;
+        assert!((0.0..0.016).contains(&asis), "{asis}");
+        let psis = apart("LPSI", "RPSI") - 0.38 * width;
+        assert!(psis.abs() < 0.008, "{psis}");
+        let above = at("LASI").dot(up) - hip(Side::Left).dot(up) - 0.30 * width;
+        assert!(above.abs() < 0.007, "{above}");
         assert!(t.at("XYZ").is_none());
     }
 }

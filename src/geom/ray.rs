@@ -75,6 +75,40 @@ pub fn leaves_skin(
     Some(outer)
 }
 
+/// How far out a marker sits and what may lie over the skin, for [`leaves_volume`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reach {
+    /// The thickest layer of the surface (clothing over a body), metres: see
+    /// [`leaves_skin`].
+    pub layer_m: f64,
+    /// A marker's centre out from the surface along its normal, metres.
+    pub out_m: f64,
+    /// How far past the skin's crossing the marker may go to get outside, metres.
+    pub reach_m: f64,
+}
+
+/// Where the ray from `o` along `d` (unit) leaves the body's volume: the crossing of
+/// [`leaves_skin`] when the point `reach.out_m` out from it lies outside (`inside`
+/// says, the winding number for one), else the first later crossing, within
+/// `reach.reach_m` of that one, out from which it does. A character's surface is not
+/// always one closed shell: a belt, a collar or a glove's cuff entered within a layer's
+/// reach leaves the point inside them, where no marker sits. `None` when no crossing in
+/// reach will do.
+pub fn leaves_volume(
+    o: DVec3,
+    d: DVec3,
+    v: &[DVec3],
+    tris: &[[u32; 3]],
+    reach: Reach,
+    inside: impl Fn(DVec3) -> bool,
+) -> Option<Hit> {
+    let first = leaves_skin(o, d, v, tris, reach.layer_m)?;
+    hits(o, d, v, tris)
+        .into_iter()
+        .filter(|h| h.distance >= first.distance && h.distance <= first.distance + reach.reach_m)
+        .find(|h| !inside(h.point(v, reach.out_m)))
+}
+
 impl Hit {
     /// The crossing point on `v`'s mesh (the triangle's vertices as `v` places them)
     /// and, `out_m` metres out along its outward normal, the point returned.
@@ -109,6 +143,20 @@ mod tests {
         (v, tris)
     }
 
+    /// The unit cube with two more about its centre, `k1` and `k2` times its size.
+    fn nested_cubes(k1: f64, k2: f64) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        let (v, tris) = cube();
+        let c = DVec3::splat(0.5);
+        let mut all = v.clone();
+        let mut t = tris.clone();
+        for (n, k) in [k1, k2].into_iter().enumerate() {
+            all.extend(v.iter().map(|p| c + (*p - c) * k));
+            let base = 8 * (n as u32 + 1);
+            t.extend(tris.iter().map(|x| x.map(|i| i + base)));
+        }
+        (all, t)
+    }
+
     #[test]
     fn a_ray_from_the_centre_leaves_through_the_face_it_points_at() {
         let (v, tris) = cube();
@@ -124,19 +172,8 @@ mod tests {
 
     #[test]
     fn the_outermost_layer_within_reach_is_taken_and_air_beyond_is_not() {
-        let (v, tris) = cube();
         // A second cube 2 cm larger around the first, and a third far out.
-        let grow = |k: f64| -> Vec<DVec3> {
-            v.iter()
-                .map(|p| DVec3::splat(0.5) + (*p - DVec3::splat(0.5)) * k)
-                .collect()
-        };
-        let mut all = v.clone();
-        all.extend(grow(1.04));
-        all.extend(grow(3.0));
-        let mut t = tris.clone();
-        t.extend(tris.iter().map(|x| x.map(|i| i + 8)));
-        t.extend(tris.iter().map(|x| x.map(|i| i + 16)));
+        let (all, t) = nested_cubes(1.04, 3.0);
         // Off the faces' diagonals (y ≠ z), so that each face is crossed once.
         let o = DVec3::new(0.5, 0.3, 0.6);
         let h = leaves_skin(o, DVec3::X, &all, &t, 0.03).unwrap();
@@ -150,5 +187,38 @@ mod tests {
         // Past the layer's reach the far cube is air beyond: the inner one is taken.
         let h = leaves_skin(o, DVec3::X, &all, &t, 0.01).unwrap();
         assert!((h.distance - 0.5).abs() < 1e-12, "{}", h.distance);
+    }
+
+    /// A ray that leaves a body into a thick shell around it (a belt) within a layer's
+    /// reach: the point out from the crossing into the shell lies inside it, so the
+    /// shell's far side is taken, and past the reach nothing is.
+    #[test]
+    fn a_marker_is_not_left_inside_what_covers_the_skin() {
+        let (v, tris) = cube();
+        let centre = DVec3::splat(0.5);
+        // A shell 1.04 to 1.2 times the body: 2 cm from the body, 8 cm thick.
+        let (all, t) = nested_cubes(1.04, 1.2);
+        // Inside the shell: between its two surfaces.
+        let inside = |p: DVec3| {
+            let r = (p - centre).abs().max_element();
+            (0.52..0.6).contains(&r) || r < 0.5
+        };
+        let o = DVec3::new(0.5, 0.3, 0.6);
+        assert!((leaves_skin(o, DVec3::X, &all, &t, 0.03).unwrap().distance - 0.52).abs() < 1e-12);
+        let reach = |reach_m| Reach {
+            layer_m: 0.03,
+            out_m: 0.008,
+            reach_m,
+        };
+        let h = leaves_volume(o, DVec3::X, &all, &t, reach(0.1), inside).unwrap();
+        assert!((h.distance - 0.6).abs() < 1e-12, "{}", h.distance);
+        assert!(!inside(h.point(&all, 0.008)));
+        // The shell's far side 8 cm past the crossing into it: out of a 5 cm reach.
+        assert!(leaves_volume(o, DVec3::X, &all, &t, reach(0.05), inside).is_none());
+        // Nothing around the body: the crossing of the skin itself.
+        let h = leaves_volume(o, DVec3::X, &v, &tris, reach(0.1), |p| {
+            (p - centre).abs().max_element() < 0.5
+        });
+        assert!((h.unwrap().distance - 0.5).abs() < 1e-12);
     }
 }
