@@ -121,9 +121,9 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
     // The bounds on known truth: scale within 2 %, vertices 1 % mean and 3 % in
     // the worst frame. A "good" outside them is the worst outcome there is; each is
     // counted. Measured: none. All four are doubtful: the actor's size at 0.22 m; at a
-    // person's size, the idle (1.9 % of the height), the run (2.1 %) and the walk
-    // (1.6 %) each with the right hand held at a joint limit in all 20 frames used,
-    // which alone calls them doubtful: their misfits (1.8 to 5.3 mm) and feet would call
+    // person's size, the idle (2.1 % of the height), the run (2.1 %) and the walk
+    // (1.7 %) each with the right hand held at a joint limit in all 20 frames used,
+    // which alone calls them doubtful: their misfits (1.5 to 5.3 mm) and feet would call
     // them good (the run was so called without that check).
     let wrong_but_good: Vec<String> = records
         .iter()
@@ -147,14 +147,14 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
     }
     // The walk at a person's size, started from the set's templates where no frame
     // shows a label on its skin (its arms hang where the character's are level):
-    // measured scale 0.2 % off, vertices 1.6 % of the height, head within 4.1°; from
+    // measured scale 0.9 % off, vertices 1.7 % of the height, head within 2°; from
     // the labels' bones instead (and a scale prior of 1 mm per 5 %), 3.2 %, 5.7 % and
     // 52°.
     let walk = records
         .iter()
         .find(|r| r.clip == "Walk" && r.asset.contains('×'))
         .expect("walk at a person's size");
-    assert!(walk.scale_error < 0.01, "{}", walk.scale_error);
+    assert!(walk.scale_error < 0.015, "{}", walk.scale_error);
     assert!(walk.vertex_share_mean < 0.03, "{}", walk.vertex_share_mean);
     assert!(walk.head_deg_max < 12.0, "{}", walk.head_deg_max);
     // At its exported size the actor would be 0.2 m tall: said so, so not good.
@@ -167,11 +167,11 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
         "{:?}",
         records[0].concerns
     );
-    // The idle at a person's size: scale 2.2 % off (over the 2 %), vertices
-    // 1.9 % of the height, trunk 23° (its labels placed by a take that barely moves
-    // them: the collar's, the back's and the right forearm's 5 to 9 cm off).
+    // The idle at a person's size: scale 1.5 % off, vertices 2.1 % of the height, trunk
+    // 16° (its labels placed by a take that barely moves them: a pelvis label 9 cm off,
+    // a shoulder's 6 cm).
     let idle = records.iter().find(|r| r.clip == "Idle").expect("idle");
-    assert!(idle.scale_error < 0.035, "{}", idle.scale_error);
+    assert!(idle.scale_error < 0.03, "{}", idle.scale_error);
     assert!(idle.vertex_share_mean < 0.035, "{}", idle.vertex_share_mean);
     // The run with the markers' true layout: 1.18 % mean, 1.33 % in the worst frame.
     // Its markers move up to 48 mm a frame from the first: when the marker buffer gated
