@@ -21,6 +21,7 @@ use crate::calibrate::marker_sets::{candidate_joints, normalise};
 use crate::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict};
 use crate::character::animation::{Clip, SkinnedAsset};
 use crate::character::file::{load_character, LoadedCharacter};
+use crate::character::mesh::welded_outward;
 use crate::character::roles::{Part, Role, Side};
 use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
@@ -335,14 +336,17 @@ fn placement_jitter(label: &str) -> [f64; 2] {
 /// The marker set on the rest skin of `loaded`: labels, points and the joints that carry
 /// them (those whose part the skeleton lacks, or whose ray finds no skin, are not put
 /// on).
-fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoint, usize)> {
+fn place_markers(
+    loaded: &LoadedCharacter,
+    height: f64,
+    surface: &WindingNumber,
+) -> Vec<(String, SkinPoint, usize)> {
     let ch = &loaded.character;
     let sk = &ch.skeleton;
     let Some((front, up, left)) = body_axes(sk, &loaded.joint_roles) else {
         return Vec::new();
     };
     let out_m = MARKER_OUT_M;
-    let surface = WindingNumber::new(&ch.vertices, &ch.triangles);
     let mut placed = Vec::new();
     for &(pattern, part, pick, along, [f, u, o]) in LANDMARKS {
         let sides: &[(Option<Side>, &str, f64)] = if pattern.contains("{S}") {
@@ -389,15 +393,7 @@ fn place_markers(loaded: &LoadedCharacter, height: f64) -> Vec<(String, SkinPoin
             let p = start + (end - start) * (along + slide * MAX_SLIDE);
             let layer_m = LAYER_M * height / ACTOR_HEIGHT_M;
             let ray = d.normalize_or_zero();
-            if let Some(sp) = cast(
-                p,
-                ray,
-                &ch.vertices,
-                &ch.triangles,
-                &surface,
-                out_m,
-                layer_m,
-            ) {
+            if let Some(sp) = cast(p, ray, &ch.vertices, &ch.triangles, surface, out_m, layer_m) {
                 // Before its joint, a landmark rides the bone above (a pelvis marker
                 // placed by the hip joint rides the pelvis).
                 let carrier = if along < 0.0 {
@@ -622,7 +618,10 @@ fn case(
             )),
         ));
     }
-    let markers = place_markers(loaded, height);
+    // What is inside the skin, as the calibration judges it.
+    let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
+    let surface = WindingNumber::new(&unique, &oriented);
+    let markers = place_markers(loaded, height, &surface);
     let mut truth = Truth {
         asset,
         clip,
@@ -666,6 +665,7 @@ fn case(
         &ch.vertices,
         &ch.triangles,
         height,
+        &surface,
     );
     let template_off: Vec<f64> = markers
         .iter()

@@ -164,11 +164,15 @@ pub struct Templates<'a> {
     /// (front, up, left) at rest.
     axes: (DVec3, DVec3, DVec3),
     height: f64,
-    /// What is inside the skin.
-    surface: WindingNumber,
+    /// What is inside the skin: the welded, outward-wound skin's winding number
+    /// ([`crate::character::mesh::welded_outward`]), as the calibration's skin terms
+    /// judge it.
+    surface: &'a WindingNumber,
 }
 
 impl<'a> Templates<'a> {
+    /// The templates of the skin `vertices`, `triangles` over `sk` at rest, `surface`
+    /// its winding number welded and wound outward ([`crate::character::mesh::welded_outward`]);
     /// `None` for a character whose body axes cannot be told ([`body_axes`]: no hips,
     /// head or legs).
     pub fn new(
@@ -177,6 +181,7 @@ impl<'a> Templates<'a> {
         vertices: &'a [DVec3],
         triangles: &'a [[u32; 3]],
         height: f64,
+        surface: &'a WindingNumber,
     ) -> Option<Self> {
         Some(Self {
             sk,
@@ -185,7 +190,7 @@ impl<'a> Templates<'a> {
             triangles,
             axes: body_axes(sk, roles)?,
             height,
-            surface: WindingNumber::new(vertices, triangles),
+            surface,
         })
     }
 
@@ -334,9 +339,12 @@ mod tests {
         let sk = &ch.skeleton;
         let roles = recognise(&sk.joints, &[]);
         let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
-        let t = Templates::new(sk, &roles, &ch.vertices, &ch.triangles, hi.y - lo.y).unwrap();
+        let (unique, oriented, _) =
+            crate::character::mesh::welded_outward(&ch.vertices, &ch.triangles);
+        let surface = WindingNumber::new(&unique, &oriented);
+        let height = hi.y - lo.y;
+        let t = Templates::new(sk, &roles, &ch.vertices, &ch.triangles, height, &surface).unwrap();
         let (front, _, left) = t.axes;
-        let surface = WindingNumber::new(&ch.vertices, &ch.triangles);
         let labels: Vec<String> = PLUG_IN_GAIT
             .iter()
             .filter(|l| l.0 != "ARIEL" && !l.0.ends_with("WT") && l.0 != "RBAC")

@@ -757,8 +757,10 @@ pub fn calibrate(
         return Err(no_markers(rec, &plan.left_out));
     }
     let stance = stance_of(ch, roles);
+    let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
+    let surface = WindingNumber::new(&unique, &oriented);
     if opts.markers_on_skin {
-        put_templates(ch, roles, stance, &mut plan);
+        put_templates(ch, roles, stance, &surface, &mut plan);
     }
     let known: Vec<&LabelPlan> = plan
         .labels
@@ -777,8 +779,6 @@ pub fn calibrate(
         return Err(CalibrationError::NoJoints);
     }
     let span = frame_span(rec, opts.span_s);
-    let (unique, oriented, _) = welded_outward(&ch.vertices, &ch.triangles);
-    let surface = WindingNumber::new(&unique, &oriented);
     let parts = Parts::new(&ch.skeleton, &unique, &oriented);
     let (guesses, frames_in_view) =
         first_guesses(ch, &known, rec.frames, span.clone(), stance, &surface);
@@ -902,14 +902,21 @@ fn body_parts(ch: &Character, roles: &[Option<Role>]) -> Vec<(String, Vec<usize>
 }
 
 /// Each label a landmark table knows ([`landmarks::SETS`]) gets its template on the
-/// character's skin.
-fn put_templates(ch: &Character, roles: &[Option<Role>], stance: Stance, plan: &mut labels::Plan) {
+/// character's skin (`surface`: its winding number, welded and wound outward).
+fn put_templates(
+    ch: &Character,
+    roles: &[Option<Role>],
+    stance: Stance,
+    surface: &WindingNumber,
+    plan: &mut labels::Plan,
+) {
     let Some(t) = landmarks::Templates::new(
         &ch.skeleton,
         roles,
         &ch.vertices,
         &ch.triangles,
         stance.height,
+        surface,
     ) else {
         return;
     };
