@@ -928,6 +928,70 @@ fn a_character_off_the_takes_floor_is_doubtful() {
     assert_eq!(far.verdict(), Verdict::Good, "{:?}", far.concerns());
 }
 
+/// Where the take shows no floor, the soles are judged against the ground the feet rest
+/// on: the body given platform soles (every skin point within 2 cm of the sole pushed
+/// 8 cm down, a boot whose sole the actor's shoes lack) stands with its lowest foot
+/// marker about 10 cm above its soles, where a person's stands at most 6 cm above the
+/// ground, and is doubtful with the take lifted 50 cm, naming its soles as at least
+/// 4 cm under the actor's (the floor check, which needs the floor, says nothing there).
+/// On the floor the floor check says it instead; without platforms nothing is said.
+#[test]
+fn soles_deeper_under_the_foot_markers_than_a_persons_are_named_without_a_floor() {
+    use rigless::calibrate::{Concern, FLOOR_TOLERANCE_M, FOOT_MARKER_MAX_M};
+    let (bare, _) = bodies();
+    let sole_y = bare
+        .vertices
+        .iter()
+        .map(|v| v.y)
+        .fold(f64::INFINITY, f64::min);
+    let mut platforms = bare.clone();
+    for v in &mut platforms.vertices {
+        if v.y < sole_y + 0.02 {
+            v.y -= 0.08;
+        }
+    }
+    let lifted = |ch: &Character, dy: f64| {
+        let mut rec = take("body_rom", 1.0);
+        for p in rec.frames.iter_mut().flatten() {
+            p.y += dy;
+        }
+        run(ch, &rec, &CalibrationOptions::default())
+    };
+    let soles = |cal: &Calibration| {
+        cal.concerns().into_iter().find_map(|c| match c {
+            Concern::Soles { off_m, .. } => Some(off_m),
+            _ => None,
+        })
+    };
+    let plain = lifted(&bare, 0.5);
+    let above = plain.floor.and_then(|f| f.foot_marker_above_skin_m);
+    // Measured: 2.0 cm, the lowest marker's own height above the floor in the take.
+    println!("plain, lifted: foot marker {above:?} m above the soles");
+    let above = above.expect("the feet bear the weight");
+    assert!((0.0..FOOT_MARKER_MAX_M).contains(&above), "{above}");
+    assert_eq!(soles(&plain), None, "{:?}", plain.concerns());
+    let high = lifted(&platforms, 0.5);
+    let floor = high.floor.expect("a floor check");
+    println!("platforms, lifted: {floor:?}; {:?}", high.concerns());
+    assert!(!floor.floor_shown());
+    // The platform's 8 cm over the plain body's height (measured: 9.9 cm, 8.0 more),
+    // to half a centimetre (the fit moves with the changed skin under the feet).
+    let above_high = floor
+        .foot_marker_above_skin_m
+        .expect("the feet bear the weight");
+    assert!((above_high - above - 0.08).abs() < 0.005, "{above_high}");
+    let off = soles(&high).expect("the soles named");
+    assert!(off > FLOOR_TOLERANCE_M && (off - (above_high - FOOT_MARKER_MAX_M)).abs() < 1e-9);
+    assert_eq!(high.verdict(), Verdict::Doubtful);
+    let on = lifted(&platforms, 0.0);
+    let concerns = on.concerns();
+    assert!(
+        concerns.iter().any(|c| matches!(c, Concern::Floor(_))),
+        "{concerns:?}"
+    );
+    assert_eq!(soles(&on), None);
+}
+
 /// A take with no marker on some limb leaves it undriven, and says which: the body's
 /// range of motion with its left arm's and head's labels missing throughout is doubtful,
 /// naming the left arm and the head and nothing else (the trunk still turns with the
@@ -1202,23 +1266,12 @@ fn a_cmu_take_calibrates_without_help_about_as_well_as_by_hand() {
 #[test]
 fn knees_bent_in_every_frame_are_named() {
     use rigless::calibrate::{Concern, BENT_KNEES_DEG};
-    use rigless::character::file::load_character;
-    let (Some(rec), Some(glb)) = (
-        shared_take("c3d/FP_Type1.c3d"),
-        common::shared_path("meshes/real/threejs_soldier_mixamo.glb"),
-    ) else {
+    let (Some(rec), Some(soldier)) = (shared_take("c3d/FP_Type1.c3d"), soldier_at_1_86_m()) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let file = rigless::bench::assets::gltf_file(&glb, dir.path()).unwrap();
-    let text = std::fs::read_to_string(&file).unwrap();
-    std::fs::write(&file, format!("{text}scale = 8.5\n")).unwrap();
-    let soldier = load_character(&file).unwrap_or_else(|e| panic!("{e}"));
-    let mut bare = soldier.character.clone();
-    bare.markers.clear();
     let cal = calibrate(
-        &bare,
-        &soldier.joint_roles,
+        &soldier.0,
+        &soldier.1,
         rec.as_take(),
         &CalibrationOptions::default(),
     )
@@ -1234,4 +1287,65 @@ fn knees_bent_in_every_frame_are_named() {
     let (body, _) = bodies();
     let on_body = run(&body, &rec, &CalibrationOptions::default());
     assert!(on_body.bent_knees.is_empty(), "{:?}", on_body.bent_knees);
+}
+
+/// The Mixamo soldier at a person's size (`[mesh] scale = 8.5`, 1.86 m) without its
+/// layout, with its roles; `None` (the reason printed) without the shared data folder.
+fn soldier_at_1_86_m() -> Option<(Character, Vec<Option<rigless::character::roles::Role>>)> {
+    let glb = common::shared_path("meshes/real/threejs_soldier_mixamo.glb")?;
+    let dir = tempfile::tempdir().unwrap();
+    let file = rigless::bench::assets::gltf_file(&glb, dir.path()).unwrap();
+    let text = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(&file, format!("{text}scale = 8.5\n")).unwrap();
+    let soldier = rigless::character::file::load_character(&file).unwrap_or_else(|e| panic!("{e}"));
+    let mut bare = soldier.character.clone();
+    bare.markers.clear();
+    Some((bare, soldier.joint_roles))
+}
+
+/// Real takes on the Mixamo soldier at 1.86 m, whose boots reach farther below their
+/// heel and toe labels than the actors' shoes: on the Plug-in Gait walk (down steps, no
+/// floor at `y = 0`) its soles are named at least 6 cm under the actor's (measured: the
+/// lowest foot marker 12.3 cm above them, 6.3 cm past a shoe's 6; its pictures show the
+/// boots 5 to 10 cm into the steps); on CMU 85_02, which shows its floor, the floor
+/// check names the feet 6.7 cm under it, and the floor-free bound the same walk would
+/// give (measured: 5.0 cm) stays under what the floor shows, as the bound claims.
+#[test]
+fn a_real_characters_boots_deeper_than_the_actors_shoes_are_named_without_a_floor() {
+    use rigless::calibrate::{Concern, FOOT_MARKER_MAX_M};
+    let (Some(walk), Some(cmu), Some(soldier)) = (
+        shared_take("c3d/real/pycgm_pig_movement_trial.c3d"),
+        shared_take("c3d/real/cmu_85_02.c3d"),
+        soldier_at_1_86_m(),
+    ) else {
+        return;
+    };
+    let run = |rec: &Recording| {
+        calibrate(
+            &soldier.0,
+            &soldier.1,
+            rec.as_take(),
+            &CalibrationOptions::default(),
+        )
+        .unwrap_or_else(|e| panic!("{e}"))
+    };
+    let cal = run(&walk);
+    let concerns = cal.concerns();
+    println!("walk: {:?}", cal.floor);
+    let off = concerns.iter().find_map(|c| match c {
+        Concern::Soles { off_m, .. } => Some(*off_m),
+        _ => None,
+    });
+    let off = off.unwrap_or_else(|| panic!("{concerns:?}"));
+    assert!((0.04..0.09).contains(&off), "{off}");
+    assert_eq!(cal.verdict(), Verdict::Doubtful);
+    let cal = run(&cmu);
+    let floor = cal.floor.expect("a floor check");
+    println!("CMU: {floor:?}");
+    assert!(floor.off_floor(), "{floor:?}");
+    let bound = floor
+        .foot_marker_above_skin_m
+        .expect("feet bear the weight")
+        - FOOT_MARKER_MAX_M;
+    assert!(bound > 0.0 && bound <= -floor.lowest_skin_m, "{floor:?}");
 }

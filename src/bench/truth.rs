@@ -138,6 +138,10 @@ pub struct TruthRecord {
     /// against the truth, mean, millimetres: where the labels would be were the take no
     /// help.
     pub template_mm_mean: f64,
+    /// The placed labels' rest positions against their templates, mean and the largest
+    /// with its label, millimetres: how far the take moved them from where they started.
+    pub from_template_mm_mean: f64,
+    pub from_template_mm_max: (String, f64),
     /// Mean vertex error over the mesh as a share of the height: its mean over the
     /// frames, its worst frame, and the largest single vertex error.
     pub vertex_share_mean: f64,
@@ -674,6 +678,11 @@ fn case(
             Some((t - m.1.at(&ch.vertices)).length() * 1e3)
         })
         .collect();
+    let from_template: Vec<(String, f64)> = cal
+        .placed
+        .iter()
+        .filter_map(|p| Some((p.label.clone(), p.from_template_m? * 1e3)))
+        .collect();
     let bind = loaded.bind_for(&cal.layout(&bare));
     let rig = Arc::new(
         cal.bind(&bare, &bind, &mut |_, _| {})
@@ -705,6 +714,12 @@ fn case(
         placement_mm_max: placement.iter().copied().fold(0.0, f64::max),
         worst_placed: off,
         template_mm_mean: template_off.iter().sum::<f64>() / template_off.len().max(1) as f64,
+        from_template_mm_mean: from_template.iter().map(|f| f.1).sum::<f64>()
+            / from_template.len().max(1) as f64,
+        from_template_mm_max: from_template
+            .into_iter()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or_default(),
         vertex_share_mean: tally.frame_means.iter().sum::<f64>() / n,
         vertex_share_worst_frame: tally.frame_means.iter().copied().fold(0.0, f64::max),
         vertex_share_max: tally.vertex_max,
@@ -833,10 +848,13 @@ fn print(r: &TruthRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
         .collect();
     writeln!(
         out,
-        "{:<22} placed furthest off (mm): {}; the templates alone {:.1} mm mean",
+        "{:<22} placed furthest off (mm): {}; the templates alone {:.1} mm mean; placed from the templates {:.1} mm mean, {:.0} mm at most ({})",
         "",
         worst.join(", "),
-        r.template_mm_mean
+        r.template_mm_mean,
+        r.from_template_mm_mean,
+        r.from_template_mm_max.1,
+        r.from_template_mm_max.0
     )?;
     if let Some((joint, deg)) = &r.beyond_limits {
         writeln!(

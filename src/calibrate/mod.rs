@@ -39,7 +39,7 @@ use glam::{DQuat, DVec3};
 use labels::{plan, LabelPlan, LeftOut, MapEntry, MapError, Source};
 use marker_sets::MarkerSet;
 use points::{screen_by_geometry, screen_by_name, PointFilter};
-use solve::{OffsetSolve, Parts, Skin, SolveParams, SolveReport};
+use solve::{Lowest, OffsetSolve, Parts, Skin, SolveParams, SolveReport};
 
 /// Seconds either side of the rest-like frame a calibration fits first, before the
 /// whole take ([`Problem::solve_from`]).
@@ -146,6 +146,9 @@ pub struct PlacedLabel {
     /// Frames used that have it.
     pub frames: usize,
     pub flag: Option<Flag>,
+    /// Distance of its rest position from its template, where its marker set's manual
+    /// puts it ([`landmarks`]), take metres; `None` without a template.
+    pub from_template_m: Option<f64>,
 }
 
 /// A calibration's result.
@@ -249,6 +252,9 @@ pub enum Concern {
     /// A standing character's lowest point is farther than [`FLOOR_TOLERANCE_M`] from
     /// the floor the take shows ([`FloorCheck`]).
     Floor(FloorCheck),
+    /// Where the take shows no floor, a standing character's soles at least
+    /// [`FLOOR_TOLERANCE_M`] below or above the actor's ([`FloorCheck::soles_off_m`]).
+    Soles { floor: FloorCheck, off_m: f64 },
     /// A head whose turn only its own labels see ([`Calibration::rest_turns`]),
     /// turned more than [`TURNED_AT_REST_DEG`] from rest in the rest-like frame.
     TurnedAtRest { joints: Vec<(String, f64)> },
@@ -280,7 +286,15 @@ pub const FLOOR_TOLERANCE_M: f64 = 0.03;
 /// floor at another height) the take says nothing of its floor.
 pub const FLOOR_MARKER_M: std::ops::RangeInclusive<f64> = -0.02..=0.15;
 
-/// Where a calibration puts the character against the take's floor (`y = 0`).
+/// Highest a person's heel or toe marker stands above the ground its foot rests on,
+/// take metres: the toe marker on the second metatarsal head, the heel marker at the
+/// same height above the sole (Vicon, "Plug-in Gait Reference Guide"), a 14 mm marker
+/// on the skin or on a shoe's upper: 2 to 4 cm barefoot, up to about 6 cm in shoes (the
+/// CMU actor's lowest markers stand 3.0 to 3.3 cm above the take's floor).
+pub const FOOT_MARKER_MAX_M: f64 = 0.06;
+
+/// Where a calibration puts the character against the take's floor (`y = 0`), and,
+/// where the take shows none, against the ground its feet rest on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FloorCheck {
     /// Median over the frames used of the height of the posed character's lowest skin
@@ -289,23 +303,37 @@ pub struct FloorCheck {
     /// Median over the frames used of the height of the lowest marker in view, take
     /// metres.
     pub lowest_marker_m: f64,
+    /// Median, over the frames used whose lowest marker rides a foot (a foot or toe
+    /// joint: a heel or toe marker) and whose lowest skin point is that foot's (its
+    /// part, its shin's or its toes': the foot that bears the weight), of that marker's
+    /// height above that point, take metres; `None` when fewer than half of the frames
+    /// used have one.
+    pub foot_marker_above_skin_m: Option<f64>,
 }
 
 impl FloorCheck {
-    /// From per-frame heights of the lowest skin point and lowest marker
-    /// ([`solve::OffsetSolve::lowest_m`]); `None` when no frame has both.
-    pub fn from_frames(lowest: &[(f64, f64)]) -> Option<Self> {
-        let (mut skin, mut marker): (Vec<f64>, Vec<f64>) = lowest
+    /// From each frame's lowest skin point and lowest marker ([`solve::OffsetSolve::lowest_m`]),
+    /// and whether a marker `k` rides a foot whose sole is joint `j`'s part
+    /// (`on_foot(k, j)`); `None` when no frame has both heights.
+    pub fn from_frames(lowest: &[Lowest], on_foot: impl Fn(usize, usize) -> bool) -> Option<Self> {
+        let both: Vec<&Lowest> = lowest
             .iter()
-            .filter(|(s, m)| s.is_finite() && m.is_finite())
-            .copied()
-            .unzip();
-        if skin.is_empty() {
+            .filter(|l| l.skin_m.is_finite() && l.marker_m.is_finite())
+            .collect();
+        if both.is_empty() {
             return None;
         }
+        let median = |mut v: Vec<f64>| crate::runtime::stats::percentile(&mut v, 0.5);
+        let above: Vec<f64> = both
+            .iter()
+            .filter(|l| matches!((l.marker, l.skin_joint), (Some(k), Some(j)) if on_foot(k, j)))
+            .map(|l| l.marker_m - l.skin_m)
+            .collect();
+        let foot_marker_above_skin_m = (above.len() * 2 >= both.len()).then(|| median(above));
         Some(Self {
-            lowest_skin_m: crate::runtime::stats::percentile(&mut skin, 0.5),
-            lowest_marker_m: crate::runtime::stats::percentile(&mut marker, 0.5),
+            lowest_skin_m: median(both.iter().map(|l| l.skin_m).collect()),
+            lowest_marker_m: median(both.iter().map(|l| l.marker_m).collect()),
+            foot_marker_above_skin_m,
         })
     }
 
@@ -317,6 +345,26 @@ impl FloorCheck {
     /// Whether the character stands off that floor by more than [`FLOOR_TOLERANCE_M`].
     pub fn off_floor(&self) -> bool {
         self.floor_shown() && self.lowest_skin_m.abs() > FLOOR_TOLERANCE_M
+    }
+
+    /// Where the take shows no floor: how far at least the character's soles stand
+    /// below the actor's (positive) or above them (negative), take metres, when that is
+    /// more than [`FLOOR_TOLERANCE_M`]. The lowest marker of a foot that bears the
+    /// weight stands between the ground and [`FOOT_MARKER_MAX_M`] above it; the
+    /// character's sole, that marker's height below it, lies as far under or over the
+    /// actor's ground as that height is outside the range. `None` where the floor is
+    /// shown (the floor itself is judged: [`Self::off_floor`]) or no foot bears the
+    /// weight in most frames used.
+    pub fn soles_off_m(&self) -> Option<f64> {
+        let above = self
+            .foot_marker_above_skin_m
+            .filter(|_| !self.floor_shown())?;
+        let off = if above > FOOT_MARKER_MAX_M {
+            above - FOOT_MARKER_MAX_M
+        } else {
+            above.min(0.0)
+        };
+        (off.abs() > FLOOR_TOLERANCE_M).then_some(off)
     }
 }
 
@@ -335,6 +383,7 @@ impl Concern {
             | Concern::WholeSpan { .. }
             | Concern::ActorSize { .. }
             | Concern::Floor(_)
+            | Concern::Soles { .. }
             | Concern::TurnedAtRest { .. }
             | Concern::Undriven { .. }
             | Concern::Strained { .. }
@@ -395,6 +444,27 @@ impl std::fmt::Display for Concern {
                 floor.lowest_skin_m.abs() * 100.0,
                 if floor.lowest_skin_m < 0.0 { "under" } else { "above" },
                 floor.lowest_marker_m * 100.0
+            ),
+            Concern::Soles { floor, off_m } => write!(
+                f,
+                "the lowest marker, on the foot that bears the weight, stands {:.1} cm above \
+                 the character's lowest point in the median frame used, where a person's heel \
+                 or toe marker stands {} cm above the ground: the character's soles stand at \
+                 least {:.1} cm {} the actor's (the take shows no floor at y = 0 to judge \
+                 them against); the character's feet reach {} below their labels than the \
+                 actor's (a thick sole, a bulky boot, or labels fitted {} on the feet); look \
+                 at the feet in a replay (--rerun), and try a character whose feet are like \
+                 the actor's or name the foot labels' bones in [calibration.bones]",
+                floor.foot_marker_above_skin_m.unwrap_or(f64::NAN) * 100.0,
+                if *off_m > 0.0 {
+                    format!("at most {:.0}", FOOT_MARKER_MAX_M * 100.0)
+                } else {
+                    "at least 0".to_owned()
+                },
+                off_m.abs() * 100.0,
+                if *off_m > 0.0 { "under" } else { "over" },
+                if *off_m > 0.0 { "farther" } else { "less far" },
+                if *off_m > 0.0 { "high" } else { "low" },
             ),
             Concern::Strained { joints, frames } => write!(
                 f,
@@ -508,9 +578,11 @@ impl Calibration {
         if !turned.is_empty() {
             out.push(Concern::TurnedAtRest { joints: turned });
         }
-        if let Some(floor) = self.floor.filter(|f| f.off_floor()) {
-            if self.standing_height_m.is_some() {
+        if let (Some(floor), Some(_)) = (self.floor, self.standing_height_m) {
+            if floor.off_floor() {
                 out.push(Concern::Floor(floor));
+            } else if let Some(off_m) = floor.soles_off_m() {
+                out.push(Concern::Soles { floor, off_m });
             }
         }
         let parts: Vec<String> = self
@@ -1750,6 +1822,7 @@ fn finish(
             residual_mm_max: r_max * 1e3,
             frames: count,
             flag,
+            from_template_m: p.plan.template.map(|t| (x - t).length() / solve.scale),
         });
     }
     Calibration {
@@ -1767,11 +1840,47 @@ fn finish(
         whole_span_mm: None,
         standing_height_m: None,
         body_parts: Vec::new(),
-        floor: FloorCheck::from_frames(&solve.lowest_m()),
+        // Joint centres (a BVH) are no heel or toe markers: their height above the
+        // sole is the character's ankle's, not a person's marker's.
+        floor: FloorCheck::from_frames(&solve.lowest_m(), |k, j| {
+            on_skin
+                && placed
+                    .get(k)
+                    .is_some_and(|p| on_its_foot(ch, roles, p.joint, j))
+        }),
         rest_turns,
         strained: strained_joints(ch, roles, solve),
         bent_knees: bent_knees(ch, roles, solve),
     }
+}
+
+/// Whether joint `j` is a foot or toe joint and joint `o`'s part is on the same leg
+/// below the knee: the shin (the nearest ancestor of `j` that is a lower leg, or `j`'s
+/// parent without one; its part holds the heel where the bind divides the skin by
+/// nearest bone) or any joint below it (the foot, the toes, their ends).
+fn on_its_foot(ch: &Character, roles: &[Option<Role>], j: usize, o: usize) -> bool {
+    let sk = &ch.skeleton;
+    let part = |x: usize| roles.get(x).copied().flatten().map(|r| r.part);
+    if !matches!(part(j), Some(Part::Foot | Part::Toes)) || j >= sk.len() || o >= sk.len() {
+        return false;
+    }
+    let mut shin = sk.joints[j].parent.unwrap_or(j);
+    let mut up = Some(j);
+    while let Some(x) = up {
+        if part(x) == Some(Part::LowerLeg) {
+            shin = x;
+            break;
+        }
+        up = sk.joints[x].parent;
+    }
+    let mut up = Some(o);
+    while let Some(x) = up {
+        if x == shin {
+            return true;
+        }
+        up = sk.joints[x].parent;
+    }
+    false
 }
 
 /// Least bend, degrees, that every knee must keep in every frame used for the fit to be
@@ -1910,17 +2019,29 @@ mod tests {
     /// no foot's on `y = 0` shows no floor, and nothing is judged against it.
     #[test]
     fn a_floor_check_takes_medians_and_judges_only_a_floor_the_take_shows() {
+        let at = |skin_m: f64, marker_m: f64, marker: Option<usize>| Lowest {
+            skin_m,
+            skin_joint: Some(7),
+            marker_m,
+            marker,
+        };
         let frames = [
-            (-0.05, 0.03),
-            (-0.04, 0.02),
-            (f64::NAN, 0.01),
-            (-0.06, f64::NAN),
-            (-0.20, 0.40),
+            at(-0.05, 0.03, Some(0)),
+            at(-0.04, 0.04, Some(1)),
+            at(f64::NAN, 0.01, Some(0)),
+            at(-0.06, f64::NAN, None),
+            at(-0.20, 0.40, Some(2)),
         ];
-        let f = FloorCheck::from_frames(&frames).expect("three frames have both");
+        let on_foot = |k: usize, j: usize| k < 2 && j == 7;
+        let f = FloorCheck::from_frames(&frames, on_foot).expect("three frames have both");
         assert_eq!(f.lowest_skin_m, -0.05);
-        assert_eq!(f.lowest_marker_m, 0.03);
+        assert_eq!(f.lowest_marker_m, 0.04);
         assert!(f.floor_shown() && f.off_floor());
+        // Two of the three frames with both have a foot's marker lowest, 8 cm above the
+        // skin; the floor is shown, so the soles are judged against it alone.
+        let above = f.foot_marker_above_skin_m.expect("two of three frames");
+        assert!((above - 0.08).abs() < 1e-12, "{above}");
+        assert_eq!(f.soles_off_m(), None);
         let near = FloorCheck {
             lowest_skin_m: -0.02,
             ..f
@@ -1931,6 +2052,27 @@ mod tests {
             ..f
         };
         assert!(!high.floor_shown() && !high.off_floor());
-        assert!(FloorCheck::from_frames(&[(f64::NAN, 0.0)]).is_none());
+        // No floor shown: a foot's marker 8 cm above the soles is within a shoe's 6 cm
+        // and the 3 cm tolerance; 12 cm puts the soles at least 6 cm under the actor's;
+        // 4 cm under them, the soles 4 cm over it.
+        assert_eq!(high.soles_off_m(), None);
+        let sunk = FloorCheck {
+            foot_marker_above_skin_m: Some(0.12),
+            ..high
+        };
+        assert!((sunk.soles_off_m().expect("sunk") - 0.06).abs() < 1e-12);
+        let floating = FloorCheck {
+            foot_marker_above_skin_m: Some(-0.04),
+            ..high
+        };
+        assert!((floating.soles_off_m().expect("floating") + 0.04).abs() < 1e-12);
+        // Most frames' lowest marker on no foot: nothing said of the soles.
+        let hands = FloorCheck::from_frames(&frames, |k, _| k == 1).expect("frames");
+        assert_eq!(hands.foot_marker_above_skin_m, None);
+        // A foot's marker lowest while the lowest skin point is elsewhere (lying down,
+        // kneeling): that foot bears no weight, and nothing is said of the soles.
+        let lying = FloorCheck::from_frames(&frames, |k, j| k < 2 && j == 3).expect("frames");
+        assert_eq!(lying.foot_marker_above_skin_m, None);
+        assert!(FloorCheck::from_frames(&[at(f64::NAN, 0.0, Some(0))], on_foot).is_none());
     }
 }

@@ -217,20 +217,23 @@ impl<'a> Parts<'a> {
 
     /// The height (`y`) of the lowest point of the skin with the joints at world
     /// rotations `rot` and positions `pos` (indexed by joint), each part moving rigidly
-    /// with its joint; NaN when there is no skin. Near the joints the solve's deformed
+    /// with its joint, and the joint whose part holds it; NaN when there is no skin. Near the joints the solve's deformed
     /// mesh blends neighbouring parts; a foot's sole, the lowest point of a standing
     /// character, moves with its foot.
-    pub fn lowest(&self, rot: &[DQuat], pos: &[DVec3]) -> f64 {
-        let mut low = f64::INFINITY;
-        for ((vs, q), t) in self.owned.iter().zip(rot).zip(pos) {
+    pub fn lowest(&self, rot: &[DQuat], pos: &[DVec3]) -> (f64, Option<usize>) {
+        let mut low = (f64::INFINITY, None);
+        for (j, ((vs, q), t)) in self.owned.iter().zip(rot).zip(pos).enumerate() {
             for v in vs {
-                low = low.min(t.y + (*q * *v).y);
+                let y = t.y + (*q * *v).y;
+                if y < low.0 {
+                    low = (y, Some(j));
+                }
             }
         }
-        if low.is_finite() {
+        if low.0.is_finite() {
             low
         } else {
-            f64::NAN
+            (f64::NAN, None)
         }
     }
 
@@ -241,6 +244,19 @@ impl<'a> Parts<'a> {
         let parent = |x: usize| self.skeleton.joints.get(x).and_then(|jj| jj.parent);
         o == j || parent(j) == Some(o) || parent(o) == Some(j)
     }
+}
+
+/// One fitted frame's lowest points ([`OffsetSolve::lowest_m`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lowest {
+    /// Height of the posed skin's lowest point, take metres (NaN without a skin).
+    pub skin_m: f64,
+    /// The joint whose part ([`Parts`]) holds that point.
+    pub skin_joint: Option<usize>,
+    /// Height of the lowest marker in view, take metres (NaN without one).
+    pub marker_m: f64,
+    /// That marker's index among the problem's markers.
+    pub marker: Option<usize>,
 }
 
 /// The character's rest skin as the skin prior sees it.
@@ -363,20 +379,25 @@ impl<'a> OffsetSolve<'a> {
         self.model.marker_offset[k]
     }
 
-    /// Per frame used, the heights of the posed skin's lowest point ([`Parts::lowest`])
-    /// and of the lowest marker in view, take metres (NaN where there is none).
-    pub fn lowest_m(&self) -> Vec<(f64, f64)> {
+    /// Per frame used, the posed skin's lowest point ([`Parts::lowest`]) and the lowest
+    /// marker in view.
+    pub fn lowest_m(&self) -> Vec<Lowest> {
         self.states
             .iter()
             .zip(&self.frames)
             .map(|(st, frame)| {
-                let skin = self.skin.parts.lowest(&st.world_rot, &st.world_pos) / self.scale;
-                let marker = frame
+                let (skin, skin_joint) = self.skin.parts.lowest(&st.world_rot, &st.world_pos);
+                let lowest = frame
                     .iter()
-                    .filter(|m| m.is_finite())
-                    .map(|m| m.y)
-                    .fold(f64::NAN, f64::min);
-                (skin, marker)
+                    .enumerate()
+                    .filter(|(_, m)| m.is_finite())
+                    .min_by(|a, b| a.1.y.total_cmp(&b.1.y));
+                Lowest {
+                    skin_m: skin / self.scale,
+                    skin_joint,
+                    marker_m: lowest.map_or(f64::NAN, |(_, m)| m.y),
+                    marker: lowest.map(|(k, _)| k),
+                }
             })
             .collect()
     }

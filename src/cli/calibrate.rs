@@ -406,6 +406,8 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
             "lowest_skin_m": f.lowest_skin_m,
             "lowest_marker_m": f.lowest_marker_m,
             "floor_shown": f.floor_shown(),
+            "foot_marker_above_skin_m": f.foot_marker_above_skin_m,
+            "soles_off_m": f.soles_off_m(),
         })),
         "residual_mm_rms": cal.residual_mm_rms,
         "residual_mm_max": cal.residual_mm_max,
@@ -418,6 +420,7 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
             "skin_mm": p.skin_m * 1e3,
             "from": p.source.to_string(),
             "residual_mm_rms": p.residual_mm_rms,
+            "from_template_mm": p.from_template_m.map(|d| d * 1e3),
             "residual_mm_max": p.residual_mm_max,
             "frames": p.frames,
             "flag": p.flag.as_ref().map(ToString::to_string),
@@ -508,6 +511,12 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
                 " (too far for a foot's: the take does not show its floor)"
             }
         );
+        if let Some(above) = f.foot_marker_above_skin_m {
+            println!(
+                "soles        the lowest marker, on a foot, {:+.1} cm above the character's lowest point in the median frame used",
+                100.0 * above
+            );
+        }
     }
     println!();
     println!(
