@@ -1158,6 +1158,8 @@ impl Problem<'_> {
         fit.choose_candidates(&solve, &mut placed);
         let mut solve = fit.problem(&placed, &start, solve.scale, Some(&solve));
         let report = solve.run();
+        let (solve, report) =
+            self.heads_turned_back(&fit, &placed, &start, (solve, report), first.frame);
         if !(solve.scale.is_finite() && solve.scale > 0.0) {
             return Err(CalibrationError::Degenerate {
                 take: rec.name.to_owned(),
@@ -1174,6 +1176,62 @@ impl Problem<'_> {
             self.opts,
         );
         Ok((cal, report.cost_end))
+    }
+}
+
+impl<'a> Problem<'a> {
+    /// The fit again with each head whose turn only its own labels see, turned more than
+    /// [`TURNED_AT_REST_DEG`] from rest in the rest-like frame (`rest`), turned back
+    /// there, its labels' offsets turned with it: the labels fit every frame alike either
+    /// way (the head's turn and its labels' offsets trade exactly), so the fit may settle
+    /// on either; the one of lower objective is kept.
+    fn heads_turned_back<'s>(
+        &self,
+        fit: &Fit<'s>,
+        placed: &[Placing],
+        start: &[(DQuat, DVec3)],
+        (solve, report): (OffsetSolve<'s>, SolveReport),
+        rest: usize,
+    ) -> (OffsetSolve<'s>, SolveReport) {
+        let joints: Vec<usize> = placed.iter().map(|p| p.joint).collect();
+        let turned: Vec<(usize, DQuat)> = gauge_turns(&self.ch.skeleton, &joints, &solve, rest)
+            .into_iter()
+            .filter(|&(j, q)| {
+                self.roles
+                    .get(j)
+                    .copied()
+                    .flatten()
+                    .is_some_and(|r| r.part == Part::Head)
+                    && q.angle_between(DQuat::IDENTITY).to_degrees() > TURNED_AT_REST_DEG
+            })
+            .collect();
+        if turned.is_empty() {
+            return (solve, report);
+        }
+        let back: Vec<Placing> = placed
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let offset = solve.model.marker_offset[k];
+                let turn = turned.iter().find(|t| t.0 == p.joint).map(|t| t.1);
+                Placing {
+                    offset: turn.map_or(offset, |q| q * offset),
+                    ..p.clone()
+                }
+            })
+            .collect();
+        let mut other = fit.problem(&back, start, solve.scale, Some(&solve));
+        let other_report = other.run();
+        tracing::debug!(
+            cost = report.cost_end,
+            turned_back = other_report.cost_end,
+            "heads turned back"
+        );
+        if other_report.cost_end < report.cost_end {
+            (other, other_report)
+        } else {
+            (solve, report)
+        }
     }
 }
 
@@ -1977,7 +2035,25 @@ fn rest_turns(
     solve: &OffsetSolve,
     state: usize,
 ) -> Vec<(String, f64)> {
-    let sk = &ch.skeleton;
+    gauge_turns(&ch.skeleton, joints, solve, state)
+        .into_iter()
+        .map(|(j, q)| {
+            let deg = q.angle_between(DQuat::IDENTITY).to_degrees();
+            (ch.skeleton.joints[j].name.clone(), deg)
+        })
+        .collect()
+}
+
+/// Per joint whose turn only its own labels see (it carries labels, nothing below it
+/// does; the labels ride `joints`), its turn from rest in state `state` of `solve`
+/// against the nearest ancestor that carries labels (rest axes: world rotations are the
+/// identity at rest).
+fn gauge_turns(
+    sk: &crate::character::skeleton::Skeleton,
+    joints: &[usize],
+    solve: &OffsetSolve,
+    state: usize,
+) -> Vec<(usize, DQuat)> {
     let Some(st) = solve.states.get(state) else {
         return Vec::new();
     };
@@ -2000,13 +2076,10 @@ fn rest_turns(
             up = sk.joints[p].parent;
         }
         let Some(anchor) = up else { continue };
-        // World rotations are the identity at rest: the turn is the relative one's angle.
-        let relative = st.world_rot[anchor].inverse() * st.world_rot[j];
-        let deg = relative
-            .normalize()
-            .angle_between(DQuat::IDENTITY)
-            .to_degrees();
-        out.push((sk.joints[j].name.clone(), deg));
+        out.push((
+            j,
+            (st.world_rot[anchor].inverse() * st.world_rot[j]).normalize(),
+        ));
     }
     out
 }
