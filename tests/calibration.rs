@@ -1269,13 +1269,7 @@ fn knees_bent_in_every_frame_are_named() {
     let (Some(rec), Some(soldier)) = (shared_take("c3d/FP_Type1.c3d"), soldier_at_1_86_m()) else {
         return;
     };
-    let cal = calibrate(
-        &soldier.0,
-        &soldier.1,
-        rec.as_take(),
-        &CalibrationOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let cal = calibrate_onto(&soldier, &rec);
     println!("soldier: {:?}", cal.bent_knees);
     assert_eq!(cal.bent_knees.len(), 2, "{:?}", cal.concerns());
     assert!(cal.bent_knees.iter().all(|(_, deg)| *deg > BENT_KNEES_DEG));
@@ -1293,6 +1287,15 @@ fn knees_bent_in_every_frame_are_named() {
 /// layout, with its roles; `None` (the reason printed) without the shared data folder.
 fn soldier_at_1_86_m() -> Option<(Character, Vec<Option<rigless::character::roles::Role>>)> {
     shared_character("meshes/real/threejs_soldier_mixamo.glb", 8.5)
+}
+
+/// `rec` calibrated onto `ch` (a character and its roles) with the default options.
+fn calibrate_onto(
+    ch: &(Character, Vec<Option<rigless::character::roles::Role>>),
+    rec: &Recording,
+) -> Calibration {
+    calibrate(&ch.0, &ch.1, rec.as_take(), &CalibrationOptions::default())
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A glTF character of the shared data folder at `[mesh] scale`, without its layout,
@@ -1329,16 +1332,7 @@ fn a_real_characters_boots_deeper_than_the_actors_shoes_are_named_without_a_floo
     ) else {
         return;
     };
-    let run = |rec: &Recording| {
-        calibrate(
-            &soldier.0,
-            &soldier.1,
-            rec.as_take(),
-            &CalibrationOptions::default(),
-        )
-        .unwrap_or_else(|e| panic!("{e}"))
-    };
-    let cal = run(&walk);
+    let cal = calibrate_onto(&soldier, &walk);
     let concerns = cal.concerns();
     println!("walk: {:?}", cal.floor);
     let off = concerns.iter().find_map(|c| match c {
@@ -1348,7 +1342,7 @@ fn a_real_characters_boots_deeper_than_the_actors_shoes_are_named_without_a_floo
     let off = off.unwrap_or_else(|| panic!("{concerns:?}"));
     assert!((0.04..0.09).contains(&off), "{off}");
     assert_eq!(cal.verdict(), Verdict::Doubtful);
-    let cal = run(&cmu);
+    let cal = calibrate_onto(&soldier, &cmu);
     let floor = cal.floor.expect("a floor check");
     println!("CMU: {floor:?}");
     assert!(floor.off_floor(), "{floor:?}");
@@ -1374,13 +1368,7 @@ fn a_head_fitted_turned_is_tried_turned_back() {
     ) else {
         return;
     };
-    let cal = calibrate(
-        &cesium.0,
-        &cesium.1,
-        rec.as_take(),
-        &CalibrationOptions::default(),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let cal = calibrate_onto(&cesium, &rec);
     println!(
         "misfit {:.1} mm, turns {:?}",
         cal.residual_mm_rms, cal.rest_turns

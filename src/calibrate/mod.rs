@@ -1177,9 +1177,7 @@ impl Problem<'_> {
         );
         Ok((cal, report.cost_end))
     }
-}
 
-impl<'a> Problem<'a> {
     /// The fit again with each head whose turn only its own labels see, turned more than
     /// [`TURNED_AT_REST_DEG`] from rest in the rest-like frame (`rest`), turned back
     /// there, its labels' offsets turned with it: the labels fit every frame alike either
