@@ -74,6 +74,19 @@ fn cesium_man_known_truth_is_measured_and_judged_honestly() {
         "{}",
         r.true_layout.trunk_deg_max
     );
+    // And its skin: the four pelvis markers, moved by CesiumMan's own skinning (the
+    // hips' skin weighted to the thighs), turn up to 10.9° away from the hips bone
+    // (measured), so markers held rigid on it cannot tell its turn closer.
+    let hips = r
+        .skin_slide
+        .iter()
+        .find(|(j, _)| j == "Skeleton_torso_joint_1")
+        .map(|s| s.1);
+    assert!(
+        hips.is_some_and(|d| (8.0..16.0).contains(&d)),
+        "{:?}",
+        r.skin_slide
+    );
     // The regions split the mesh: their shares of the vertices sum to one, and their
     // errors weighted by those shares give back the mean (every frame has every vertex).
     for (what, regions, mean) in [
@@ -167,11 +180,15 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
         "{:?}",
         records[0].concerns
     );
-    // The idle at a person's size: scale 1.5 % off, vertices 2.1 % of the height, trunk
-    // 16° (its labels placed by a take that barely moves them: a pelvis label 9 cm off,
-    // a shoulder's 6 cm).
+    // The idle at a person's size: its labels placed by a take that barely moves them
+    // (a pelvis label 5 cm off). Its rest-like frame alone gives a scale 25 % off (the
+    // arms hang where the character's are level); the fit started there ended 1.5 % off
+    // with the trunk 16° off, its objective 37 % above the truth's. Started again from
+    // the segment lengths (a median over 36 pairs of labels on one bone), measured:
+    // scale 0.36 % off, trunk 3.4°, vertices 2.2 % of the height.
     let idle = records.iter().find(|r| r.clip == "Idle").expect("idle");
-    assert!(idle.scale_error < 0.03, "{}", idle.scale_error);
+    assert!(idle.scale_error < 0.008, "{}", idle.scale_error);
+    assert!(idle.trunk_deg_max < 7.0, "{}", idle.trunk_deg_max);
     assert!(idle.vertex_share_mean < 0.035, "{}", idle.vertex_share_mean);
     // The run with the markers' true layout: 1.18 % mean, 1.33 % in the worst frame.
     // Its markers move up to 48 mm a frame from the first: when the marker buffer gated
@@ -181,9 +198,41 @@ fn calibrations_far_from_the_truth_are_not_called_good() {
         .iter()
         .find(|r| r.clip == "Run" && r.asset.contains('×'));
     let run = run.expect("run at a person's size");
+    // Its scale from the rest-like frame's start: 2.7 % off; from the segment lengths'
+    // (measured): 0.51 %.
+    assert!(run.scale_error < 0.01, "{}", run.scale_error);
     assert!(
         run.true_layout.vertex_share_worst_frame < 0.025,
         "{}",
         run.true_layout.vertex_share_worst_frame
+    );
+}
+
+/// Kenney's mini character (limbs of one joint each, 0.78 m tall) on its own idle: no
+/// frame fits onto its skin at a scale of its own (the bones' anchors stand far from
+/// where the markers go, and every frame's fit collapses), so the calibration once
+/// failed. At the segment lengths' scale (labels sharing a bone, over the take) the
+/// frames fit: measured, scale 12 % off and feet 12 cm through the floor, so the
+/// result must say doubtful and name the feet, never good.
+#[test]
+fn a_character_no_frame_fits_at_its_own_scale_is_fitted_at_the_segment_lengths() {
+    if shared_path("meshes/real/kenney_mini_character_female_a.glb").is_none() {
+        return;
+    }
+    let records = cases(
+        "meshes/real/kenney_mini_character_female_a.glb",
+        &["idle"],
+        1.0,
+    );
+    let idle = records.first().expect("the idle calibrates");
+    println!("{idle:?}");
+    assert!(idle.scale_error < 0.25, "{}", idle.scale_error);
+    assert_eq!(idle.verdict, Verdict::Doubtful, "{:?}", idle.concerns);
+    assert!(
+        idle.concerns
+            .iter()
+            .any(|c| c.contains("under the take's floor")),
+        "{:?}",
+        idle.concerns
     );
 }

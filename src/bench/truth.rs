@@ -166,6 +166,11 @@ pub struct TruthRecord {
     /// ranges of its joints' roles; fingers left out): the joint and how far, degrees.
     /// A solve held to human ranges cannot follow it there (see [`beyond_limits`]).
     pub beyond_limits: Option<(String, f64)>,
+    /// How far the skin's own markers turn from their bone ([`skin_slide`]): each joint
+    /// that carries three or more, with the angle, degrees, furthest first. A solve that
+    /// holds markers rigid on their bones (this one, and any marker-based one) sees
+    /// that joint's turn no closer.
+    pub skin_slide: Vec<(String, f64)>,
     pub calibrate_s: f64,
     pub solve_s: f64,
     /// The same take solved with the markers' true layout and scale: what the solve
@@ -732,6 +737,7 @@ fn case(
         true_layout: reference,
         rest_off_bind: asset.rest_off_bind(),
         beyond_limits: beyond_limits(&mut truth, loaded, rec.frames.len()),
+        skin_slide: skin_slide(&mut truth, loaded, &markers, &rec),
         calibrate_s,
         solve_s,
     })
@@ -863,10 +869,79 @@ fn print(r: &TruthRecord, json: bool, out: &mut dyn Write) -> Result<(), BenchEr
             ""
         )?;
     }
+    if !r.skin_slide.is_empty() {
+        let slides: Vec<String> = r
+            .skin_slide
+            .iter()
+            .map(|(joint, deg)| format!("{joint} {deg:.1}°"))
+            .collect();
+        writeln!(
+            out,
+            "{:<22} the skin's own markers turn away from their bone by up to: {}",
+            "",
+            slides.join(", ")
+        )?;
+    }
     for c in &r.concerns {
         writeln!(out, "{:<22} {c}", "")?;
     }
     Ok(())
+}
+
+/// Fewest markers on one bone for [`skin_slide`] to judge its turn.
+const SLIDE_MIN_MARKERS: usize = 3;
+/// Frames [`skin_slide`] samples, at most.
+const SLIDE_FRAMES: usize = 100;
+
+/// For each joint that carries [`SLIDE_MIN_MARKERS`] or more of the take's markers (on
+/// its skin, moved by the asset's skinning), the turn of their cluster from the take's
+/// first frame (Kabsch's fit, the polar rotation of the cross-covariance about the
+/// centroids) against the bone's own turn, worst over the sampled frames: where the
+/// skin blends between bones (CesiumMan's hips, weighted to the thighs), the markers do
+/// not follow their bone, and no solve that holds them rigid on it recovers the bone's
+/// turn closer than this. Each such joint and its angle, degrees, furthest first.
+fn skin_slide(
+    truth: &mut Truth<'_>,
+    loaded: &LoadedCharacter,
+    markers: &[(String, SkinPoint, usize)],
+    rec: &Recording,
+) -> Vec<(String, f64)> {
+    let sk = &loaded.character.skeleton;
+    let mut out: Vec<(String, f64)> = Vec::new();
+    let step = rec.frames.len().div_ceil(SLIDE_FRAMES).max(1);
+    for j in 0..sk.len() {
+        let on: Vec<usize> = (0..markers.len()).filter(|&k| markers[k].2 == j).collect();
+        let node = truth.asset.node_of_joint(&sk.joints[j].name);
+        let (Some(node), true) = (node, on.len() >= SLIDE_MIN_MARKERS) else {
+            continue;
+        };
+        let centred = |f: usize| -> Vec<DVec3> {
+            let p: Vec<DVec3> = on.iter().map(|&k| rec.frames[f][k]).collect();
+            let c = p.iter().sum::<DVec3>() / p.len() as f64;
+            p.iter().map(|x| *x - c).collect()
+        };
+        let first = centred(0);
+        truth.pose_at(0.0);
+        let Some(bone_first) = truth.rotation(node) else {
+            continue;
+        };
+        let mut deg = 0.0f64;
+        for f in (0..rec.frames.len()).step_by(step) {
+            let mut a = DMat3::ZERO;
+            for (x, y) in centred(f).iter().zip(&first) {
+                a += DMat3::from_cols(*x * y.x, *x * y.y, *x * y.z);
+            }
+            truth.pose_at(f as f64 / RATE_HZ);
+            let Some(bone) = truth.rotation(node) else {
+                continue;
+            };
+            let turn = rotation_angle_between(rotation_of(&a), bone * bone_first.inverse());
+            deg = deg.max(turn.to_degrees());
+        }
+        out.push((sk.joints[j].name.clone(), deg));
+    }
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
+    out
 }
 
 /// Past this, degrees, an animation's excursion beyond a joint's limits is reported.

@@ -8,6 +8,7 @@
 //! - [`labels`]: each label's candidate joints and on whose word (layout, user map, table,
 //!   or the motion itself);
 //! - [`frames`]: the frames used and the first guess of scale and headings;
+//! - [`scale`]: the scale from segment lengths over many frames, a second start;
 //! - [`solve`]: the offsets and scale over those frames (MoSh's first stage on this
 //!   skeleton);
 //! - [`layout`]: the result written into a character file;
@@ -25,6 +26,7 @@ pub mod landmarks;
 pub mod layout;
 pub mod marker_sets;
 pub mod points;
+pub mod scale;
 pub mod solve;
 
 use crate::character::bind_params::BindParams;
@@ -39,6 +41,7 @@ use glam::{DQuat, DVec3};
 use labels::{plan, LabelPlan, LeftOut, MapEntry, MapError, Source};
 use marker_sets::MarkerSet;
 use points::{screen_by_geometry, screen_by_name, PointFilter};
+use scale::ScaleStart;
 use solve::{Lowest, OffsetSolve, Parts, Skin, SolveParams, SolveReport};
 
 /// Seconds either side of the rest-like frame a calibration fits first, before the
@@ -173,6 +176,9 @@ pub struct Calibration {
     pub declined_set: Option<(&'static str, usize)>,
     /// The take's rest-like frame (the actor nearest the character's rest pose).
     pub rest_frame: usize,
+    /// Where the scale's fit started: what the rest-like frame and the segment lengths
+    /// each said, and which start the fit kept came from.
+    pub scale_start: ScaleStart,
     /// When the layout was fitted on the frames near the rest-like frame alone because
     /// the whole span fitted far worse: the whole span's misfit RMS, take millimetres.
     pub whole_span_mm: Option<f64>,
@@ -852,8 +858,15 @@ pub fn calibrate(
     }
     let span = frame_span(rec, opts.span_s);
     let parts = Parts::new(&ch.skeleton, &unique, &oriented);
-    let (guesses, frames_in_view) =
-        first_guesses(ch, &known, rec.frames, span.clone(), stance, &surface);
+    let segments = scale::segment_scale(&plan.labels, rec.frames, span.clone(), stance.height);
+    let (guesses, frames_in_view) = first_guesses_or_at(
+        segments.map(|s| s.scale),
+        (ch, &known),
+        rec.frames,
+        span.clone(),
+        stance,
+        &surface,
+    );
     if guesses.is_empty() && frames_in_view == 0 {
         return Err(CalibrationError::NoFrames {
             take: rec.name.to_owned(),
@@ -888,12 +901,12 @@ pub fn calibrate(
         tracing::debug!(
             frame = guess.frame,
             scale = guess.scale,
-            on_skin = guess.on_skin.len(),
+            on_skin,
             known = known.len(),
+            ?segments,
             "first guess"
         );
-        let (cal, cost) = problem.solve_from(guess)?;
-        tracing::debug!(scale = cal.scale, cost, "solved from it");
+        let (cal, cost) = problem.solve_guess(guess, segments, &known)?;
         let better = |b: &(Calibration, (usize, f64))| {
             on_skin > b.1 .0 || (on_skin == b.1 .0 && cost < b.1 .1)
         };
@@ -901,10 +914,9 @@ pub fn calibrate(
             best = Some((cal, (on_skin, cost)));
         }
     }
-    best.map(|b| with_the_body(b.0, ch, roles, stance))
-        .ok_or_else(|| CalibrationError::NoFrames {
-            take: rec.name.to_owned(),
-        })
+    best.map(|b| b.0).ok_or_else(|| CalibrationError::NoFrames {
+        take: rec.name.to_owned(),
+    })
 }
 
 /// `cal` with what its verdict needs of the character's body: its standing height and
@@ -1032,6 +1044,66 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
+    /// The calibration from `guess`, with its objective, and again from the segment
+    /// lengths' scale (`segments`) when that differs from the guess's by more than
+    /// [`SEGMENTS_DIFFER`]: the fit stays in the valley its start is in. The lower
+    /// objective wins, but the second start may not turn away a head the first left
+    /// facing forward in the rest-like frame: a head's turn there is the one unknown
+    /// the misfit cannot see (its labels' offsets turn back against it), only the
+    /// priors on the skin judge it, and a person faces forward where they stand most
+    /// like rest (on the Plug-in Gait static trial onto CesiumMan that start fitted
+    /// 0.5 mm better with the head turned 82°, against 26°).
+    fn solve_guess(
+        &self,
+        guess: FirstGuess,
+        segments: Option<scale::SegmentScale>,
+        known: &[&LabelPlan],
+    ) -> Result<(Calibration, f64), CalibrationError> {
+        let again = segments
+            .filter(|s| (s.scale / guess.scale - 1.0).abs() > SEGMENTS_DIFFER)
+            .map(|s| guess.rescaled(s.scale, self.rec.frames, known));
+        let rest_frame = guess.scale;
+        let finish = |(cal, cost): (Calibration, f64), from_segments: bool| {
+            let cal = Calibration {
+                scale_start: ScaleStart {
+                    rest_frame,
+                    segments,
+                    from_segments,
+                },
+                ..with_the_body(cal, self.ch, self.roles, self.stance)
+            };
+            let forward = cal
+                .rest_turns
+                .iter()
+                .all(|(_, deg)| *deg <= TURNED_AT_REST_DEG);
+            (cal, cost, forward)
+        };
+        let (cal, cost, forward) = finish(self.solve_from(guess)?, false);
+        let Some(again) = again else {
+            return Ok((cal, cost));
+        };
+        // Over the whole span alone: the frames near rest are a second chance for a
+        // start far off, and this start is itself one; and a second chance is not a
+        // second way to fail.
+        match self.solve_over(again, self.span.clone(), None) {
+            Ok(done) => {
+                let (other, other_cost, other_forward) = finish(done, true);
+                tracing::debug!(
+                    cost,
+                    other_cost,
+                    scale = other.scale,
+                    other_forward,
+                    "solved again from the segment lengths"
+                );
+                if other_cost < cost && (other_forward || !forward) {
+                    return Ok((other, other_cost));
+                }
+            }
+            Err(e) => tracing::debug!(error = %e, "the segment lengths' start found nothing"),
+        }
+        Ok((cal, cost))
+    }
+
     /// The calibration from `guess`, with the solve's final objective: over the whole
     /// span. When that fits worse than a calibration can be good
     /// ([`DOUBTFUL_MISFIT_MM`]), a far pose may have led the fit astray (a CMU take's
@@ -1220,9 +1292,15 @@ impl Problem<'_> {
             .collect();
         let mut other = fit.problem(&back, start, solve.scale, Some(&solve));
         let other_report = other.run();
+        let rms = |s: &OffsetSolve| {
+            let r = s.residuals();
+            (r.iter().map(|x| x.0 * x.0).sum::<f64>() / r.len().max(1) as f64).sqrt() * 1e3
+        };
         tracing::debug!(
             cost = report.cost_end,
             turned_back = other_report.cost_end,
+            rms = rms(&solve),
+            rms_back = rms(&other),
             "heads turned back"
         );
         if other_report.cost_end < report.cost_end {
@@ -1327,6 +1405,27 @@ struct FirstGuess {
     on_skin: Vec<usize>,
 }
 
+impl FirstGuess {
+    /// This guess at scale `scale`: its heading's translation moved so that the
+    /// centroid of the known labels seen in its frame lands where it did.
+    fn rescaled(&self, scale: f64, frames: &[Vec<DVec3>], known: &[&LabelPlan]) -> Self {
+        let seen: Vec<DVec3> = known
+            .iter()
+            .filter_map(|l| frames.get(self.frame)?.get(l.take_index).copied())
+            .filter(|m| m.is_finite())
+            .collect();
+        let centroid = seen.iter().sum::<DVec3>() / seen.len().max(1) as f64;
+        Self {
+            heading: Heading {
+                q: self.heading.q,
+                t: self.heading.t + (scale - self.scale) * centroid,
+            },
+            scale,
+            ..self.clone()
+        }
+    }
+}
+
 /// The joints a rest-like frame holds near rest: those that carry a label lying on its
 /// skin there (any of its candidates), and their ancestors.
 fn held_joints(ch: &Character, labels: &[LabelPlan], on_skin: &[usize]) -> Vec<bool> {
@@ -1355,6 +1454,11 @@ fn anchor_pairs(ch: &Character, known: &[&LabelPlan], frame: &[DVec3]) -> Vec<(D
         })
         .collect()
 }
+
+/// How far the segment lengths' scale ([`scale::segment_scale`]) must lie from a first
+/// guess's for the fit to run again from it, as a share: within 3 % the two starts
+/// fall in one valley (the soldier's T-pose: 1.0003 and 1.0070 both end at 0.9990).
+const SEGMENTS_DIFFER: f64 = 0.03;
 
 /// What the first guess charges for all labels off their skin, as misfit in metres.
 const OFF_SKIN_COST_M: f64 = 0.02;
@@ -1393,7 +1497,8 @@ const GUESS_REFINED: usize = 3;
 /// of candidate frames that have them. Each candidate frame is fitted to the anchors, then to the skin (an iterative closest
 /// point with each label kept near its bone, which removes the anchors' bias: they lie
 /// inside the body, the markers outside, and the scale would come out small); the best
-/// few are refined further and the best of those wins.
+/// few are refined further and the best of those wins. `fixed_scale`, when given, is
+/// every frame's scale ([`scale::segment_scale`]'s, where no frame fits at its own).
 fn first_guesses(
     ch: &Character,
     known: &[&LabelPlan],
@@ -1401,6 +1506,7 @@ fn first_guesses(
     span: std::ops::Range<usize>,
     stance: Stance,
     surface: &WindingNumber,
+    fixed_scale: Option<f64>,
 ) -> (Vec<FirstGuess>, usize) {
     let height = stance.height;
     let mut in_view = 0;
@@ -1424,12 +1530,18 @@ fn first_guesses(
             if seed == seeds[0] {
                 in_view += 1;
             }
-            let Some((heading, scale, _)) = fit_heading(&p, None, 0.1 * height, seed) else {
+            let Some((heading, scale, _)) = fit_heading(&p, fixed_scale, 0.1 * height, seed) else {
                 continue;
             };
-            if let Some((h, s, r, _)) =
-                refine_on_skin(ch, known, &frames[f], (heading, scale), 30, stance, surface)
-            {
+            if let Some((h, s, r, _)) = refine_on_skin(
+                ch,
+                known,
+                &frames[f],
+                (heading, scale, fixed_scale.is_some()),
+                30,
+                stance,
+                surface,
+            ) {
                 ranked.push((f, h, s, r));
             }
         }
@@ -1438,8 +1550,16 @@ fn first_guesses(
             .into_iter()
             .take(GUESS_REFINED)
             .filter_map(|(f, heading, scale, _)| {
-                refine_on_skin(ch, known, &frames[f], (heading, scale), 60, stance, surface)
-                    .map(|(h, s, r, on)| (f, h, s, r, on))
+                refine_on_skin(
+                    ch,
+                    known,
+                    &frames[f],
+                    (heading, scale, fixed_scale.is_some()),
+                    60,
+                    stance,
+                    surface,
+                )
+                .map(|(h, s, r, on)| (f, h, s, r, on))
             })
             .min_by(|a, b| a.3.total_cmp(&b.3));
         if let Some((frame, heading, scale, _, on_skin)) = best {
@@ -1454,19 +1574,39 @@ fn first_guesses(
     (guesses, in_view)
 }
 
+/// [`first_guesses`], and where no frame fits onto the skin at a scale of its own (a
+/// character whose limbs are one joint each: the anchors stand far from where its
+/// markers go), again with every frame at `scale` (the segment lengths'), when given.
+fn first_guesses_or_at(
+    scale: Option<f64>,
+    (ch, known): (&Character, &[&LabelPlan]),
+    frames: &[Vec<DVec3>],
+    span: std::ops::Range<usize>,
+    stance: Stance,
+    surface: &WindingNumber,
+) -> (Vec<FirstGuess>, usize) {
+    let found = first_guesses(ch, known, frames, span.clone(), stance, surface, None);
+    match scale {
+        Some(s) if found.0.is_empty() => {
+            first_guesses(ch, known, frames, span, stance, surface, Some(s))
+        }
+        _ => found,
+    }
+}
+
 /// Iterative closest point of one frame's known labels onto the skin, from a heading and
 /// scale: each marker, taken into the character's rest frame, is paired with the point
 /// 8 mm outside the skin nearest to it when that skin is its bone's, and the similarity
-/// is fitted again (on those pairs alone once they are half the labels). Returns the
-/// heading, scale and
-/// relative RMS misfit (per metre of height, plus 1 % for all labels off their skin or
+/// is fitted again (on those pairs alone once they are half the labels); the scale is
+/// held where it starts when the third of the start's triple says so. Returns the
+/// heading, scale and relative RMS misfit (per metre of height, plus 1 % for all labels off their skin or
 /// out of view, in proportion) after `rounds` rounds at most (fewer when the scale
 /// settles).
 fn refine_on_skin(
     ch: &Character,
     known: &[&LabelPlan],
     frame: &[DVec3],
-    (mut heading, mut scale): (Heading, f64),
+    (mut heading, mut scale, scale_fixed): (Heading, f64, bool),
     rounds: usize,
     stance: Stance,
     surface: &WindingNumber,
@@ -1516,8 +1656,13 @@ fn refine_on_skin(
         } else {
             good.iter().chain(&rough).copied().collect()
         };
-        let (h, s, r) = fit_heading(&pairs, None, 0.05 * height, stance.turn)?;
-        if !band.contains(&s) {
+        let (h, s, r) = fit_heading(
+            &pairs,
+            scale_fixed.then_some(scale),
+            0.05 * height,
+            stance.turn,
+        )?;
+        if !scale_fixed && !band.contains(&s) {
             // Collapsed: markers shrunk onto one spot of the skin pair with it and
             // fit there at no cost. This frame gives no guess.
             return None;
@@ -1893,6 +2038,8 @@ fn finish(
         markers: plan.markers,
         declined_set: plan.declined.map(|(s, n)| (s.name, n)),
         rest_frame,
+        // Said by `calibrate`, which knows the starts.
+        scale_start: ScaleStart::default(),
         whole_span_mm: None,
         standing_height_m: None,
         body_parts: Vec::new(),

@@ -7,6 +7,7 @@ use glam::DVec3;
 use rigless::calibrate::labels::{map_entries, MapEntry};
 use rigless::calibrate::marker_sets::{by_name, MARKER_SETS};
 use rigless::calibrate::points::PointFilter;
+use rigless::calibrate::scale::ScaleStart;
 use rigless::calibrate::{calibrate, Calibration, CalibrationOptions, Verdict, DEFAULT_FRAMES};
 use rigless::character::bind_params::BindParams;
 use rigless::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
@@ -380,6 +381,25 @@ fn check(
         .context("no label of the take feeds a placed marker")
 }
 
+/// Where the scale's fit started, in words.
+fn scale_start(start: &ScaleStart) -> String {
+    let frame = format!("the rest-like frame alone gave {:.4}", start.rest_frame);
+    match start.segments {
+        None => format!("fitted from {frame} (too few labels share a bone for segment lengths)"),
+        Some(s) => format!(
+            "fitted from {}: {} segment lengths over {} frames gave {:.4}, {frame}",
+            if start.from_segments {
+                "the segment lengths"
+            } else {
+                "the rest-like frame"
+            },
+            s.pairs,
+            s.frames,
+            s.scale
+        ),
+    }
+}
+
 /// `FILE.bak` beside `path`.
 fn backup_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
@@ -397,6 +417,11 @@ fn json(cal: &Calibration, rec: &Recording, seconds: f64) -> serde_json::Value {
         "marker_set": cal.marker_set.map(|(s, n)| serde_json::json!({"name": s, "labels_known": n})),
         "marker_set_declined": cal.declined_set.map(|(s, n)| serde_json::json!({"name": s, "labels_known": n})),
         "scale": cal.scale,
+        "scale_start": {
+            "rest_frame": cal.scale_start.rest_frame,
+            "segments": cal.scale_start.segments,
+            "from_segments": cal.scale_start.from_segments,
+        },
         "frames": cal.frames,
         "rest_frame": cal.rest_frame,
         "whole_span_mm_rms": cal.whole_span_mm,
@@ -492,9 +517,10 @@ fn print_table(cal: &Calibration, rec: &Recording, seconds: f64) {
         }
     );
     println!(
-        "scale        the actor is {:.3} times the character (marker_scale {:.5})",
+        "scale        the actor is {:.3} times the character (marker_scale {:.5}); {}",
         1.0 / cal.scale,
-        cal.scale
+        cal.scale,
+        scale_start(&cal.scale_start)
     );
     println!(
         "fit          residual RMS {:.2} mm, max {:.2} mm; {} iterations, {:.2} s",
