@@ -16,7 +16,7 @@
 //! where a marker set's manual puts the markers, found by touch within 1 to 2 cm
 //! (Della Croce et al. 2005), so a single pair's ratio is off by up to 20 % on a short
 //! segment; the weighted median over 20 to 40 pairs held the truth bench's scale
-//! within 1 % on the soldier and 5 % on the others.
+//! within 1 % on the soldier and 3.8 to 5.3 % on the others.
 //!
 //! The estimate does not replace the first guess: the calibration solves from both when
 //! they differ and keeps the lower objective ([`super::calibrate`]).
