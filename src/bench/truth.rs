@@ -25,7 +25,7 @@ use crate::character::mesh::welded_outward;
 use crate::character::roles::{Part, Role, Side};
 use crate::character::{Character, MarkerDef};
 use crate::daemon::offline::{replay_offline_with, OfflineOptions};
-use crate::geom::polar::{rotation_angle_between, rotation_of};
+use crate::geom::polar::{best_rotation, rotation_angle_between, rotation_of};
 use crate::geom::ray::{leaves_volume, Reach};
 use crate::geom::winding::WindingNumber;
 use crate::replay::recording::Recording;
@@ -935,7 +935,7 @@ fn skin_slide(
             let Some(bone) = truth.rotation(node) else {
                 continue;
             };
-            let turn = rotation_angle_between(rotation_of(&a), bone * bone_first.inverse());
+            let turn = rotation_angle_between(best_rotation(&a), bone * bone_first.inverse());
             deg = deg.max(turn.to_degrees());
         }
         out.push((sk.joints[j].name.clone(), deg));

@@ -3,7 +3,7 @@
 //! scale and of each frame's heading and position from a similarity fit between
 //! labelled markers and the bones that carry them.
 
-use crate::geom::polar::extract_rotation;
+use crate::geom::polar::best_rotation;
 use glam::{DMat3, DQuat, DVec3};
 
 /// Most frames the sampling compares (evenly spaced over the take).
@@ -174,28 +174,6 @@ pub fn fit_heading(
         result = Some((Heading { q, t }, s, rms));
     }
     result
-}
-
-/// The rotation `R` maximising `tr(Rᵀ a)`: the polar iteration from identity and from
-/// the three half turns, keeping the best (a cold start may stall near a half turn away).
-fn best_rotation(a: &DMat3) -> DQuat {
-    let score = |q: DQuat| {
-        let r = DMat3::from_quat(q);
-        r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis)
-    };
-    [
-        DQuat::IDENTITY,
-        DQuat::from_xyzw(1.0, 0.0, 0.0, 0.0),
-        DQuat::from_xyzw(0.0, 1.0, 0.0, 0.0),
-        DQuat::from_xyzw(0.0, 0.0, 1.0, 0.0),
-    ]
-    .into_iter()
-    .map(|mut q| {
-        extract_rotation(a, &mut q);
-        q.normalize()
-    })
-    .max_by(|p, q| score(*p).total_cmp(&score(*q)))
-    .unwrap_or(DQuat::IDENTITY)
 }
 
 #[cfg(test)]

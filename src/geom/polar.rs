@@ -196,6 +196,28 @@ pub fn rotation_of(a: &DMat3) -> DQuat {
     q
 }
 
+/// The rotation `R` maximising `tr(Rᵀ a)`: the polar iteration from identity and from
+/// the three half turns, keeping the best (a cold start may stall near a half turn away).
+pub fn best_rotation(a: &DMat3) -> DQuat {
+    let score = |q: DQuat| {
+        let r = DMat3::from_quat(q);
+        r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis)
+    };
+    [
+        DQuat::IDENTITY,
+        DQuat::from_xyzw(1.0, 0.0, 0.0, 0.0),
+        DQuat::from_xyzw(0.0, 1.0, 0.0, 0.0),
+        DQuat::from_xyzw(0.0, 0.0, 1.0, 0.0),
+    ]
+    .into_iter()
+    .map(|mut q| {
+        extract_rotation(a, &mut q);
+        q.normalize()
+    })
+    .max_by(|p, q| score(*p).total_cmp(&score(*q)))
+    .unwrap_or(DQuat::IDENTITY)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
