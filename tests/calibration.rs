@@ -1361,8 +1361,10 @@ fn a_real_characters_boots_deeper_than_the_actors_shoes_are_named_without_a_floo
 /// turned back there and the labels with it, and the lower objective kept: measured,
 /// the head 26° from rest and the misfit 6.2 mm. The second start, from the segment
 /// lengths' scale (measured 0.843 over 31 pairs, against the rest-like frame's 0.655),
-/// fits 0.5 mm better with the head turned 82° again, and is refused for turning away a
-/// head the first start left facing forward.
+/// once fitted 0.5 mm better with the head turned 82° again; held to the headband's
+/// mirror symmetry it keeps the head forward (measured 22° from rest, scale 0.783,
+/// misfit 7.4 mm) and wins on the objective. Whichever start is kept, the head faces
+/// forward where the actor stands still.
 #[test]
 fn a_head_fitted_turned_is_tried_turned_back() {
     let (Some(rec), Some(cesium)) = (
@@ -1377,7 +1379,11 @@ fn a_head_fitted_turned_is_tried_turned_back() {
         cal.residual_mm_rms, cal.rest_turns
     );
     let head = cal.rest_turns.first().expect("the head's turn alone");
-    assert!(head.1 < 40.0, "{:?}", cal.rest_turns);
+    assert!(
+        head.1 < rigless::calibrate::TURNED_AT_REST_DEG,
+        "{:?}",
+        cal.rest_turns
+    );
     assert!(cal.residual_mm_rms < 8.0, "{}", cal.residual_mm_rms);
     let start = cal.scale_start;
     let segments = start.segments.expect("Plug-in Gait labels with templates");
@@ -1386,5 +1392,4 @@ fn a_head_fitted_turned_is_tried_turned_back() {
         (segments.scale / start.rest_frame - 1.0).abs() > 0.03,
         "{start:?}"
     );
-    assert!(!start.from_segments, "{start:?}");
 }

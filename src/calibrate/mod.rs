@@ -1050,9 +1050,10 @@ impl Problem<'_> {
     /// objective wins, but the second start may not turn away a head the first left
     /// facing forward in the rest-like frame: a head's turn there is the one unknown
     /// the misfit cannot see (its labels' offsets turn back against it), only the
-    /// priors on the skin judge it, and a person faces forward where they stand most
-    /// like rest (on the Plug-in Gait static trial onto CesiumMan that start fitted
-    /// 0.5 mm better with the head turned 82°, against 26°).
+    /// priors judge it (the skin, and the mirror symmetry of labels whose set is
+    /// known), and a person faces forward where they stand most like rest (on the
+    /// Plug-in Gait static trial onto CesiumMan, without the symmetry, that start
+    /// fitted 0.5 mm better with the head turned 82°, against 26°).
     fn solve_guess(
         &self,
         guess: FirstGuess,
@@ -1189,6 +1190,7 @@ impl Problem<'_> {
             parts: self.parts,
             params: self.params,
             hold,
+            midline: midline_joints(ch, self.roles),
         };
         // Every label where the seed placed it, or where the rest-like frame puts it, on
         // the nearest candidate bone.
@@ -1424,6 +1426,83 @@ impl FirstGuess {
             ..self.clone()
         }
     }
+}
+
+/// The body's left at rest and, per joint, whether it lies on the midline: a hips,
+/// spine, neck or head joint within [`MIDLINE_SHARE`] of the height from the sagittal
+/// plane through the hips. `None` without the upper legs' sides.
+fn midline_joints(ch: &Character, roles: &[Option<Role>]) -> Option<(DVec3, Vec<bool>)> {
+    let sk = &ch.skeleton;
+    let (_, _, left) = landmarks::body_axes(sk, roles)?;
+    let hips = sk.joints[*marker_sets::candidate_joints(
+        Role {
+            part: Part::Hips,
+            side: None,
+        },
+        roles,
+    )
+    .first()?]
+    .rest;
+    let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
+    let height = hi.y - lo.y;
+    let midline = (0..sk.len())
+        .map(|j| {
+            let trunk = roles.get(j).copied().flatten().is_some_and(|r| {
+                r.side.is_none()
+                    && matches!(r.part, Part::Hips | Part::Spine | Part::Neck | Part::Head)
+            });
+            trunk && (sk.joints[j].rest - hips).dot(left).abs() <= MIDLINE_SHARE * height
+        })
+        .collect();
+    Some((left, midline))
+}
+
+/// How far from the midline a label's template, or a joint, may lie and count as on
+/// it, as a share of the height (1.75 cm at a person's size; Plug-in Gait's head and
+/// pelvis pairs sit 4 to 12 cm out).
+const MIDLINE_SHARE: f64 = 0.01;
+
+/// How far a template may lie from the mirror image of its partner's, as a share of
+/// the height (3.5 cm at a person's size).
+const PARTNER_SHARE: f64 = 0.02;
+
+/// The mirror terms of `placed` ([`solve::Mirror`]): on each midline joint, each label
+/// whose template lies left of the joint by more than [`MIDLINE_SHARE`] paired with the
+/// label whose template lies nearest its mirror image (within [`PARTNER_SHARE`]).
+/// Labels without a template (placed by motion), those the set puts on one side only
+/// (Plug-in Gait's RBAK) and those it puts on the midline (C7, STRN) get none: a
+/// midline label is found by touch a centimetre or two to one side, and the chest's
+/// four held to the midline turned the truth bench's chests 3 to 7° further off.
+fn mirror_terms(
+    sk: &crate::character::skeleton::Skeleton,
+    placed: &[Placing],
+    left: DVec3,
+    midline: &[bool],
+    height: f64,
+) -> Vec<solve::Mirror> {
+    let lateral = |p: &Placing, t: DVec3| (t - sk.joints[p.joint].rest).dot(left);
+    let mut terms = Vec::new();
+    for (a, pa) in placed.iter().enumerate() {
+        let Some(ta) = pa.plan.template else { continue };
+        if !midline.get(pa.joint).copied().unwrap_or(false) {
+            continue;
+        }
+        let side = lateral(pa, ta);
+        if side <= MIDLINE_SHARE * height {
+            continue;
+        }
+        let image = ta - 2.0 * side * left;
+        let partner = placed
+            .iter()
+            .enumerate()
+            .filter(|(b, pb)| *b != a && pb.joint == pa.joint)
+            .filter_map(|(b, pb)| Some((b, (pb.plan.template? - image).length())))
+            .min_by(|x, y| x.1.total_cmp(&y.1));
+        if let Some((b, _)) = partner.filter(|p| p.1 <= PARTNER_SHARE * height) {
+            terms.push(solve::Mirror { a, b });
+        }
+    }
+    terms
 }
 
 /// The joints a rest-like frame holds near rest: those that carry a label lying on its
@@ -1739,6 +1818,10 @@ struct Fit<'a> {
     params: SolveParams,
     /// The rest-like frame (index into `frames`) and the joints it holds near rest.
     hold: (usize, Vec<bool>),
+    /// The sagittal plane's normal (the body's left at rest) and the joints on the
+    /// midline whose labels are held to their mirror symmetry, when the skeleton says
+    /// where its sides are.
+    midline: Option<(DVec3, Vec<bool>)>,
 }
 
 impl<'a> Fit<'a> {
@@ -1843,6 +1926,9 @@ impl<'a> Fit<'a> {
         }
         solve.hold_rest(self.hold.0, &self.hold.1);
         solve.hold_templates(placed.iter().map(|p| p.template).collect());
+        if let Some((left, midline)) = &self.midline {
+            solve.hold_mirrors(*left, mirror_terms(sk, placed, *left, midline, self.height));
+        }
         solve.fit_postures();
         solve
     }
