@@ -16,7 +16,16 @@ pub struct CharacterConfig {
     /// actor driving a tall character); default: the character file's
     /// `calibration.marker_scale` (what `rigless calibrate --write` found), else 1.
     pub marker_scale: Option<f64>,
+    /// Whose labels drive it when a stream or recording carries several performers'
+    /// (`Subject:Label`, or a NatNet asset's `Asset:Marker`): `"Ann"` takes `Ann:*`,
+    /// `""` the labels without a prefix. Default: one subject, the first whose label
+    /// matches a marker in a stream, the one with most matching labels in a recording;
+    /// the others' samples are ignored and counted.
+    pub subject: Option<String>,
 }
+
+/// Longest `[character] subject`, bytes.
+const MAX_SUBJECT_BYTES: usize = 256;
 
 /// The motions each procedural character plays (empty: no such character).
 pub fn motions_of(procedural: &str) -> &'static [&'static str] {
@@ -28,9 +37,25 @@ pub fn motions_of(procedural: &str) -> &'static [&'static str] {
 }
 
 impl CharacterConfig {
+    /// Whose labels feed its markers ([`Self::subject`]).
+    pub fn subject_filter(&self) -> crate::markers::index::SubjectFilter {
+        use crate::markers::index::SubjectFilter;
+        self.subject
+            .clone()
+            .map_or(SubjectFilter::One, SubjectFilter::Named)
+    }
+
     /// What is wrong, as `(key, message)` with keys relative to `[character]`.
     pub fn problems(&self) -> Vec<(String, String)> {
         let mut out = self.source_problems();
+        if let Some(s) = &self.subject {
+            if s.contains(':') || s.trim() != s || s.len() > MAX_SUBJECT_BYTES {
+                out.push((
+                    "subject".into(),
+                    format!("must be a subject's name as it prefixes labels (`Ann` for `Ann:LFHD`), without `:` or surrounding spaces, at most {MAX_SUBJECT_BYTES} bytes; got {s:?}"),
+                ));
+            }
+        }
         if let Some(v) = self.marker_scale {
             use crate::character::file::{MAX_MARKER_SCALE, MIN_MARKER_SCALE};
             if !(v.is_finite() && (MIN_MARKER_SCALE..=MAX_MARKER_SCALE).contains(&v)) {

@@ -56,6 +56,7 @@ pub fn run(a: ListenArgs) -> Result<()> {
             markers: None,
             skeleton: Some(&skeleton),
             procedural: None,
+            subject: &rigless::markers::index::SubjectFilter::One,
         },
     )?;
     match input.local_addr() {

@@ -271,6 +271,7 @@ pub fn capture(
         markers: None,
         skeleton: None,
         procedural: None,
+        subject: &crate::markers::index::SubjectFilter::One,
     };
     let mut opened = Vec::new();
     for (index, c) in inputs.iter().enumerate() {

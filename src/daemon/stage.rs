@@ -477,6 +477,7 @@ impl Stage {
             markers: Some(&rig.marker_names),
             skeleton: Some(&rig.skeleton),
             procedural: bound.procedural.as_ref(),
+            subject: &cfg.character.subject_filter(),
         };
         let opened = open_inputs(cfg, &ctx)?;
         let infos: Vec<InputInfo> = opened.iter().map(InputInfo::of).collect();

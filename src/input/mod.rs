@@ -20,7 +20,7 @@ pub mod vrpn;
 
 use crate::character::procedural::Character;
 use crate::character::skeleton::Skeleton;
-use crate::markers::index::MarkerIndex;
+use crate::markers::index::{MarkerIndex, SubjectFilter};
 use crate::markers::MarkerSample;
 use crate::protocol::glove::GloveReading;
 use crate::rig::bind::Rig;
@@ -51,13 +51,15 @@ pub struct OpenContext<'a> {
     pub skeleton: Option<&'a Skeleton>,
     /// The procedural character a synthetic input plays.
     pub procedural: Option<&'a Arc<Character>>,
+    /// Whose labels feed the character's markers (`[character] subject`).
+    pub subject: &'a SubjectFilter,
 }
 
 impl OpenContext<'_> {
     /// The index an input resolves names with.
     fn index(&self) -> MarkerIndex {
         match self.markers {
-            Some(names) => MarkerIndex::fixed(names),
+            Some(names) => MarkerIndex::fixed_for(names, self.subject.clone()),
             None => MarkerIndex::growing(MAX_LISTEN_NAMES),
         }
     }
@@ -98,6 +100,15 @@ pub enum InputError {
     CommandSocket { url: String, source: std::io::Error },
     #[error("{url}: cannot set up its socket to receive: {source}")]
     Receive { url: String, source: std::io::Error },
+}
+
+/// An input's closing summary, with what its index refused of other subjects' labels
+/// ([`MarkerIndex::refused_text`]) when it refused any.
+fn with_refused(summary: String, index: &MarkerIndex) -> String {
+    match index.refused_text() {
+        Some(r) => format!("{summary}; {r}"),
+        None => summary,
+    }
 }
 
 /// Each item on a line of its own, indented.

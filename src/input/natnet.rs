@@ -244,13 +244,16 @@ impl NatNetInput {
                 });
             }
         }
-        Ok(format!(
-            "{}; {} frames ({} from another sender than the stream's), {} other messages, {} ignored (not from the server)",
-            stats.packets,
-            stats.frames.load(Ordering::Relaxed),
-            stats.frames_elsewhere.load(Ordering::Relaxed),
-            stats.other.load(Ordering::Relaxed),
-            stats.foreign.load(Ordering::Relaxed)
+        Ok(super::with_refused(
+            format!(
+                "{}; {} frames ({} from another sender than the stream's), {} other messages, {} ignored (not from the server)",
+                stats.packets,
+                stats.frames.load(Ordering::Relaxed),
+                stats.frames_elsewhere.load(Ordering::Relaxed),
+                stats.other.load(Ordering::Relaxed),
+                stats.foreign.load(Ordering::Relaxed)
+            ),
+            &self.index,
         ))
     }
 }

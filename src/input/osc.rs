@@ -110,7 +110,7 @@ impl OscInput {
                 stop.store(true, Ordering::Relaxed);
             }
         });
-        stats.to_string()
+        super::with_refused(stats.to_string(), &self.index)
     }
 }
 

@@ -44,7 +44,7 @@ impl ReplayInput {
             (None, None) => return Err(InputError::NoRecording),
         };
         let index = match ctx.markers {
-            Some(names) => MarkerIndex::fixed(names),
+            Some(names) => MarkerIndex::fixed_for(names, ctx.subject.clone()),
             None => MarkerIndex::fixed(&rec.labels),
         };
         let map = LabelMap::new(&rec.labels, &index);
@@ -99,6 +99,7 @@ impl ReplayInput {
     /// What the reader tolerated, the labels ignored, and the markers left held.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = self.rec.warnings.clone();
+        out.extend(self.map.others_text());
         if !self.map.unmatched_labels.is_empty() {
             out.push(format!(
                 "labels ignored (no such marker): {}",

@@ -697,7 +697,7 @@ impl VrpnInput {
             }
         });
         let n = |c: &AtomicU64| c.load(Ordering::Relaxed);
-        format!(
+        let summary = format!(
             "{} connections ({} closed by the server, {} given up as silent), {} messages, {} bytes, {} reports, {} pings answered, {} errors, {} datagrams ({} bad), {} ignored (not from the server)",
             n(&stats.connections),
             n(&stats.closed),
@@ -710,7 +710,8 @@ impl VrpnInput {
             n(&stats.datagrams),
             n(&stats.bad_datagrams),
             n(&stats.foreign)
-        )
+        );
+        super::with_refused(summary, &self.index)
     }
 }
 

@@ -3,11 +3,37 @@
 //! exactly, or else without case and without a `Subject:` prefix (`Bob:LFHD` is `lfhd`).
 //! A fixed index knows the character's names only; a growing one (`rigless listen`,
 //! which has no character) gives every new name the next index, up to a bound.
+//!
+//! A character is one performer, so a fixed index takes one subject's labels
+//! ([`SubjectFilter`]): `Ann:LFHD` and `Bob:LFHD` in one stream never both feed its
+//! `LFHD`. Labels without a prefix are a subject of their own (`""`). The others'
+//! samples are refused and counted ([`MarkerIndex::refused`]).
 
 use std::collections::HashMap;
 
 /// Longest name a growing index takes, bytes (names come from the network).
 pub const MAX_NAME_BYTES: usize = 256;
+
+/// Most other subjects an index names in its report (names come from the network).
+const MAX_OTHER_SUBJECTS: usize = 8;
+
+/// Which subject's labels a fixed index takes.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum SubjectFilter {
+    /// One subject, found from the labels: in a stream the first whose label matches a
+    /// marker; in a recording ([`LabelMap::new`]) the one with most matching labels.
+    #[default]
+    One,
+    /// This subject's only (`Ann` takes `Ann:LFHD` and `ann:lfhd`; `""` takes labels
+    /// without a prefix).
+    Named(String),
+}
+
+/// The subject of a `Subject:Label` name: the part before the last `:`, trimmed; `""`
+/// for a name without one.
+pub fn subject_of(name: &str) -> &str {
+    name.rsplit_once(':').map_or("", |(s, _)| s.trim())
+}
 
 /// Marker indices by name.
 #[derive(Clone, Debug)]
@@ -20,6 +46,14 @@ pub struct MarkerIndex {
     grow_up_to: Option<usize>,
     /// Scratch for a loose name, so that a lookup does not allocate once warm.
     scratch: String,
+    /// Whose loose matches a fixed index takes.
+    filter: SubjectFilter,
+    /// The subject taken, once known ([`SubjectFilter::One`] in a stream).
+    taken: Option<String>,
+    /// Samples refused for coming from another subject.
+    refused: u64,
+    /// The other subjects seen (at most [`MAX_OTHER_SUBJECTS`]).
+    others: Vec<String>,
 }
 
 /// A name as it matches loosely: its part after the last `:`, trimmed, lower case.
@@ -40,12 +74,25 @@ impl MarkerIndex {
     /// The character's markers, `names[k]` at index `k`. A loose name shared by several
     /// markers goes to the first.
     pub fn fixed(names: &[String]) -> Self {
+        Self::fixed_for(names, SubjectFilter::One)
+    }
+
+    /// [`Self::fixed`], taking the labels of the subjects `filter` says.
+    pub fn fixed_for(names: &[String], filter: SubjectFilter) -> Self {
+        let taken = match &filter {
+            SubjectFilter::One => None,
+            SubjectFilter::Named(s) => Some(s.clone()),
+        };
         let mut index = Self {
             names: Vec::with_capacity(names.len()),
             exact: HashMap::with_capacity(names.len()),
             loose: HashMap::with_capacity(names.len()),
             grow_up_to: None,
             scratch: String::new(),
+            filter,
+            taken,
+            refused: 0,
+            others: Vec::new(),
         };
         for n in names {
             index.insert(n);
@@ -63,6 +110,10 @@ impl MarkerIndex {
             loose: HashMap::new(),
             grow_up_to: Some(max_names),
             scratch: String::new(),
+            filter: SubjectFilter::One,
+            taken: None,
+            refused: 0,
+            others: Vec::new(),
         }
     }
 
@@ -76,7 +127,8 @@ impl MarkerIndex {
         k
     }
 
-    /// The index of `name`, if it matches (exactly, or loosely) a known marker.
+    /// The index of `name`, if it matches (exactly, or loosely) a known marker, whatever
+    /// its subject.
     pub fn get(&self, name: &str) -> Option<u32> {
         self.exact
             .get(name)
@@ -84,17 +136,38 @@ impl MarkerIndex {
             .copied()
     }
 
-    /// [`Self::get`] without allocating once warm (the inputs call it per sample); a
+    /// [`Self::get`] without allocating once warm (the inputs call it per sample), for
+    /// the subject this index takes: the first match of [`SubjectFilter::One`] takes its
+    /// subject, and a match of any other is refused and counted. A
     /// growing index with room left also takes a new name (matched exactly only, so that
     /// `A` and `a` stay two markers of a stream).
     pub fn resolve(&mut self, name: &str) -> Option<u32> {
-        if let Some(&k) = self.exact.get(name) {
-            return Some(k);
+        if self.grow_up_to.is_some() {
+            if let Some(&k) = self.exact.get(name) {
+                return Some(k);
+            }
         }
         match self.grow_up_to {
             None => {
-                bare_name_into(name, &mut self.scratch);
-                self.loose.get(&self.scratch).copied()
+                let k = match self.exact.get(name) {
+                    Some(&k) => k,
+                    None => {
+                        bare_name_into(name, &mut self.scratch);
+                        self.loose.get(&self.scratch).copied()?
+                    }
+                };
+                let subject = subject_of(name);
+                match &self.taken {
+                    Some(t) if t.eq_ignore_ascii_case(subject) => Some(k),
+                    Some(_) => {
+                        self.refuse(subject);
+                        None
+                    }
+                    None => {
+                        self.taken = Some(subject.to_owned());
+                        Some(k)
+                    }
+                }
             }
             Some(max) if self.names.len() < max && name.len() <= MAX_NAME_BYTES => {
                 Some(self.insert(name))
@@ -103,9 +176,68 @@ impl MarkerIndex {
         }
     }
 
+    /// Counts a sample of `subject` refused, naming the subject the first time.
+    fn refuse(&mut self, subject: &str) {
+        self.refused += 1;
+        let known = self.others.iter().any(|o| o.eq_ignore_ascii_case(subject));
+        if !known && self.others.len() < MAX_OTHER_SUBJECTS && subject.len() <= MAX_NAME_BYTES {
+            self.others.push(subject.to_owned());
+        }
+    }
+
     /// Every known name, by index.
     pub fn names(&self) -> &[String] {
         &self.names
+    }
+
+    /// The subject whose loose matches this index takes, once known.
+    pub fn subject(&self) -> Option<&str> {
+        self.taken.as_deref()
+    }
+
+    /// Samples refused as another subject's, and the first few such subjects.
+    pub fn refused(&self) -> (u64, &[String]) {
+        (self.refused, &self.others)
+    }
+
+    /// What a report says of the other subjects' samples, if any were refused:
+    /// `"412 samples of subjects Bob, Cy ignored (the character takes Ann's)"`.
+    pub fn refused_text(&self) -> Option<String> {
+        (self.refused > 0).then(|| {
+            format!(
+                "{} samples of {} ignored (the character takes {})",
+                self.refused,
+                subjects_text(&self.others),
+                subject_text(self.taken.as_deref().unwrap_or_default())
+            )
+        })
+    }
+}
+
+/// `subject "Bob"` or `subjects "Bob", (no prefix)`.
+fn subjects_text(subjects: &[String]) -> String {
+    let named: Vec<String> = subjects
+        .iter()
+        .map(|s| {
+            if s.is_empty() {
+                "(no prefix)".to_owned()
+            } else {
+                format!("{s:?}")
+            }
+        })
+        .collect();
+    match named.len() {
+        1 => format!("subject {}", named[0]),
+        _ => format!("subjects {}", named.join(", ")),
+    }
+}
+
+/// `"Ann"'s labels`, or `the labels without a subject prefix`.
+fn subject_text(subject: &str) -> String {
+    if subject.is_empty() {
+        "the labels without a subject prefix".to_owned()
+    } else {
+        format!("{subject:?}'s labels")
     }
 }
 
@@ -118,12 +250,48 @@ pub struct LabelMap {
     pub unmatched_labels: Vec<String>,
     /// Markers no label feeds (they stay held).
     pub unfed_markers: Vec<String>,
+    /// The subject whose labels feed the markers (`""`: labels without a prefix), when
+    /// any label matches.
+    pub subject: Option<String>,
+    /// Labels of other subjects that would match a marker, ignored.
+    pub other_subjects: Vec<String>,
 }
 
 impl LabelMap {
-    /// Maps `labels` onto the markers of `index` ([`MarkerIndex::get`]).
+    /// Maps `labels` onto the markers of `index` ([`MarkerIndex::get`]), those of one
+    /// subject: the one `index` is for, or else the one with most matching labels (the
+    /// first of those tied).
     pub fn new(labels: &[String], index: &MarkerIndex) -> Self {
-        let marker_of_label: Vec<Option<u32>> = labels.iter().map(|l| index.get(l)).collect();
+        fn loose<'l>(index: &MarkerIndex, l: &'l str) -> Option<&'l str> {
+            index.get(l).map(|_| subject_of(l))
+        }
+        let subject: Option<String> = match &index.filter {
+            SubjectFilter::Named(s) => Some(s.clone()),
+            SubjectFilter::One => {
+                let mut counts: Vec<(&str, usize)> = Vec::new();
+                for s in labels.iter().filter_map(|l| loose(index, l)) {
+                    match counts.iter_mut().find(|(n, _)| n.eq_ignore_ascii_case(s)) {
+                        Some((_, c)) => *c += 1,
+                        None => counts.push((s, 1)),
+                    }
+                }
+                let most = counts.iter().map(|c| c.1).max().unwrap_or(0);
+                counts.iter().find(|c| c.1 == most).map(|c| c.0.to_owned())
+            }
+        };
+        let mut other_subjects: Vec<String> = Vec::new();
+        let marker_of_label: Vec<Option<u32>> = labels
+            .iter()
+            .map(|l| match (loose(index, l), &subject) {
+                (Some(s), Some(taken)) if !s.eq_ignore_ascii_case(taken) => {
+                    if !other_subjects.iter().any(|o| o.eq_ignore_ascii_case(s)) {
+                        other_subjects.push(s.to_owned());
+                    }
+                    None
+                }
+                _ => index.get(l),
+            })
+            .collect();
         let unmatched_labels = labels
             .iter()
             .zip(&marker_of_label)
@@ -141,7 +309,20 @@ impl LabelMap {
             marker_of_label,
             unmatched_labels,
             unfed_markers,
+            subject,
+            other_subjects,
         }
+    }
+
+    /// What a report says of the other subjects' labels, if any were ignored.
+    pub fn others_text(&self) -> Option<String> {
+        (!self.other_subjects.is_empty()).then(|| {
+            format!(
+                "labels of {} ignored (the character takes {}; [character] subject chooses)",
+                subjects_text(&self.other_subjects),
+                subject_text(self.subject.as_deref().unwrap_or_default())
+            )
+        })
     }
 }
 
@@ -196,15 +377,121 @@ mod tests {
     #[test]
     fn labels_map_onto_markers_and_say_what_is_left() {
         let index = MarkerIndex::fixed(&names(&["wrist", "index_nail", "thumb_nail"]));
-        let map = LabelMap::new(&names(&["Sub:WRIST", "C7", "index_nail"]), &index);
+        let map = LabelMap::new(&names(&["Sub:WRIST", "C7", "Sub:index_nail"]), &index);
         assert_eq!(map.marker_of_label, vec![Some(0), None, Some(1)]);
         assert_eq!(map.unmatched_labels, names(&["C7"]));
         assert_eq!(map.unfed_markers, names(&["thumb_nail"]));
         // Vicon writes `Subject:LFHD`.
         let index = MarkerIndex::fixed(&names(&["C7", "LFHD", "RFHD", "T10"]));
-        let map = LabelMap::new(&names(&["Subject:LFHD", "rfhd", "C7", "extra"]), &index);
+        let map = LabelMap::new(
+            &names(&["Subject:LFHD", "Subject:rfhd", "Subject:C7", "extra"]),
+            &index,
+        );
         assert_eq!(map.marker_of_label, vec![Some(1), Some(2), Some(0), None]);
         assert_eq!(map.unmatched_labels, names(&["extra"]));
         assert_eq!(map.unfed_markers, names(&["T10"]));
+        assert_eq!(map.subject.as_deref(), Some("Subject"));
+        assert_eq!(map.others_text(), None);
+    }
+
+    /// Two performers in one stream: the first subject matched takes the character,
+    /// the other's samples are refused and counted, whatever their case or order.
+    #[test]
+    fn a_stream_of_two_subjects_feeds_one() {
+        let mut index = MarkerIndex::fixed(&names(&["LFHD", "RFHD", "C7"]));
+        assert_eq!(index.resolve("Ann:LFHD"), Some(0));
+        assert_eq!(index.resolve("Bob:LFHD"), None);
+        assert_eq!(index.resolve("Bob:RFHD"), None);
+        assert_eq!(
+            index.resolve("ann:rfhd"),
+            Some(1),
+            "a subject is named in any case"
+        );
+        assert_eq!(
+            index.resolve("C7"),
+            None,
+            "no prefix is a subject of its own"
+        );
+        assert_eq!(index.subject(), Some("Ann"));
+        let (refused, others) = index.refused();
+        assert_eq!(refused, 3);
+        assert_eq!(others, &names(&["Bob", ""])[..]);
+        assert_eq!(
+            index.refused_text().as_deref(),
+            Some("3 samples of subjects \"Bob\", (no prefix) ignored (the character takes \"Ann\"'s labels)")
+        );
+        // Named: only that subject's, an exact name included.
+        let mut bob = MarkerIndex::fixed_for(
+            &names(&["LFHD", "RFHD"]),
+            SubjectFilter::Named("Bob".into()),
+        );
+        assert_eq!(bob.resolve("LFHD"), None);
+        assert_eq!(bob.resolve("Ann:LFHD"), None);
+        assert_eq!(bob.resolve("Bob:LFHD"), Some(0));
+        let mut bare =
+            MarkerIndex::fixed_for(&names(&["LFHD"]), SubjectFilter::Named(String::new()));
+        assert_eq!(bare.resolve("LFHD"), Some(0));
+        assert_eq!(bare.resolve("Bob:LFHD"), None);
+    }
+
+    /// A recording of two subjects: the one with most matching labels feeds the
+    /// markers, and the other is named.
+    #[test]
+    fn a_recording_of_two_subjects_maps_the_larger() {
+        let index = MarkerIndex::fixed(&names(&["LFHD", "RFHD", "C7"]));
+        let labels = names(&[
+            "Ann:LFHD", "Ann:RFHD", "Bob:LFHD", "Bob:RFHD", "Bob:C7", "Box:C7",
+        ]);
+        let map = LabelMap::new(&labels, &index);
+        assert_eq!(
+            map.marker_of_label,
+            vec![None, None, Some(0), Some(1), Some(2), None]
+        );
+        assert_eq!(map.subject.as_deref(), Some("Bob"));
+        assert_eq!(map.other_subjects, names(&["Ann", "Box"]));
+        assert!(map.others_text().unwrap().contains("\"Bob\"'s labels"));
+        let ann = MarkerIndex::fixed_for(
+            &names(&["LFHD", "RFHD", "C7"]),
+            SubjectFilter::Named("ann".into()),
+        );
+        let map = LabelMap::new(&labels, &ann);
+        assert_eq!(
+            map.marker_of_label,
+            vec![Some(0), Some(1), None, None, None, None]
+        );
+    }
+
+    proptest::proptest! {
+        /// Over any stream of labels from a few subjects (in any case), no two subjects
+        /// ever feed the index: every accepted sample's subject is the first accepted
+        /// one's, and every refused match is counted.
+        #[test]
+        fn no_two_subjects_ever_feed_one_index(
+            stream in proptest::collection::vec((0usize..4, 0usize..4, proptest::bool::ANY), 0..64)
+        ) {
+            let markers = names(&["LFHD", "RFHD", "C7"]);
+            let mut index = MarkerIndex::fixed(&markers);
+            let subjects = ["", "Ann", "Bob", "ANN"];
+            let labels = ["LFHD", "rfhd", "C7", "T10"];
+            let mut first: Option<String> = None;
+            let mut refused = 0u64;
+            for (s, l, _) in &stream {
+                let label = if subjects[*s].is_empty() {
+                    labels[*l].to_owned()
+                } else {
+                    format!("{}:{}", subjects[*s], labels[*l])
+                };
+                let matches = index.get(&label).is_some();
+                match index.resolve(&label) {
+                    Some(_) => {
+                        let s = subjects[*s].to_ascii_lowercase();
+                        let f = first.get_or_insert_with(|| s.clone());
+                        proptest::prop_assert_eq!(&*f, &s);
+                    }
+                    None => refused += u64::from(matches),
+                }
+            }
+            proptest::prop_assert_eq!(index.refused().0, refused);
+        }
     }
 }
