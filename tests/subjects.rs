@@ -104,3 +104,154 @@ fn a_subject_with_a_colon_is_refused_by_name() {
     let e = parse_stage(text, "bad").unwrap_err().to_string();
     assert!(e.contains("character.subject"), "{e}");
 }
+
+/// Off line (`replay --solve ... --export`, `calibrate --check`) the same: the subject
+/// with most labels (here the first of two alike, Ann) feeds the body, and the report
+/// names the other's labels ignored.
+#[test]
+fn an_offline_replay_of_two_performers_solves_one_and_says_so() {
+    use rigless::character::demo::{body_bind_params, demo_body};
+    use rigless::daemon::offline::{replay_offline, OfflineOptions};
+    use rigless::rig::bind::Rig;
+    use rigless::solve::frame::SolverParams;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = Recording::load(&two_subjects(dir.path())).expect("written take");
+    let rig = Arc::new(Rig::bind(&demo_body(), &body_bind_params()).expect("bind"));
+    let report = replay_offline(
+        rig,
+        SolverParams::default(),
+        &rec,
+        OfflineOptions::default(),
+    )
+    .expect("solves")
+    .expect("labels fed");
+    assert_eq!(report.labels_fed, 36);
+    let others = report.other_subjects.expect("Bob's labels named");
+    println!("{others}");
+    assert!(
+        others.starts_with(
+            "36 labels of subject \"Bob\" ignored (the character takes \"Ann\"'s labels"
+        ),
+        "{others}"
+    );
+    // The walk's own misfit, as in the stage above (0.64 mm RMS there).
+    assert!(report.residual_mm_rms < 5.0, "{}", report.residual_mm_rms);
+    // `replay --subject Bob` keeps Bob's columns alone: nothing left to ignore.
+    let mut bob = rec.clone();
+    assert_eq!(bob.keep_subject("bob"), 36);
+    assert_eq!(bob.labels.len(), 36);
+    assert!(bob.labels.iter().all(|l| l.starts_with("Bob:")));
+    assert!(bob.frames.iter().all(|f| f.len() == 36));
+    let rig = Arc::new(Rig::bind(&demo_body(), &body_bind_params()).expect("bind"));
+    let report = replay_offline(
+        rig,
+        SolverParams::default(),
+        &bob,
+        OfflineOptions::default(),
+    )
+    .expect("solves")
+    .expect("labels fed");
+    assert_eq!((report.labels_fed, report.other_subjects), (36, None));
+}
+
+/// Takes the OSC input's frames until it has `want` of them, keeping each sample.
+struct Collect {
+    want: usize,
+    frames: usize,
+    samples: Vec<(u32, DVec3)>,
+    done: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl rigless::input::InputSink for Collect {
+    fn frame(&mut self, frame: &rigless::input::InputFrame<'_>) -> bool {
+        self.samples
+            .extend(frame.samples.iter().map(|s| (s.marker, s.position_m)));
+        self.frames += 1;
+        let more = self.frames < self.want;
+        if !more {
+            self.done.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        more
+    }
+    fn glove(
+        &mut self,
+        _: f64,
+        _: &rigless::protocol::glove::GloveReading,
+        _: &rigless::input::glove::HandMap,
+    ) -> bool {
+        true
+    }
+}
+
+/// Live over OSC on loopback: packets carrying both performers' markers feed only the
+/// first subject matched (Ann, listed first), every sample of hers, and the input's
+/// closing line counts Bob's refused.
+#[test]
+fn a_live_stream_of_two_performers_feeds_the_first_subject_matched() {
+    use rigless::input::config::{InputConfig, OscInputConfig};
+    use rigless::input::{Input, OpenContext};
+    use rigless::markers::index::SubjectFilter;
+    use rigless::protocol::osc::encode_native;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    const FRAMES: usize = 20;
+    let markers: Vec<String> = ["LFHD", "RFHD"].iter().map(|s| s.to_string()).collect();
+    let cfg = InputConfig::Osc(OscInputConfig {
+        url: "osc://127.0.0.1:0".into(),
+        ..OscInputConfig::default()
+    });
+    let ctx = OpenContext {
+        base_dir: std::path::Path::new("."),
+        markers: Some(&markers),
+        skeleton: None,
+        procedural: None,
+        subject: &SubjectFilter::One,
+    };
+    let input = Input::open(&cfg, &ctx).expect("binds");
+    let addr = input.local_addr().expect("bound");
+    let stop = Arc::new(AtomicBool::new(false));
+    let done = Arc::new(AtomicBool::new(false));
+    let (stop2, done2) = (Arc::clone(&stop), Arc::clone(&done));
+    let runner = std::thread::spawn(move || {
+        let clock = rigless::runtime::clock::SystemClock::new();
+        let mut sink = Collect {
+            want: FRAMES,
+            frames: 0,
+            samples: Vec::new(),
+            done: done2,
+        };
+        let line = input.run(&clock, 0.0, &stop2, &mut sink).expect("runs");
+        (line, sink)
+    });
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let ann = DVec3::new(0.0, 1.7, 0.0);
+    let bob = ann + DVec3::X * APART_M;
+    // UDP on loopback: sent again until the input has its frames, 5 s at most.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    let mut frame = 0;
+    while !done.load(Ordering::Relaxed) && std::time::Instant::now() < deadline {
+        let packet = encode_native(
+            frame,
+            (0, 1),
+            &[
+                ("Ann:LFHD", ann),
+                ("Bob:LFHD", bob),
+                ("Bob:RFHD", bob),
+                ("Ann:RFHD", ann),
+            ],
+        );
+        socket.send_to(&packet, addr).unwrap();
+        frame += 1;
+        std::thread::yield_now();
+    }
+    stop.store(true, Ordering::Relaxed);
+    let (line, sink) = runner.join().unwrap();
+    println!("{line}");
+    assert_eq!(sink.frames, FRAMES, "every frame within 5 s");
+    assert_eq!(sink.samples.len(), 2 * FRAMES, "Ann's two markers a frame");
+    assert!(sink.samples.iter().all(|(_, p)| (*p - ann).length() < 1e-6));
+    let refused = format!(
+        "{} samples of subject \"Bob\" ignored (the character takes \"Ann\"'s labels)",
+        2 * FRAMES
+    );
+    assert!(line.contains(&refused), "{line}");
+}

@@ -409,7 +409,9 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
         );
     }
     if let (Some(fed), Some(ignored)) = (s.labels_fed, s.labels_ignored) {
-        println!("labels: {fed} fed a marker, {ignored} ignored (no such marker)");
+        println!(
+            "labels: {fed} fed a marker, {ignored} ignored (no such marker, or another subject's)"
+        );
     }
     println!("stream: {}", serde_json::to_string(&s.stream)?);
     for line in &s.inputs {

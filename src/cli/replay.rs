@@ -80,6 +80,12 @@ pub struct ReplayArgs {
     /// --write` sets; else 1).
     #[arg(long, requires = "solve")]
     marker_scale: Option<f64>,
+    /// With --solve: the performer whose labels drive the character when the take
+    /// holds several (`Ann` for `Ann:LFHD`; "" for labels without a prefix). Default:
+    /// the subject with most labels matching a marker; the others are ignored and
+    /// named.
+    #[arg(long, value_name = "NAME", requires = "solve")]
+    subject: Option<String>,
     /// With --solve: solve every frame off line, as fast as the machine goes (no
     /// deadline, no stream), and write each to this file at the take's rate, in the
     /// format of its extension: `.pc2` (the full mesh's vertices, a point cache for
@@ -257,7 +263,13 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
             out.display()
         );
     }
-    let rec = Recording::load_with(&a.file, a.bvh_scale)?;
+    let mut rec = Recording::load_with(&a.file, a.bvh_scale)?;
+    if let Some(subject) = &a.subject {
+        let dropped = rec.keep_subject(subject);
+        if dropped > 0 {
+            eprintln!("{dropped} labels of other subjects than {subject:?} left out");
+        }
+    }
     let (rig, file_scale) = super::bound_character(character)?;
     let params = rigless::solve::frame::SolverParams {
         method: a.method,
@@ -303,6 +315,9 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
         return Ok(());
     }
     let r = &summary.replay;
+    if let Some(others) = &r.other_subjects {
+        println!("{others}");
+    }
     println!(
         "wrote {}: {} frames of {} points at {} Hz in {secs:.2} s ({fps:.0} frames/s, {:.1} times real time, {} part(s) at once)",
         out.display(),
@@ -368,6 +383,9 @@ fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::Stage
     };
     if let Some(s) = a.marker_scale {
         ch.insert("marker_scale".into(), Value::Float(s));
+    }
+    if let Some(s) = &a.subject {
+        ch.insert("subject".into(), Value::String(s.clone()));
     }
     let mut input = Table::new();
     input.insert("type".into(), Value::String("replay".into()));

@@ -59,6 +59,9 @@ pub struct OfflineReport {
     /// The recording's labels that feed a marker, and the markers no label feeds.
     pub labels_fed: usize,
     pub markers_unfed: usize,
+    /// What the report says of other subjects' labels, ignored
+    /// ([`crate::markers::index::LabelMap::others_text`]), when the take has any.
+    pub other_subjects: Option<String>,
     pub frames: usize,
     /// Share of marker samples (markers fed by a label, over the ticks the recording
     /// covers) that were held (no measurement and no fill), 0 to 1.
@@ -267,6 +270,7 @@ fn play(
         rep: OfflineReport {
             labels_fed: fed.len(),
             markers_unfed: map.unfed_markers.len(),
+            other_subjects: map.others_text(),
             ..OfflineReport::default()
         },
         body: None,

@@ -191,7 +191,7 @@ pub struct Summary {
     /// Each input's closing line (what it received), or its error.
     pub inputs: Vec<String>,
     /// The replayed recordings' labels that fed a marker, and those ignored (no such
-    /// marker); `None` without a replay input.
+    /// marker, or another subject's); `None` without a replay input.
     pub labels_fed: Option<usize>,
     pub labels_ignored: Option<usize>,
     pub stream: StreamSummary,

@@ -90,9 +90,10 @@ impl ReplayInput {
         )
     }
 
-    /// The recording's labels that feed a marker, and those ignored (no such marker).
+    /// The recording's labels that feed a marker, and those ignored (no such marker, or
+    /// another subject's).
     pub fn label_counts(&self) -> (usize, usize) {
-        let ignored = self.map.unmatched_labels.len();
+        let ignored = self.map.unmatched_labels.len() + self.map.other_subject_labels.len();
         (self.rec.labels.len() - ignored, ignored)
     }
 

@@ -253,8 +253,10 @@ pub struct LabelMap {
     /// The subject whose labels feed the markers (`""`: labels without a prefix), when
     /// any label matches.
     pub subject: Option<String>,
-    /// Labels of other subjects that would match a marker, ignored.
+    /// The other subjects whose labels would match a marker, and those labels
+    /// (ignored; not among [`Self::unmatched_labels`]).
     pub other_subjects: Vec<String>,
+    pub other_subject_labels: Vec<String>,
 }
 
 impl LabelMap {
@@ -292,12 +294,12 @@ impl LabelMap {
                 _ => index.get(l),
             })
             .collect();
-        let unmatched_labels = labels
+        let (other_subject_labels, unmatched_labels): (Vec<String>, Vec<String>) = labels
             .iter()
             .zip(&marker_of_label)
             .filter(|(_, m)| m.is_none())
             .map(|(l, _)| l.clone())
-            .collect();
+            .partition(|l| index.get(l).is_some());
         let unfed_markers = index
             .names()
             .iter()
@@ -311,6 +313,7 @@ impl LabelMap {
             unfed_markers,
             subject,
             other_subjects,
+            other_subject_labels,
         }
     }
 
@@ -318,7 +321,8 @@ impl LabelMap {
     pub fn others_text(&self) -> Option<String> {
         (!self.other_subjects.is_empty()).then(|| {
             format!(
-                "labels of {} ignored (the character takes {}; [character] subject chooses)",
+                "{} labels of {} ignored (the character takes {}; [character] subject or `replay --subject` chooses)",
+                self.other_subject_labels.len(),
                 subjects_text(&self.other_subjects),
                 subject_text(self.subject.as_deref().unwrap_or_default())
             )
@@ -449,6 +453,11 @@ mod tests {
         );
         assert_eq!(map.subject.as_deref(), Some("Bob"));
         assert_eq!(map.other_subjects, names(&["Ann", "Box"]));
+        assert_eq!(
+            map.other_subject_labels,
+            names(&["Ann:LFHD", "Ann:RFHD", "Box:C7"])
+        );
+        assert!(map.unmatched_labels.is_empty());
         assert!(map.others_text().unwrap().contains("\"Bob\"'s labels"));
         let ann = MarkerIndex::fixed_for(
             &names(&["LFHD", "RFHD", "C7"]),

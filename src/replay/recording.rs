@@ -61,6 +61,12 @@ pub struct Recording {
     pub point_groups: Vec<Option<String>>,
 }
 
+/// Keeps the items of `v` whose flag in `keep` is set (an item past its end is dropped).
+fn retain_by<T>(v: &mut Vec<T>, keep: &[bool]) {
+    let mut k = keep.iter();
+    v.retain(|_| k.next().copied().unwrap_or(false));
+}
+
 /// Why a recording cannot be played.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
@@ -127,6 +133,26 @@ impl Recording {
             point_groups: c.point_groups,
         })
         .and_then(Self::nonempty)
+    }
+
+    /// Keeps the labels of `subject` alone (`Ann` keeps `Ann:LFHD` and `ann:rfhd`; `""`
+    /// the labels without a `Subject:` prefix), with their columns; returns how many
+    /// labels it left out.
+    pub fn keep_subject(&mut self, subject: &str) -> usize {
+        use crate::markers::index::subject_of;
+        let keep: Vec<bool> = self
+            .labels
+            .iter()
+            .map(|l| subject_of(l).eq_ignore_ascii_case(subject))
+            .collect();
+        retain_by(&mut self.labels, &keep);
+        for f in &mut self.frames {
+            retain_by(f, &keep);
+        }
+        if self.point_groups.len() == keep.len() {
+            retain_by(&mut self.point_groups, &keep);
+        }
+        keep.iter().filter(|k| !**k).count()
     }
 
     /// Reads a file by its extension (`.c3d`, `.tsv`, `.rlsession`, `.bvh` with
