@@ -3,6 +3,8 @@
 //! else the one with most matching labels, and never jumps between them. Whole stages
 //! in-process on a manual clock, the take written as a C3D file of two subjects.
 
+mod common;
+
 use glam::DVec3;
 use rigless::config::parse_stage;
 use rigless::daemon::stage::{Stage, StartOptions, Summary};
@@ -211,7 +213,10 @@ fn a_live_stream_of_two_performers_feeds_the_first_subject_matched() {
     let stop = Arc::new(AtomicBool::new(false));
     let done = Arc::new(AtomicBool::new(false));
     let (stop2, done2) = (Arc::clone(&stop), Arc::clone(&done));
+    let log = common::LogCapture::default();
+    let dispatch = tracing::Dispatch::new(log.subscriber(tracing::Level::WARN));
     let runner = std::thread::spawn(move || {
+        let _said = tracing::dispatcher::set_default(&dispatch);
         let clock = rigless::runtime::clock::SystemClock::new();
         let mut sink = Collect {
             want: FRAMES,
@@ -254,4 +259,11 @@ fn a_live_stream_of_two_performers_feeds_the_first_subject_matched() {
         2 * FRAMES
     );
     assert!(line.contains(&refused), "{line}");
+    // Said once, not once a packet.
+    assert_eq!(
+        log.count("WARN", "labels of subject \"Bob\" ignored"),
+        1,
+        "{:?}",
+        log.lines()
+    );
 }

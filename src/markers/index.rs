@@ -176,11 +176,17 @@ impl MarkerIndex {
         }
     }
 
-    /// Counts a sample of `subject` refused, naming the subject the first time.
+    /// Counts a sample of `subject` refused; the first of each subject is said once, as
+    /// a warning (for the first [`MAX_OTHER_SUBJECTS`] subjects).
     fn refuse(&mut self, subject: &str) {
         self.refused += 1;
         let known = self.others.iter().any(|o| o.eq_ignore_ascii_case(subject));
         if !known && self.others.len() < MAX_OTHER_SUBJECTS && subject.len() <= MAX_NAME_BYTES {
+            tracing::warn!(
+                "labels of {} ignored: the character takes {} ([character] subject chooses)",
+                subjects_text(std::slice::from_ref(&subject.to_owned())),
+                subject_text(self.taken.as_deref().unwrap_or_default())
+            );
             self.others.push(subject.to_owned());
         }
     }
