@@ -1190,7 +1190,7 @@ impl Problem<'_> {
             parts: self.parts,
             params: self.params,
             hold,
-            midline: midline_joints(ch, self.roles),
+            midline: midline_joints(ch, self.roles, self.stance.height),
         };
         // Every label where the seed placed it, or where the rest-like frame puts it, on
         // the nearest candidate bone.
@@ -1429,9 +1429,13 @@ impl FirstGuess {
 }
 
 /// The body's left at rest and, per joint, whether it lies on the midline: a hips,
-/// spine, neck or head joint within [`MIDLINE_SHARE`] of the height from the sagittal
-/// plane through the hips. `None` without the upper legs' sides.
-fn midline_joints(ch: &Character, roles: &[Option<Role>]) -> Option<(DVec3, Vec<bool>)> {
+/// spine, neck or head joint within [`MIDLINE_SHARE`] of `height` (the character's,
+/// metres) from the sagittal plane through the hips. `None` without the upper legs' sides.
+fn midline_joints(
+    ch: &Character,
+    roles: &[Option<Role>],
+    height: f64,
+) -> Option<(DVec3, Vec<bool>)> {
     let sk = &ch.skeleton;
     let (_, _, left) = landmarks::body_axes(sk, roles)?;
     let hips = sk.joints[*marker_sets::candidate_joints(
@@ -1443,8 +1447,6 @@ fn midline_joints(ch: &Character, roles: &[Option<Role>]) -> Option<(DVec3, Vec<
     )
     .first()?]
     .rest;
-    let (lo, hi) = crate::geom::shapes::bounds(&ch.vertices);
-    let height = hi.y - lo.y;
     let midline = (0..sk.len())
         .map(|j| {
             let trunk = roles.get(j).copied().flatten().is_some_and(|r| {

@@ -142,37 +142,34 @@ impl MarkerIndex {
     /// growing index with room left also takes a new name (matched exactly only, so that
     /// `A` and `a` stay two markers of a stream).
     pub fn resolve(&mut self, name: &str) -> Option<u32> {
-        if self.grow_up_to.is_some() {
-            if let Some(&k) = self.exact.get(name) {
-                return Some(k);
-            }
-        }
-        match self.grow_up_to {
-            None => {
-                let k = match self.exact.get(name) {
-                    Some(&k) => k,
-                    None => {
-                        bare_name_into(name, &mut self.scratch);
-                        self.loose.get(&self.scratch).copied()?
-                    }
-                };
-                let subject = subject_of(name);
-                match &self.taken {
-                    Some(t) if t.eq_ignore_ascii_case(subject) => Some(k),
-                    Some(_) => {
-                        self.refuse(subject);
-                        None
-                    }
-                    None => {
-                        self.taken = Some(subject.to_owned());
-                        Some(k)
-                    }
+        let exact = self.exact.get(name).copied();
+        let Some(max) = self.grow_up_to else {
+            let k = match exact {
+                Some(k) => k,
+                None => {
+                    bare_name_into(name, &mut self.scratch);
+                    self.loose.get(&self.scratch).copied()?
                 }
-            }
-            Some(max) if self.names.len() < max && name.len() <= MAX_NAME_BYTES => {
+            };
+            let subject = subject_of(name);
+            return match &self.taken {
+                Some(t) if t.eq_ignore_ascii_case(subject) => Some(k),
+                Some(_) => {
+                    self.refuse(subject);
+                    None
+                }
+                None => {
+                    self.taken = Some(subject.to_owned());
+                    Some(k)
+                }
+            };
+        };
+        match exact {
+            Some(k) => Some(k),
+            None if self.names.len() < max && name.len() <= MAX_NAME_BYTES => {
                 Some(self.insert(name))
             }
-            Some(_) => None,
+            None => None,
         }
     }
 
