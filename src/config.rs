@@ -1,4 +1,5 @@
-//! The stage config (`rigless run --config stage.toml`): which character, which inputs,
+//! The stage config (`rigless run --config stage.toml`): which character (or which
+//! `[[actors]]`, [`ActorConfig`]: one per performer), which inputs,
 //! how the solver runs, where the outputs go, what is recorded. Each section's struct
 //! belongs to the component it configures (its keys documented there, unknown keys
 //! refused, its own checks); this module reads the file, hands each section to its
@@ -21,7 +22,7 @@
 //! ```
 
 use crate::calibrate::config::LiveCalibrationConfig;
-use crate::character::config::{motions_of, CharacterConfig};
+use crate::character::config::{motions_of, name_problem, CharacterConfig, MAX_SUBJECT_BYTES};
 use crate::input::config::InputConfig;
 use crate::markers::buffer::BufferConfig;
 use crate::output::config::OutputsConfig;
@@ -33,8 +34,10 @@ use crate::solve::config::SolverConfig;
 /// A whole stage config.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StageConfig {
-    /// `[character]`.
+    /// `[character]`: the one performer of a stage without `[[actors]]`.
     pub character: CharacterConfig,
+    /// `[[actors]]`: the performers of a stage of several (empty: `[character]`).
+    pub actors: Vec<ActorConfig>,
     /// `[solver]`.
     pub solver: SolverConfig,
     /// `[buffer]`: gap filling and gating.
@@ -61,9 +64,121 @@ pub enum ConfigError {
     Invalid { path: String, problems: Vec<String> },
 }
 
+/// Most `labels` patterns of an actor.
+const MAX_PATTERNS: usize = 64;
+
+/// One `[[actors]]` entry: a performer on a stage of several, its character and how its
+/// labels are recognised among the others'.
+#[derive(Clone, Debug, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActorConfig {
+    /// The actor's name, unique on the stage: status lines, summaries and outputs name
+    /// it.
+    pub name: String,
+    /// A procedural character: `"hand"` or `"body"`.
+    pub procedural: Option<String>,
+    /// A character file, relative to the stage config's folder.
+    pub path: Option<std::path::PathBuf>,
+    /// Character metres per capture metre, as in `[character]`.
+    pub marker_scale: Option<f64>,
+    /// Its labels are this subject's (`"Ann"` takes `Ann:*` from C3D and TSV files, the
+    /// NatNet asset `Ann`, the VRPN tracker `Ann`, OSC `/…/Ann/{name}` addresses).
+    pub subject: Option<String>,
+    /// Or: its labels are those matching any of these patterns (`*` any run, `?` one
+    /// character, any case; `"Ann_*"` finds `LFHD` in `Ann_LFHD`). Neither `subject`
+    /// nor `labels`: the labels without a subject prefix.
+    pub labels: Option<Vec<String>>,
+    /// Its deformation method (default: `[solver] method`).
+    pub method: Option<crate::solve::frame::Method>,
+}
+
+impl ActorConfig {
+    /// Its character, as a `[character]` table would give it.
+    pub fn character(&self) -> CharacterConfig {
+        CharacterConfig {
+            procedural: self.procedural.clone(),
+            path: self.path.clone(),
+            marker_scale: self.marker_scale,
+            subject: None,
+        }
+    }
+
+    /// How it claims its labels.
+    pub fn claim(&self) -> crate::markers::index::Claim {
+        use crate::markers::index::Claim;
+        match (&self.subject, &self.labels) {
+            (Some(s), _) => Claim::Subject(s.clone()),
+            (None, Some(p)) => Claim::Patterns(p.clone()),
+            (None, None) => Claim::Unprefixed,
+        }
+    }
+
+    /// What is wrong, as `(key, message)` with keys relative to the entry.
+    pub fn problems(&self) -> Vec<(String, String)> {
+        let mut out = self.character().problems();
+        if let Some(m) = name_problem(&self.name, "a name for the actor") {
+            out.push(("name".into(), m));
+        } else if self.name.is_empty() {
+            out.push(("name".into(), "missing: every actor needs a name".into()));
+        }
+        if let Some(s) = &self.subject {
+            if let Some(m) = name_problem(
+                s,
+                "a subject's name as it prefixes labels (`Ann` for `Ann:LFHD`)",
+            ) {
+                out.push(("subject".into(), m));
+            }
+        }
+        match (&self.subject, &self.labels) {
+            (Some(_), Some(_)) => out.push((
+                "labels".into(),
+                "give either subject or labels, not both".into(),
+            )),
+            (None, Some(p))
+                if p.is_empty()
+                    || p.len() > MAX_PATTERNS
+                    || p.iter()
+                        .any(|p| p.is_empty() || p.len() > MAX_SUBJECT_BYTES) =>
+            {
+                out.push((
+                    "labels".into(),
+                    format!("must be 1 to {MAX_PATTERNS} non-empty patterns of at most {MAX_SUBJECT_BYTES} bytes"),
+                ));
+            }
+            _ => {}
+        }
+        out
+    }
+}
+
+/// Whether two actors' claims surely take some of the same labels: the same subject, both
+/// the unprefixed labels, or a pattern of one that takes a label of the other's (tried on
+/// a few marker names).
+pub fn claims_overlap(a: &crate::markers::index::Claim, b: &crate::markers::index::Claim) -> bool {
+    use crate::markers::index::Claim;
+    const PROBES: [&str; 4] = ["LFHD", "C7", "wrist", "x"];
+    let probes = |c: &Claim| -> Vec<String> {
+        match c {
+            Claim::Subject(s) => PROBES.iter().map(|m| format!("{s}:{m}")).collect(),
+            Claim::Unprefixed => PROBES.iter().map(|m| m.to_string()).collect(),
+            Claim::Patterns(ps) => ps
+                .iter()
+                .flat_map(|p| {
+                    PROBES
+                        .iter()
+                        .map(move |m| p.replacen('*', m, 1).replace(['*', '?'], "x"))
+                })
+                .collect(),
+        }
+    };
+    let takes = |c: &Claim, label: &str| c.claims(label, crate::markers::index::subject_of(label));
+    probes(a).iter().any(|l| takes(b, l)) || probes(b).iter().any(|l| takes(a, l))
+}
+
 /// The sections a stage config may have.
-const SECTIONS: [&str; 7] = [
+const SECTIONS: [&str; 8] = [
     "character",
+    "actors",
     "solver",
     "buffer",
     "inputs",
@@ -101,19 +216,122 @@ fn add_problems(
     }
 }
 
-/// The `[[inputs]]` array, each entry typed (problems of shape reported).
-fn inputs_of(table: &toml::Table, lines: &Lines, problems: &mut Vec<String>) -> Vec<InputConfig> {
-    match table.get("inputs") {
+/// An array of tables (`[[inputs]]`, `[[actors]]`), each entry typed (problems of
+/// shape reported).
+fn array_of<T: serde::de::DeserializeOwned>(
+    table: &toml::Table,
+    key: &str,
+    lines: &Lines,
+    problems: &mut Vec<String>,
+) -> Vec<T> {
+    match table.get(key) {
         None => Vec::new(),
         Some(toml::Value::Array(a)) => a
             .iter()
             .enumerate()
-            .filter_map(|(i, v)| typed::<InputConfig>(v, &format!("inputs[{i}]"), lines, problems))
+            .filter_map(|(i, v)| typed::<T>(v, &format!("{key}[{i}]"), lines, problems))
             .collect(),
         Some(_) => {
-            problems.push(lines.at("inputs", "must be an array of tables ([[inputs]])"));
+            problems.push(lines.at(key, format!("must be an array of tables ([[{key}]])")));
             Vec::new()
         }
+    }
+}
+
+/// One performer of a stage, as the stage runs it: `[character]` or an `[[actors]]`
+/// entry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ActorSpec {
+    /// Its name (`None`: the one `[character]`, named by its character).
+    pub name: Option<String>,
+    pub character: CharacterConfig,
+    /// How its labels are recognised among several actors' (`None`: the one
+    /// `[character]`, which takes one subject's, [`CharacterConfig::subject`]).
+    pub claim: Option<crate::markers::index::Claim>,
+    pub method: crate::solve::frame::Method,
+}
+
+impl StageConfig {
+    /// The stage's performers, in the config's order.
+    pub fn actor_specs(&self) -> Vec<ActorSpec> {
+        if self.actors.is_empty() {
+            return vec![ActorSpec {
+                name: None,
+                character: self.character.clone(),
+                claim: None,
+                method: self.solver.method,
+            }];
+        }
+        self.actors
+            .iter()
+            .map(|a| ActorSpec {
+                name: Some(a.name.clone()),
+                character: a.character(),
+                claim: Some(a.claim()),
+                method: a.method.unwrap_or(self.solver.method),
+            })
+            .collect()
+    }
+
+    /// The procedural character a synthetic input plays: `[character]`'s, or the first
+    /// actor's.
+    pub fn first_procedural(&self) -> Option<&String> {
+        match self.actors.first() {
+            Some(a) => a.procedural.as_ref(),
+            None => self.character.procedural.as_ref(),
+        }
+    }
+}
+
+/// The `[[actors]]` rules: not with `[character]`, names unique, no two claiming the
+/// same labels, each entry's own problems; and what a stage of several cannot do yet.
+fn actors_problems(
+    c: &StageConfig,
+    table: &toml::Table,
+    lines: &Lines,
+    problems: &mut Vec<String>,
+) {
+    if c.actors.is_empty() {
+        add_problems("character", c.character.problems(), lines, problems);
+        return;
+    }
+    if table.contains_key("character") {
+        problems.push(lines.at(
+            "character",
+            "give either [character] (one performer) or [[actors]], not both",
+        ));
+    }
+    for (i, a) in c.actors.iter().enumerate() {
+        let at = format!("actors[{i}]");
+        add_problems(&at, a.problems(), lines, problems);
+        let earlier = &c.actors[..i];
+        if let Some(j) = earlier.iter().position(|b| b.name == a.name) {
+            problems.push(lines.at(
+                &format!("{at}.name"),
+                format!("actor {:?} is named twice (first as actors[{j}])", a.name),
+            ));
+        }
+        if let Some(j) = earlier
+            .iter()
+            .position(|b| claims_overlap(&b.claim(), &a.claim()))
+        {
+            problems.push(lines.at(
+                &at,
+                format!(
+                    "actor {:?} claims labels actor {:?} (actors[{j}]) claims: {} and {}; give each its own subject or labels",
+                    a.name,
+                    c.actors[j].name,
+                    a.claim().describe(),
+                    c.actors[j].claim().describe()
+                ),
+            ));
+        }
+    }
+    if c.calibration.first_secs.is_some() && c.actors.len() > 1 {
+        problems.push(lines.at(
+            "calibration.first_secs",
+            "a live calibration calibrates one performer: not yet for a stage of several actors (calibrate each actor's character file with `rigless calibrate --write` on a take of that performer)",
+        ));
     }
 }
 
@@ -125,10 +343,10 @@ fn cross_section_problems(c: &StageConfig, lines: &Lines, problems: &mut Vec<Str
             continue;
         };
         let at = format!("inputs[{i}]");
-        match &c.character.procedural {
+        match c.first_procedural() {
             None => problems.push(lines.at(
                 &at,
-                "a synthetic input needs a procedural character (character.procedural)",
+                "a synthetic input needs a procedural character (character.procedural, or the first actor's procedural)",
             )),
             Some(ch) => {
                 let ok = motions_of(ch);
@@ -148,7 +366,7 @@ fn cross_section_problems(c: &StageConfig, lines: &Lines, problems: &mut Vec<Str
     if c.inputs.is_empty() {
         problems.push(lines.at("inputs", "no inputs: add at least one [[inputs]] table"));
     }
-    if c.calibration.write && c.character.path.is_none() {
+    if c.calibration.write && c.character.path.is_none() && c.actors.is_empty() {
         problems.push(lines.at(
             "calibration.write",
             "writing the layout needs a character file (character.path); a procedural character has none (`rigless export-character hand|body DIR` writes one)",
@@ -175,19 +393,15 @@ pub fn parse_stage(text: &str, path: &str) -> Result<StageConfig, ConfigError> {
     }
     let config = StageConfig {
         character: section(&table, "character", &lines, &mut problems),
+        actors: array_of(&table, "actors", &lines, &mut problems),
         solver: section(&table, "solver", &lines, &mut problems),
         buffer: section(&table, "buffer", &lines, &mut problems),
-        inputs: inputs_of(&table, &lines, &mut problems),
+        inputs: array_of(&table, "inputs", &lines, &mut problems),
         outputs: section(&table, "outputs", &lines, &mut problems),
         recorder: section(&table, "recorder", &lines, &mut problems),
         calibration: section(&table, "calibration", &lines, &mut problems),
     };
-    add_problems(
-        "character",
-        config.character.problems(),
-        &lines,
-        &mut problems,
-    );
+    actors_problems(&config, &table, &lines, &mut problems);
     add_problems("solver", config.solver.problems(), &lines, &mut problems);
     add_problems("buffer", config.buffer.problems(), &lines, &mut problems);
     add_problems("outputs", config.outputs.problems(), &lines, &mut problems);

@@ -203,6 +203,7 @@ fn a_live_stream_of_two_performers_feeds_the_first_subject_matched() {
         skeleton: None,
         procedural: None,
         subject: &SubjectFilter::One,
+        actors: None,
     };
     let input = Input::open(&cfg, &ctx).expect("binds");
     let addr = input.local_addr().expect("bound");

@@ -3,6 +3,7 @@
 //! as soon as it is measured ([`run_suite`]). Timing uses the monotonic clock around the
 //! measured step only; setup is excluded and reported separately (`factor_s`).
 
+pub mod actors;
 pub mod assets;
 pub mod calibration;
 pub mod capsules;
@@ -42,6 +43,9 @@ pub enum Suite {
     /// Known truth on real assets: their own animations through their own skinning,
     /// a marker set on the skin, calibrated and solved, held against the skinned mesh.
     Truth,
+    /// Stages of several performers: 1 to 8 bodies in real time, a label swap between
+    /// two, two real takes in one.
+    Actors,
 }
 
 /// How the suites run.
@@ -98,6 +102,7 @@ pub fn run_suite(suite: Suite, opts: &BenchOptions, out: &mut dyn Write) -> Resu
         Suite::Calibration => calibration::suite(&opts.data, opts.json, out),
         Suite::Export => export::suite(opts.json, out),
         Suite::Truth => truth::suite(&opts.data, opts.json, out),
+        Suite::Actors => actors::suite(&opts.data, opts.seconds, opts.json, out),
     }
 }
 

@@ -24,8 +24,15 @@ pub struct CharacterConfig {
     pub subject: Option<String>,
 }
 
-/// Longest `[character] subject`, bytes.
-const MAX_SUBJECT_BYTES: usize = 256;
+/// Longest `[character] subject` or actor name, bytes.
+pub const MAX_SUBJECT_BYTES: usize = 256;
+
+/// What is wrong with `s` as `what` (a subject or an actor's name), if anything.
+pub fn name_problem(s: &str, what: &str) -> Option<String> {
+    (s.contains(':') || s.trim() != s || s.len() > MAX_SUBJECT_BYTES).then(|| {
+        format!("must be {what}, without `:` or surrounding spaces, at most {MAX_SUBJECT_BYTES} bytes; got {s:?}")
+    })
+}
 
 /// The motions each procedural character plays (empty: no such character).
 pub fn motions_of(procedural: &str) -> &'static [&'static str] {
@@ -49,11 +56,11 @@ impl CharacterConfig {
     pub fn problems(&self) -> Vec<(String, String)> {
         let mut out = self.source_problems();
         if let Some(s) = &self.subject {
-            if s.contains(':') || s.trim() != s || s.len() > MAX_SUBJECT_BYTES {
-                out.push((
-                    "subject".into(),
-                    format!("must be a subject's name as it prefixes labels (`Ann` for `Ann:LFHD`), without `:` or surrounding spaces, at most {MAX_SUBJECT_BYTES} bytes; got {s:?}"),
-                ));
+            if let Some(m) = name_problem(
+                s,
+                "a subject's name as it prefixes labels (`Ann` for `Ann:LFHD`)",
+            ) {
+                out.push(("subject".into(), m));
             }
         }
         if let Some(v) = self.marker_scale {

@@ -14,8 +14,11 @@ pub struct BenchArgs {
     /// real time: latency from input to client, missed ticks, Rerun on and off, 50
     /// clients), `codecs` (decode cost per packet of each input format, 50 markers),
     /// `replay` (send-time jitter of `rigless replay` at 120 Hz against the file's
-    /// clock), or `calibration` (`rigless calibrate` on known truth and on the data
-    /// folder's takes and assets: time, scale and offset errors, misfit).
+    /// clock), `calibration` (`rigless calibrate` on known truth and on the data
+    /// folder's takes and assets: time, scale and offset errors, misfit), `export`,
+    /// `truth`, or `actors` (1, 2, 4 and 8 bodies at 120 Hz on every core and on one,
+    /// per actor frame times and missed ticks; a label swap between two bodies 0.3 m
+    /// apart with the identity gate and without; two real takes in one).
     #[arg(long, value_enum, default_value_t = Suite::Capsules)]
     suite: Suite,
     /// Print one JSON object per line instead of a table.
@@ -24,7 +27,7 @@ pub struct BenchArgs {
     /// The shared data folder (holds `tetmesh/`, `hand/`, `c3d/`, `meshes/`).
     #[arg(long, default_value = "../shared/data")]
     data: PathBuf,
-    /// Seconds per case of the `live` and `replay` suites.
+    /// Seconds per case of the `live`, `replay` and `actors` suites.
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
 }

@@ -57,6 +57,7 @@ pub fn run(a: ListenArgs) -> Result<()> {
             skeleton: Some(&skeleton),
             procedural: None,
             subject: &rigless::markers::index::SubjectFilter::One,
+            actors: None,
         },
     )?;
     match input.local_addr() {

@@ -219,6 +219,8 @@ pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> R
             progress: Some(&mut progress),
             frames: None,
             rerun,
+            actor_frames: Vec::new(),
+            frame_logs: Vec::new(),
         },
     );
     end_bind_progress(drawn);
@@ -233,8 +235,13 @@ pub fn run_stage(mut cfg: StageConfig, base_dir: &Path, opts: &LiveOptions) -> R
         if interrupted.load(Ordering::Relaxed) {
             stage.stop();
         }
-        if let Some(st) = stage.status() {
-            print_status(&st, stage.stream_clients(), opts.json, tty);
+        let actors = &stage.info().actors;
+        let statuses = stage.actor_statuses();
+        for (a, st) in actors.iter().zip(statuses) {
+            if let Some(st) = st {
+                let name = (actors.len() > 1).then_some(a.name.as_str());
+                print_status(&st, name, stage.stream_clients(), opts.json, tty);
+            }
         }
     }
     let summary = stage.join()?;
@@ -296,6 +303,24 @@ fn print_started(stage: &Stage, viewer: bool, json: bool) {
         if let Some(source) = &i.rig_source {
             println!("{source}");
         }
+        if i.actors.len() > 1 {
+            for a in &i.actors {
+                println!(
+                    "actor {}: the {}, {} markers, {}",
+                    a.name,
+                    a.character,
+                    a.markers,
+                    a.claim.as_deref().unwrap_or("its labels")
+                );
+            }
+            println!(
+                "{} actors on {} solver thread{}; the vertex stream and Rerun carry the first, {}",
+                i.actors.len(),
+                i.solver_threads,
+                if i.solver_threads == 1 { "" } else { "s" },
+                i.actors[0].name
+            );
+        }
         if let Some(c) = &i.calibration {
             println!("{}", c.describe());
         }
@@ -318,17 +343,20 @@ fn print_started(stage: &Stage, viewer: bool, json: bool) {
     flush(&mut std::io::stdout());
 }
 
-fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
+/// One actor's status line; `actor` names it on a stage of several (whose lines are
+/// never redrawn in place: one per actor).
+fn print_status(st: &LoopStatus, actor: Option<&str>, clients: u64, json: bool, tty: bool) {
     if json {
         println!(
             "{}",
-            serde_json::json!({ "status": st, "clients": clients })
+            serde_json::json!({ "status": st, "actor": actor, "clients": clients })
         );
         return;
     }
     let [m, p, r, h] = st.fill_now;
+    let who = actor.map(|a| format!("{a}: ")).unwrap_or_default();
     let mut line = format!(
-        "frame {:>6}  {:>5.1} Hz  solve ms p50 {:.2} p99 {:.2} (frame {:.2} / {:.2})  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
+        "{who}frame {:>6}  {:>5.1} Hz  solve ms p50 {:.2} p99 {:.2} (frame {:.2} / {:.2})  iters {:>4.1}  markers: {m} measured, {p} predicted, {r} rigid, {h} held  clients {clients}",
         st.frames, st.frame_rate_hz, st.solve_ms_p50, st.solve_ms_p99, st.frame_ms_p50, st.frame_ms_p99, st.iterations_mean
     );
     // Only when a sender has sent something impossible (the JSON status always has it).
@@ -336,7 +364,13 @@ fn print_status(st: &LoopStatus, clients: u64, json: bool, tty: bool) {
     if implausible > 0 {
         line.push_str(&format!("  implausible {implausible}"));
     }
-    if tty {
+    if st.buffer.identity_gated > 0 {
+        line.push_str(&format!("  another's {}", st.buffer.identity_gated));
+    }
+    if st.fill_now[3] == st.fill_now.iter().sum::<usize>() {
+        line.push_str("  (no marker in view: holding the last pose)");
+    }
+    if tty && actor.is_none() {
         print!("\r{line}   ");
         flush(&mut std::io::stdout());
     } else {
@@ -362,6 +396,7 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
             "recorded": s.recorded.as_ref().map(|(p, n)| serde_json::json!({"path": p, "samples": n})),
             "recording_failed": s.recording_failed,
             "rerun": s.rerun,
+            "actors": s.actors,
         });
         println!("{v}");
         return Ok(());
@@ -412,6 +447,17 @@ fn print_summary(s: &Summary, json: bool) -> Result<()> {
         println!(
             "labels: {fed} fed a marker, {ignored} ignored (no such marker, or another subject's)"
         );
+    }
+    if s.actors.len() > 1 {
+        for a in &s.actors {
+            let st = &a.status;
+            let b = &st.buffer;
+            println!(
+                "actor {}: {} frames, frame ms p50 {:.2} p99 {:.2}, {} deadline stops, {} overruns; marker residual RMS {:.2} mm, max {:.2} mm; {} samples, {} gated ({} label swaps), {} another performer's",
+                a.name, st.frames, st.frame_ms_p50, st.frame_ms_p99, st.deadline_stops, st.overruns,
+                st.marker_residual_mm_rms, st.marker_residual_mm_max, b.accepted + b.occluded, b.gate_rejected, b.label_swaps, b.identity_gated
+            );
+        }
     }
     println!("stream: {}", serde_json::to_string(&s.stream)?);
     for line in &s.inputs {

@@ -272,6 +272,7 @@ pub fn capture(
         skeleton: None,
         procedural: None,
         subject: &crate::markers::index::SubjectFilter::One,
+        actors: None,
     };
     let mut opened = Vec::new();
     for (index, c) in inputs.iter().enumerate() {

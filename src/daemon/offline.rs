@@ -40,6 +40,9 @@ pub struct OfflineOptions {
     /// else): the ticks' vertices are not written (zero), and the misfit is the
     /// skeleton's.
     pub posture_only: bool,
+    /// Gate samples by the solved body, as an actor of a stage of several is
+    /// ([`Pipeline::with_identity_gate`]).
+    pub identity_gate: bool,
 }
 
 impl Default for OfflineOptions {
@@ -49,6 +52,7 @@ impl Default for OfflineOptions {
             marker_scale: 1.0,
             deadline: true,
             posture_only: false,
+            identity_gate: false,
         }
     }
 }
@@ -66,6 +70,8 @@ pub struct OfflineReport {
     /// Share of marker samples (markers fed by a label, over the ticks the recording
     /// covers) that were held (no measurement and no fill), 0 to 1.
     pub held_share: f64,
+    /// Samples the identity gate dropped ([`OfflineOptions::identity_gate`]).
+    pub identity_gated: u64,
     /// Misfit (distance from each marker to its bound point on the solved mesh) over
     /// the ticks with a marker in view: RMS over ticks of each tick's RMS, and the
     /// largest, character millimetres.
@@ -186,6 +192,7 @@ impl Tally {
             .max(q.joint_limit_violation_deg_max);
         r.inverted_tets_max = r.inverted_tets_max.max(q.inverted_tets_max);
         r.deadline_stops += q.deadline_stops;
+        r.identity_gated += q.identity_gated;
         r.iteration_cap_stops += q.iteration_cap_stops;
         r.iterations_mean += q.iterations_mean;
         r.iterations_max = r.iterations_max.max(q.iterations_max);
@@ -257,6 +264,9 @@ fn play(
         Pipeline::new(solver, buffer, rx, Vec::new()).with_marker_scale(opts.marker_scale);
     if opts.posture_only {
         pipeline = pipeline.posture_only();
+    }
+    if opts.identity_gate {
+        pipeline = pipeline.with_identity_gate();
     }
     let fed_markers: Vec<usize> = {
         let mut m: Vec<usize> = fed.iter().map(|f| f.1 as usize).collect();
@@ -331,6 +341,7 @@ fn play(
         }
     }
     tally.body = Some(pipeline.body().clone());
+    tally.rep.identity_gated = pipeline.buffer().counters().identity_gated;
     Ok(Some(tally))
 }
 
@@ -549,6 +560,7 @@ pub fn export_take(
         // A BVH reads the posture alone, which the skeleton step fits before (and
         // without) the meshes; a glTF's skin is fitted to the solved meshes.
         posture_only: format == ExportFormat::Bvh,
+        identity_gate: false,
     };
     let solved = solve_parts(&rig, params, rec, play_opts, &bounds, warm, outs, progress);
     let (tally, file) = solved?;

@@ -24,6 +24,58 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+/// A solve whose markers fit within this RMS, mm, arms the identity gate
+/// ([`Pipeline::with_identity_gate`]): a body fitted worse than this says too little of
+/// where its markers belong.
+pub const IDENTITY_TRUST_MM: f64 = 30.0;
+
+/// Where each actor of a stage puts its markers (its last trusted solve's fitted
+/// markers, capture metres; NaN when it has none), for the other actors' identity gates.
+/// One lock per actor, held for a copy of its markers.
+#[derive(Debug)]
+pub struct ActorBoard {
+    slots: Vec<std::sync::Mutex<Vec<DVec3>>>,
+}
+
+impl ActorBoard {
+    /// A board for actors of `markers[i]` markers each, none known yet.
+    pub fn new(markers: &[usize]) -> Self {
+        Self {
+            slots: markers
+                .iter()
+                .map(|&n| std::sync::Mutex::new(vec![DVec3::NAN; n]))
+                .collect(),
+        }
+    }
+
+    /// Copies every actor's markers but `me`'s into `out` (cleared first), scaled by
+    /// `scale`.
+    fn others(&self, me: usize, scale: f64, out: &mut Vec<DVec3>) {
+        out.clear();
+        let others = self.slots.iter().enumerate().filter(|(j, _)| *j != me);
+        for (_, slot) in others {
+            let m = slot.lock().unwrap_or_else(|e| e.into_inner());
+            out.extend(m.iter().map(|p| *p * scale));
+        }
+    }
+
+    /// Sets `me`'s markers to `markers` divided by `scale` (NaN: unknown).
+    fn set(&self, me: usize, markers: Option<&[DVec3]>, scale: f64) {
+        let Some(slot) = self.slots.get(me) else {
+            return;
+        };
+        let mut m = slot.lock().unwrap_or_else(|e| e.into_inner());
+        match markers {
+            Some(p) if p.len() == m.len() => {
+                for (o, p) in m.iter_mut().zip(p) {
+                    *o = *p / scale;
+                }
+            }
+            _ => m.iter_mut().for_each(|o| *o = DVec3::NAN),
+        }
+    }
+}
+
 /// Published frames kept for reuse.
 const POOL_LEN: usize = 8;
 /// Frame times kept for the status line's percentiles.
@@ -200,6 +252,9 @@ pub struct Pipeline {
     marker_scale: f64,
     /// Every drained sample also goes here (the session recorder), without blocking.
     recorder: Option<Sender<MarkerSample>>,
+    /// Added to a sample's marker index on its way to the recorder (an actor's first
+    /// marker's index among the stage's).
+    recorder_offset: u32,
     /// Samples the recorder's channel had no room for.
     record_dropped: u64,
     markers: MarkerFrame,
@@ -233,6 +288,16 @@ pub struct Pipeline {
     input_rates: InputRates,
     /// Fit the posture alone ([`Self::posture_only`]).
     posture_only: bool,
+    /// Arm the buffer's identity gate with each trusted solve ([`Self::with_identity_gate`]).
+    identity_gate: bool,
+    /// The stage's actor board and this actor's place on it ([`Self::with_board`]), and
+    /// the others' markers read from it each tick.
+    board: Option<(Arc<ActorBoard>, usize)>,
+    others: Vec<DVec3>,
+    /// Every published frame also goes here ([`Self::with_frame_log`]), and the frames
+    /// its full channel had no room for.
+    frame_log: Option<Sender<Arc<DeformedFrame>>>,
+    frames_unlogged: u64,
 }
 
 impl Pipeline {
@@ -251,6 +316,7 @@ impl Pipeline {
             slots,
             marker_scale: 1.0,
             recorder: None,
+            recorder_offset: 0,
             record_dropped: 0,
             markers: MarkerFrame::empty(nm),
             vertices: vec![DVec3::ZERO; nv],
@@ -274,6 +340,11 @@ impl Pipeline {
             harmonic_field: false,
             input_rates: InputRates::default(),
             posture_only: false,
+            identity_gate: false,
+            board: None,
+            others: Vec::new(),
+            frame_log: None,
+            frames_unlogged: 0,
         }
     }
 
@@ -286,6 +357,27 @@ impl Pipeline {
     pub fn with_recorder(mut self, tx: Sender<MarkerSample>) -> Self {
         self.recorder = Some(tx);
         self
+    }
+
+    /// [`Self::with_recorder`] for one actor of several: its samples are recorded under
+    /// the stage's marker indices, its own plus `offset`.
+    pub fn with_recorder_at(mut self, tx: Sender<MarkerSample>, offset: u32) -> Self {
+        self.recorder = Some(tx);
+        self.recorder_offset = offset;
+        self
+    }
+
+    /// Sends `s` to the recorder, if there is one, under the stage's index.
+    fn record(&mut self, s: MarkerSample) {
+        if let Some(tx) = &self.recorder {
+            let s = MarkerSample {
+                marker: s.marker + self.recorder_offset,
+                ..s
+            };
+            if tx.try_send(s).is_err() {
+                self.record_dropped += 1;
+            }
+        }
     }
 
     /// Imposes the joint angles a source writes into `slot` (a data glove) on every
@@ -331,6 +423,37 @@ impl Pipeline {
     pub fn posture_only(mut self) -> Self {
         self.posture_only = true;
         self
+    }
+
+    /// Gates samples by the actor's own solved body (a stage of several actors: a label
+    /// swap between two performers must not pull one towards the other). After each
+    /// solve that fits its markers within [`IDENTITY_TRUST_MM`] RMS the buffer's identity
+    /// gate takes the fitted marker positions; when it drops most of a tick's samples
+    /// the body, not the labels, is what moved, and the gate opens until the next
+    /// trusted solve.
+    pub fn with_identity_gate(mut self) -> Self {
+        self.identity_gate = true;
+        self
+    }
+
+    /// Shares this actor's fitted markers on `board` as actor `me`, and gates its
+    /// samples by the others' too: one nearer another performer's marker than to where
+    /// this body puts it is not this actor's. With [`Self::with_identity_gate`].
+    pub fn with_board(mut self, board: Arc<ActorBoard>, me: usize) -> Self {
+        self.board = Some((board, me));
+        self
+    }
+
+    /// Sends every published frame to `tx` as well, without blocking (a full channel
+    /// drops it): an in-process reader that must see every frame (tests, benchmarks).
+    pub fn with_frame_log(mut self, tx: Sender<Arc<DeformedFrame>>) -> Self {
+        self.frame_log = Some(tx);
+        self
+    }
+
+    /// Frames the frame log's full channel had no room for.
+    pub fn frames_unlogged(&self) -> u64 {
+        self.frames_unlogged
     }
 
     pub fn buffer(&self) -> &MarkerBuffer {
@@ -380,11 +503,7 @@ impl Pipeline {
                 position_m: s.position_m * self.marker_scale,
                 ..s
             });
-            if let Some(tx) = &self.recorder {
-                if tx.try_send(s).is_err() {
-                    self.record_dropped += 1;
-                }
-            }
+            self.record(s);
             drained += 1;
         }
         self.samples += drained as u64;
@@ -396,6 +515,10 @@ impl Pipeline {
     /// `deadline`), publish (stamped with `unix_now()`, read just before publishing).
     pub fn tick(&mut self, t_s: f64, deadline: Instant, unix_now: &dyn Fn() -> f64) -> TickReport {
         let start = Instant::now();
+        if let Some((board, me)) = &self.board {
+            board.others(*me, self.marker_scale, &mut self.others);
+            self.buffer.set_others(&self.others);
+        }
         let drained = self.feed(t_s);
         self.input_rates.tick(self.frame_no, t_s, &|| {
             unix_now() - start.elapsed().as_secs_f64()
@@ -411,8 +534,11 @@ impl Pipeline {
             self.solver
                 .solve(&self.markers, deadline, &mut self.vertices)
         };
+        if self.identity_gate {
+            self.arm_identity_gate(t_s, &solve);
+        }
         // Off line (an export, a check) nothing reads the frame: it is not built.
-        if !self.slots.is_empty() {
+        if !self.slots.is_empty() || self.frame_log.is_some() {
             self.publish(t_s, start, &solve, unix_now);
         }
         let frame_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -449,6 +575,29 @@ impl Pipeline {
         report
     }
 
+    /// Arms the buffer's identity gate with this tick's solve when it is trusted, and
+    /// opens it when it dropped most of what arrived since the last one.
+    fn arm_identity_gate(&mut self, t_s: f64, solve: &SolveReport) {
+        let (taken, gated) = self.buffer.since_body();
+        let in_view = self
+            .markers
+            .states
+            .iter()
+            .filter(|s| **s != FillState::Held)
+            .count();
+        let trusted = in_view >= 3 && solve.marker_residual_rms_mm < IDENTITY_TRUST_MM;
+        if gated >= 3 && 2 * gated > taken {
+            self.buffer.clear_body();
+        } else if trusted {
+            self.buffer
+                .set_body(t_s, self.solver.fitted_markers(), &self.markers.states);
+        }
+        if let Some((board, me)) = &self.board {
+            let fitted = trusted.then(|| self.solver.fitted_markers());
+            board.set(*me, fitted, self.marker_scale);
+        }
+    }
+
     /// Limbs driven and the lowest vertex over the frames with a marker in view.
     pub fn body(&self) -> &BodyTally {
         &self.body
@@ -463,11 +612,7 @@ impl Pipeline {
     /// file holds every sample that arrived).
     pub fn flush_to_recorder(&mut self) {
         while let Ok(s) = self.rx.try_recv() {
-            if let Some(tx) = &self.recorder {
-                if tx.try_send(s).is_err() {
-                    self.record_dropped += 1;
-                }
-            }
+            self.record(s);
         }
     }
 
@@ -549,6 +694,12 @@ impl Pipeline {
         }
         for slot in &self.slots {
             slot.publish(Arc::clone(&frame));
+        }
+        if let Some(tx) = &self.frame_log {
+            // A reader that falls behind loses frames; the loop never waits.
+            if tx.try_send(Arc::clone(&frame)).is_err() {
+                self.frames_unlogged += 1;
+            }
         }
         self.keep_for_reuse(frame);
     }
@@ -648,6 +799,28 @@ pub fn run_loop(
     stop: &AtomicBool,
     status: &LatestSlot<LoopStatus>,
 ) -> LoopStatus {
+    let mut last = run_loop_many(
+        std::slice::from_mut(p),
+        clock,
+        params,
+        stop,
+        std::slice::from_ref(&status),
+    );
+    last.pop().unwrap_or_default()
+}
+
+/// [`run_loop`] for several pipelines (actors) on one thread: each tick solves them in
+/// turn, each within its share of what is left of the tick's budget (the time until
+/// `deadline_fraction` of the period, split evenly among the actors still to solve, so
+/// that one that finishes early leaves its time to the next). `status[i]` hears
+/// `pipelines[i]`'s status. Returns each one's final status.
+pub fn run_loop_many(
+    pipelines: &mut [Pipeline],
+    clock: &dyn Clock,
+    params: LoopParams,
+    stop: &AtomicBool,
+    status: &[&LatestSlot<LoopStatus>],
+) -> Vec<LoopStatus> {
     let period = 1.0 / params.rate_hz;
     // Tick `k` is due at `start_s + k · period` (computed, not accumulated, so a long run
     // does not drift). The last tick is the last one due by `end_s`, its index computed
@@ -673,16 +846,25 @@ pub fn run_loop(
             }
         }
         let next = due(k);
-        p.tick(
-            next,
-            clock.deadline_at(next + period * params.deadline_fraction),
-            &|| clock.unix_s(clock.now_s()),
-        );
+        let end_s = next + period * params.deadline_fraction;
+        let n = pipelines.len();
+        for (i, p) in pipelines.iter_mut().enumerate() {
+            let share = (end_s - clock.now_s()).max(0.0) / (n - i) as f64;
+            p.tick(next, clock.deadline_at(clock.now_s() + share), &|| {
+                clock.unix_s(clock.now_s())
+            });
+        }
         if next - last_status >= params.status_interval_s {
-            status.publish(Arc::new(p.status(next - last_status, overruns)));
+            for (p, slot) in pipelines.iter_mut().zip(status) {
+                slot.publish(Arc::new(p.status(next - last_status, overruns)));
+            }
             last_status = next;
         }
         k += 1;
     }
-    p.status((clock.now_s() - last_status).max(1e-9), overruns)
+    let interval_s = (clock.now_s() - last_status).max(1e-9);
+    pipelines
+        .iter_mut()
+        .map(|p| p.status(interval_s, overruns))
+        .collect()
 }

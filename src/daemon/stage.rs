@@ -12,7 +12,7 @@
 //! in time order.
 
 use super::live_calibration::{calibrate_live, LiveCalibration, LiveCalibrationError, Target};
-use super::pipeline::{run_loop, LoopParams, LoopStatus, Pipeline};
+use super::pipeline::{run_loop_many, ActorBoard, LoopParams, LoopStatus, Pipeline};
 use crate::calibrate::labels::map_entries;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
 use crate::character::file::{load_character, CharacterError};
@@ -21,6 +21,7 @@ use crate::character::roles::recognise;
 use crate::config::StageConfig;
 use crate::input::{ChannelSink, Input, InputError, OpenContext, PinTarget, SourceCounters};
 use crate::markers::buffer::MarkerBuffer;
+use crate::markers::index::{ActorLabels, Claim};
 use crate::output::frame::DeformedFrame;
 use crate::output::rerun_sink::{self, RerunOptions, RerunStats, RerunTarget};
 use crate::output::scene::Scene;
@@ -59,6 +60,12 @@ pub struct StartOptions<'a> {
     /// Where the Rerun recording goes, instead of the config's `[outputs.rerun] target`
     /// (a relative save path is taken as it is, not from the stage's folder).
     pub rerun: Option<RerunTarget>,
+    /// Also publish each actor's frames here, `actor_frames[i]` for the `i`-th actor
+    /// (in-process readers of a stage of several).
+    pub actor_frames: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    /// Also send each actor's every frame here, `frame_logs[i]` for the `i`-th actor,
+    /// without blocking (a reader that must see every frame: tests, benchmarks).
+    pub frame_logs: Vec<crossbeam_channel::Sender<Arc<DeformedFrame>>>,
 }
 
 /// Why a stage could not start, or ended badly.
@@ -138,6 +145,26 @@ pub struct StageInfo {
     /// What the calibration from the first seconds of live input did, when the config
     /// asked for one.
     pub calibration: Option<LiveCalibration>,
+    /// Every actor, in the config's order (one for a `[character]` stage; the fields
+    /// above describe the first).
+    pub actors: Vec<ActorInfo>,
+    /// Threads the actors are solved on.
+    pub solver_threads: usize,
+}
+
+/// One actor of a started stage.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ActorInfo {
+    /// The actor's name (its character's for a `[character]` stage).
+    pub name: String,
+    pub character: String,
+    pub mesh_vertices: usize,
+    pub markers: usize,
+    /// How it claims its labels (`subject "Ann"`); `None` for a `[character]` stage.
+    pub claim: Option<String>,
+    /// Its first marker's stage index (markers are numbered across actors in inputs and
+    /// session files).
+    pub first_marker: u32,
 }
 
 /// One input of a started stage.
@@ -178,8 +205,10 @@ impl StopCause {
 /// What a stage did, once joined.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
-    /// The loop's final status.
+    /// The loop's final status (the first actor's).
     pub status: LoopStatus,
+    /// Every actor's name and final status, in the config's order.
+    pub actors: Vec<ActorSummary>,
     pub stopped: StopCause,
     /// Samples the inputs sent into the channel, and dropped at a full channel.
     pub source_samples: u64,
@@ -201,6 +230,13 @@ pub struct Summary {
     /// not written: the stage went on solving without it.
     pub recording_failed: Option<String>,
     pub rerun: Option<RerunSummary>,
+}
+
+/// One actor's part of a [`Summary`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ActorSummary {
+    pub name: String,
+    pub status: LoopStatus,
 }
 
 /// What the vertex stream did.
@@ -231,8 +267,9 @@ pub struct Stage {
     info: StageInfo,
     stop: Arc<AtomicBool>,
     stop_requested: AtomicBool,
-    status: Arc<LatestSlot<LoopStatus>>,
-    solver: JoinHandle<LoopStatus>,
+    /// Each actor's status slot, in the config's order.
+    status: Vec<Arc<LatestSlot<LoopStatus>>>,
+    solvers: Solvers,
     sources: Vec<JoinHandle<Result<String, InputError>>>,
     counters: Vec<Arc<SourceCounters>>,
     recorder: Option<(PathBuf, JoinHandle<RecorderOutcome>)>,
@@ -262,6 +299,7 @@ struct RunningRerun {
 }
 
 /// A bound character: the rig, its name, and the procedural character if it is one.
+#[derive(Clone)]
 struct Bound {
     rig: Arc<Rig>,
     name: String,
@@ -273,6 +311,7 @@ struct Bound {
 
 fn bind_character(
     cfg: &StageConfig,
+    character: &crate::character::config::CharacterConfig,
     base_dir: &Path,
     clock: &Arc<dyn Clock>,
     progress: &mut dyn FnMut(BindStage, f64),
@@ -295,9 +334,9 @@ fn bind_character(
             .as_ref()
             .and_then(|l| l.calibration.as_ref())
             .map(|c| c.scale);
-        cfg.character.marker_scale.or(found).unwrap_or(file)
+        character.marker_scale.or(found).unwrap_or(file)
     };
-    if let Some(p) = &cfg.character.procedural {
+    if let Some(p) = &character.procedural {
         let (mut ch, bind) = match p.as_str() {
             "body" => (demo_body(), body_bind_params()),
             _ => (demo_hand(), hand_bind_params()),
@@ -334,7 +373,7 @@ fn bind_character(
         };
         return Ok((bound, calibrated));
     }
-    let path = base_dir.join(cfg.character.path.as_ref().ok_or(StageError::NoCharacter)?);
+    let path = base_dir.join(character.path.as_ref().ok_or(StageError::NoCharacter)?);
     let mut loaded = load_character(&path)?;
     let (calibrated, live_rig) = live(
         Target {
@@ -379,6 +418,220 @@ fn bind_character(
         marker_scale,
     };
     Ok((bound, calibrated))
+}
+
+/// A stage's actors, bound, with what inputs need to route their labels.
+struct Actors {
+    bound: Vec<Bound>,
+    solvers: Vec<Solver>,
+    infos: Vec<ActorInfo>,
+    /// Each actor's first marker's stage index.
+    starts: Vec<u32>,
+    /// Every marker's stage name (each with its subject for a stage of several).
+    stage_names: Vec<String>,
+    /// Each actor's labels, for a stage of several (`None`: one `[character]`).
+    labels: Option<Vec<ActorLabels>>,
+    calibration: Option<LiveCalibration>,
+}
+
+/// Binds every actor of the stage and sets up its solver.
+fn bind_actors(
+    cfg: &StageConfig,
+    base_dir: &Path,
+    clock: &Arc<dyn Clock>,
+    progress: &mut dyn FnMut(BindStage, f64),
+) -> Result<Actors, StageError> {
+    let specs = cfg.actor_specs();
+    let several = specs.iter().any(|s| s.claim.is_some());
+    let mut out = Actors {
+        bound: Vec::new(),
+        solvers: Vec::new(),
+        infos: Vec::new(),
+        starts: Vec::new(),
+        stage_names: Vec::new(),
+        labels: several.then(Vec::new),
+        calibration: None,
+    };
+    for (i, spec) in specs.iter().enumerate() {
+        // Actors of the same character share its rig (bound once).
+        let same = specs[..i]
+            .iter()
+            .position(|s| s.character == spec.character);
+        let bound = match same {
+            Some(j) => out.bound[j].clone(),
+            None => {
+                let (bound, calibration) =
+                    bind_character(cfg, &spec.character, base_dir, clock, progress)?;
+                out.calibration = out.calibration.or(calibration);
+                bound
+            }
+        };
+        let rig = &bound.rig;
+        let params = crate::solve::frame::SolverParams {
+            method: spec.method,
+            ..cfg.solver.params()
+        };
+        let solver =
+            Solver::try_new(Arc::clone(rig), params).map_err(|source| StageError::Solver {
+                method: spec.method,
+                character: bound.name.clone(),
+                source,
+            })?;
+        let start = out.stage_names.len() as u32;
+        let name = spec.name.clone().unwrap_or_else(|| bound.name.clone());
+        match (&spec.claim, &mut out.labels) {
+            (Some(claim), Some(labels)) => {
+                // A session file keeps each label with its subject (the actor's name for
+                // an actor that claims by pattern).
+                let prefix = match claim {
+                    Claim::Subject(s) => format!("{s}:"),
+                    Claim::Patterns(_) => format!("{name}:"),
+                    Claim::Unprefixed => String::new(),
+                };
+                let names: Vec<String> = rig
+                    .marker_names
+                    .iter()
+                    .map(|m| format!("{prefix}{m}"))
+                    .collect();
+                out.stage_names.extend(names.iter().cloned());
+                labels.push(ActorLabels {
+                    names,
+                    markers: rig.marker_names.clone(),
+                    claim: claim.clone(),
+                });
+            }
+            _ => out.stage_names.extend(rig.marker_names.iter().cloned()),
+        }
+        out.infos.push(ActorInfo {
+            name,
+            character: bound.name.clone(),
+            mesh_vertices: rig.mesh_rest.len(),
+            markers: rig.n_markers,
+            claim: spec.claim.as_ref().map(Claim::describe),
+            first_marker: start,
+        });
+        out.starts.push(start);
+        out.solvers.push(solver);
+        out.bound.push(bound);
+    }
+    Ok(out)
+}
+
+/// What [`actor_pipelines`] makes: each actor's channel's sending end, its pipeline,
+/// and the glove's pin slot.
+type ActorWiring = (
+    Vec<crossbeam_channel::Sender<crate::markers::MarkerSample>>,
+    Vec<Pipeline>,
+    Option<Arc<PinSlot>>,
+);
+
+/// Each actor's pipeline and the sending end of its channel; the glove's pin slot (the
+/// first actor's). The stream and Rerun carry the first actor; an in-process reader
+/// may take any. On a stage of several actors each gates samples by identity, sharing
+/// its fitted markers with the others on a board.
+fn actor_pipelines(
+    cfg: &StageConfig,
+    solvers: Vec<Solver>,
+    actors: &Actors,
+    sinks: &Sinks,
+    opts: &StartOptions<'_>,
+) -> ActorWiring {
+    let mut txs = Vec::new();
+    let mut pipelines = Vec::new();
+    let mut pins = None;
+    let markers: Vec<usize> = actors.infos.iter().map(|a| a.markers).collect();
+    let board = Arc::new(ActorBoard::new(&markers));
+    for (i, solver) in solvers.into_iter().enumerate() {
+        let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
+        let mut slots = if i == 0 {
+            sinks.slots.clone()
+        } else {
+            Vec::new()
+        };
+        slots.extend(opts.actor_frames.get(i).cloned());
+        let rerun_on = i == 0 && sinks.rerun_target != RerunTarget::Off;
+        let (pipeline, p) = assemble(cfg, solver, rx, slots, rerun_on, i == 0);
+        pins = pins.or(p);
+        txs.push(tx);
+        let mut pipeline = pipeline.with_marker_scale(actors.bound[i].marker_scale);
+        if let Some(tx) = opts.frame_logs.get(i) {
+            pipeline = pipeline.with_frame_log(tx.clone());
+        }
+        if actors.labels.is_some() {
+            pipeline = pipeline
+                .with_identity_gate()
+                .with_board(Arc::clone(&board), i);
+        }
+        pipelines.push(pipeline);
+    }
+    (txs, pipelines, pins)
+}
+
+/// Where inputs send samples: each actor's channel, by stage index.
+struct Route {
+    tx: Vec<crossbeam_channel::Sender<crate::markers::MarkerSample>>,
+    starts: Vec<u32>,
+}
+
+/// What a solver thread gives back: its actors' pipelines and final statuses.
+type SolverOutcome = (Vec<Pipeline>, Vec<LoopStatus>);
+
+/// The solver threads, each with the actors (indices in the config's order) it solves.
+struct Solvers {
+    threads: Vec<(Vec<usize>, JoinHandle<SolverOutcome>)>,
+}
+
+/// Counts a solver thread out when it ends (a panic too); the last one out stops the
+/// stage's inputs, as a stage of one's loop does when it ends.
+struct SolverDone {
+    running: Arc<std::sync::atomic::AtomicUsize>,
+    stop: Arc<AtomicBool>,
+}
+
+impl Drop for SolverDone {
+    fn drop(&mut self) {
+        if self.running.fetch_sub(1, Ordering::AcqRel) == 1 {
+            self.stop.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Spreads the actors over `places.len()` solver threads (actor `i` on thread
+/// `i mod threads`), each running [`run_loop_many`] over its actors on the clock.
+fn spawn_solvers(
+    pipelines: Vec<Pipeline>,
+    places: Vec<Attached>,
+    status: &[Arc<LatestSlot<LoopStatus>>],
+    clock: &Arc<dyn Clock>,
+    params: LoopParams,
+    stop: &Arc<AtomicBool>,
+) -> Result<Solvers, StageError> {
+    let n = places.len();
+    let mut groups: Vec<(Vec<usize>, Vec<Pipeline>)> =
+        (0..n).map(|_| (Vec::new(), Vec::new())).collect();
+    for (i, p) in pipelines.into_iter().enumerate() {
+        groups[i % n].0.push(i);
+        groups[i % n].1.push(p);
+    }
+    let running = Arc::new(std::sync::atomic::AtomicUsize::new(n));
+    let mut threads = Vec::new();
+    for ((members, mut ps), place) in groups.into_iter().zip(places) {
+        let slots: Vec<Arc<LatestSlot<LoopStatus>>> =
+            members.iter().map(|&i| Arc::clone(&status[i])).collect();
+        let (clock, stop) = (Arc::clone(clock), Arc::clone(stop));
+        let done = SolverDone {
+            running: Arc::clone(&running),
+            stop: Arc::clone(&stop),
+        };
+        let handle = spawn_paced("solver", place, move || {
+            let _done = done;
+            let refs: Vec<&LatestSlot<LoopStatus>> = slots.iter().map(|s| &**s).collect();
+            let last = run_loop_many(&mut ps, &*clock, params, &stop, &refs);
+            (ps, last)
+        })?;
+        threads.push((members, handle));
+    }
+    Ok(Solvers { threads })
 }
 
 /// A Rerun target that can be honoured here: `spawn` needs the `rerun` viewer on PATH;
@@ -442,42 +695,39 @@ impl Stage {
         mut opts: StartOptions<'_>,
     ) -> Result<Self, StageError> {
         let t0 = std::time::Instant::now();
-        let (bound, calibration) = bind_character(
+        let mut actors = bind_actors(
             cfg,
             base_dir,
             &clock,
             opts.progress.as_deref_mut().unwrap_or(&mut |_, _| {}),
         )?;
         let bind_s = t0.elapsed().as_secs_f64();
-        let rig = Arc::clone(&bound.rig);
-        let solver = Solver::try_new(Arc::clone(&rig), cfg.solver.params()).map_err(|source| {
-            StageError::Solver {
-                method: cfg.solver.method,
-                character: bound.name.clone(),
-                source,
-            }
-        })?;
-        let scene =
-            Scene::of_rig(&rig, &bound.name, cfg.solver.rate_hz).with_tied(solver.harmonic_tied());
+        let first = &actors.bound[0];
+        let scene = Scene::of_rig(&first.rig, &first.name, cfg.solver.rate_hz)
+            .with_tied(actors.solvers[0].harmonic_tied());
         let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take(), opts.rerun.take())?;
-        let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
-        let (mut pipeline, pins) = assemble(cfg, solver, rx, &sinks);
-        pipeline = pipeline.with_marker_scale(bound.marker_scale);
+        let solvers = std::mem::take(&mut actors.solvers);
+        let (txs, mut pipelines, pins) = actor_pipelines(cfg, solvers, &actors, &sinks, &opts);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
             Some(path) => {
-                let (rec_tx, handle) = start_recorder(cfg, &path, &rig, &clock)?;
-                pipeline = pipeline.with_recorder(rec_tx);
+                let (rec_tx, handle) = start_recorder(cfg, &path, &actors.stage_names, &clock)?;
+                pipelines = pipelines
+                    .into_iter()
+                    .zip(&actors.starts)
+                    .map(|(p, &start)| p.with_recorder_at(rec_tx.clone(), start))
+                    .collect();
                 Some((path, handle))
             }
             None => None,
         };
-
+        let first_rig = Arc::clone(&actors.bound[0].rig);
         let ctx = OpenContext {
             base_dir,
-            markers: Some(&rig.marker_names),
-            skeleton: Some(&rig.skeleton),
-            procedural: bound.procedural.as_ref(),
+            markers: Some(&actors.stage_names),
+            skeleton: Some(&first_rig.skeleton),
+            procedural: actors.bound[0].procedural.as_ref(),
             subject: &cfg.character.subject_filter(),
+            actors: actors.labels.as_deref(),
         };
         let opened = open_inputs(cfg, &ctx)?;
         let infos: Vec<InputInfo> = opened.iter().map(InputInfo::of).collect();
@@ -485,7 +735,10 @@ impl Stage {
             .iter()
             .map(|_| Arc::new(SourceCounters::default()))
             .collect();
-        pipeline = pipeline.with_input_rates(&counters);
+        // The first actor's frames carry the inputs' rate windows (the stream's and
+        // Rerun's).
+        let first_pipeline = pipelines.remove(0).with_input_rates(&counters);
+        pipelines.insert(0, first_pipeline);
         let rerun = start_rerun(
             cfg,
             &sinks.rerun_target,
@@ -502,13 +755,20 @@ impl Stage {
                 i.duration_s().map(|d| end.max(start_s + d))
             }),
         };
-        // The loop's place on the clock is taken before any input starts; the inputs
+        let threads = cfg.solver.threads_for(pipelines.len());
+        // The loops' places on the clock are taken before any input starts; the inputs
         // stop when the stage is dropped before it is joined, or fails to start.
-        let loop_place = Attached::new(&clock);
+        let places: Vec<Attached> = (0..threads).map(|_| Attached::new(&clock)).collect();
         let stop = Arc::new(AtomicBool::new(false));
         let stop_on_drop = StopOnDrop(Arc::clone(&stop));
-        let sources = spawn_inputs(opened, &counters, &tx, &clock, start_s, &stop, &pins, &rig)?;
-        drop(tx);
+        let route = Route {
+            tx: txs,
+            starts: actors.starts.clone(),
+        };
+        let sources = spawn_inputs(
+            opened, &counters, &route, &clock, start_s, &stop, &pins, &first_rig,
+        )?;
+        drop(route);
         let params = LoopParams {
             start_s: loop_start_s,
             rate_hz: cfg.solver.rate_hz,
@@ -516,26 +776,20 @@ impl Stage {
             end_s,
             status_interval_s: 1.0,
         };
-        let status = Arc::new(LatestSlot::new());
-        let solver = {
-            let (clock2, stop, status) =
-                (Arc::clone(&clock), Arc::clone(&stop), Arc::clone(&status));
-            spawn_paced("solver", loop_place, move || {
-                let last = run_loop(&mut pipeline, &*clock2, params, &stop, &status);
-                // The inputs end with the loop (a paced input then sends nothing more).
-                stop.store(true, Ordering::Relaxed);
-                pipeline.flush_to_recorder();
-                last
-            })?
-        };
+        let status: Vec<Arc<LatestSlot<LoopStatus>>> = pipelines
+            .iter()
+            .map(|_| Arc::new(LatestSlot::new()))
+            .collect();
+        let solvers = spawn_solvers(pipelines, places, &status, &clock, params, &stop)?;
         let server = sinks.server;
+        let rig = &first_rig;
         let info = StageInfo {
-            character: bound.name,
+            character: actors.bound[0].name.clone(),
             mesh_vertices: rig.mesh_rest.len(),
             markers: rig.n_markers,
             control_vertices: rig.stats.control_vertices,
             bind_s,
-            rig_source: bound.rig_source,
+            rig_source: actors.bound[0].rig_source.clone(),
             stream_tcp: server.as_ref().and_then(StreamServer::local_addr),
             stream_ws: server.as_ref().and_then(StreamServer::ws_addr),
             inputs: infos,
@@ -546,14 +800,16 @@ impl Stage {
             rerun_note: sinks.rerun_note,
             start_s,
             loop_start_s,
-            calibration,
+            calibration: actors.calibration,
+            actors: actors.infos,
+            solver_threads: threads,
         };
         Ok(Self {
             info,
             stop,
             stop_requested: AtomicBool::new(false),
             status,
-            solver,
+            solvers,
             sources,
             counters,
             _stop_on_drop: stop_on_drop,
@@ -576,7 +832,13 @@ impl Stage {
     /// The newest status of the loop (about once a second), if one came since the last
     /// call.
     pub fn status(&self) -> Option<Arc<LoopStatus>> {
-        self.status.take()
+        self.status[0].take()
+    }
+
+    /// Each actor's newest status, if one came since the last call (the config's
+    /// order; for a stage of one, the same as [`Self::status`]).
+    pub fn actor_statuses(&self) -> Vec<Option<Arc<LoopStatus>>> {
+        self.status.iter().map(|s| s.take()).collect()
     }
 
     /// Stream clients connected now.
@@ -596,7 +858,7 @@ impl Stage {
 
     /// Whether the loop has ended (by itself, or after [`Self::stop`]).
     pub fn is_finished(&self) -> bool {
-        self.solver.is_finished()
+        self.solvers.threads.iter().all(|(_, t)| t.is_finished())
     }
 
     /// Asks the loop and the inputs to stop; [`Self::join`] then shuts down.
@@ -610,10 +872,21 @@ impl Stage {
     /// why), Rerun (flushed).
     pub fn join(self) -> Result<Summary, StageError> {
         // A panicked loop still shuts everything else down before its error is returned.
-        let status = self
-            .solver
-            .join()
-            .map_err(|_| StageError::Panicked { thread: "solver" });
+        let n_actors = self.info.actors.len();
+        let mut statuses: Vec<Option<LoopStatus>> = vec![None; n_actors];
+        let mut pipelines = Vec::new();
+        let mut panicked = false;
+        for (members, t) in self.solvers.threads {
+            match t.join() {
+                Ok((ps, last)) => {
+                    for (&i, st) in members.iter().zip(last) {
+                        statuses[i] = Some(st);
+                    }
+                    pipelines.extend(ps);
+                }
+                Err(_) => panicked = true,
+            }
+        }
         self.stop.store(true, Ordering::Relaxed);
         let stopped = if self.stop_requested.load(Ordering::Relaxed) {
             StopCause::Stopped
@@ -644,7 +917,12 @@ impl Stage {
             }
             inputs.push(line);
         }
-        // The pipeline and its recorder channel went with the solver thread.
+        // Every sample that arrived before the inputs ended goes to the recorder; the
+        // pipelines then let go of its channel, and it ends.
+        for p in &mut pipelines {
+            p.flush_to_recorder();
+        }
+        drop(pipelines);
         let (recorded, recording_failed) = match self.recorder {
             Some((path, handle)) => match handle.join() {
                 Ok(out) => {
@@ -689,10 +967,24 @@ impl Stage {
         let label_sum = |f: fn(&(usize, usize)) -> usize| {
             (!labels.is_empty()).then(|| labels.iter().map(f).sum())
         };
+        if panicked {
+            return Err(StageError::Panicked { thread: "solver" });
+        }
+        let actors: Vec<ActorSummary> = self
+            .info
+            .actors
+            .iter()
+            .zip(statuses)
+            .map(|(a, st)| ActorSummary {
+                name: a.name.clone(),
+                status: st.unwrap_or_default(),
+            })
+            .collect();
         Ok(Summary {
             labels_fed: label_sum(|l| l.0),
             labels_ignored: label_sum(|l| l.1),
-            status: status?,
+            status: actors[0].status.clone(),
+            actors,
             stopped,
             source_samples: sum(|c| c.samples.load(Ordering::Relaxed)),
             source_dropped: sum(|c| c.dropped.load(Ordering::Relaxed)),
@@ -788,31 +1080,34 @@ impl Sinks {
     }
 }
 
-/// The loop's pipeline: the solver, the marker buffer, the channel's receiving end and
-/// the sinks' slots, with what Rerun asked for; and the glove pin slot when the stage has
-/// a glove.
+/// An actor's pipeline: the solver, the marker buffer, its channel's receiving end and
+/// the sinks' `slots`, with what Rerun asked for when `rerun_on`; and the glove pin slot
+/// when the stage has a glove and `pinned` (the first actor).
 fn assemble(
     cfg: &StageConfig,
     solver: Solver,
     rx: crossbeam_channel::Receiver<crate::markers::MarkerSample>,
-    sinks: &Sinks,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    rerun_on: bool,
+    pinned: bool,
 ) -> (Pipeline, Option<Arc<PinSlot>>) {
     let rig = Arc::clone(solver.rig());
     let buffer = MarkerBuffer::new(cfg.buffer.clone(), &rig.marker_rest, &rig.marker_joint)
         .with_names(&rig.marker_names);
-    let mut pipeline = Pipeline::new(solver, buffer, rx, sinks.slots.clone());
+    let mut pipeline = Pipeline::new(solver, buffer, rx, slots);
     let rerun = &cfg.outputs.rerun;
-    if sinks.rerun_target != RerunTarget::Off && rerun.control_mesh {
+    if rerun_on && rerun.control_mesh {
         pipeline = pipeline.with_control_mesh();
     }
-    if sinks.rerun_target != RerunTarget::Off && rerun.harmonic_field {
+    if rerun_on && rerun.harmonic_field {
         pipeline = pipeline.with_harmonic_field();
     }
-    let pins = cfg
-        .inputs
-        .iter()
-        .any(crate::input::config::InputConfig::poses_joints)
-        .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
+    let pins = (pinned
+        && cfg
+            .inputs
+            .iter()
+            .any(crate::input::config::InputConfig::poses_joints))
+    .then(|| Arc::new(PinSlot::new(rig.ik.n_params())));
     if let Some(p) = &pins {
         pipeline = pipeline.with_pins(Arc::clone(p));
     }
@@ -826,7 +1121,7 @@ fn assemble(
 fn spawn_inputs(
     opened: Vec<Input>,
     counters: &[Arc<SourceCounters>],
-    tx: &crossbeam_channel::Sender<crate::markers::MarkerSample>,
+    route: &Route,
     clock: &Arc<dyn Clock>,
     start_s: f64,
     stop: &Arc<AtomicBool>,
@@ -844,7 +1139,8 @@ fn spawn_inputs(
             rig: Arc::clone(rig),
         });
         let kind = input.kind();
-        let mut sink = ChannelSink::new(tx.clone(), Arc::clone(c), pins)
+        let mut sink = ChannelSink::new(route.tx[0].clone(), Arc::clone(c), pins)
+            .routed(route.tx.clone(), route.starts.clone())
             .named(format!("input {index} ({kind})"));
         let (clock, stop) = (Arc::clone(clock), Arc::clone(stop));
         let run = move || input.run(&*clock, start_s, &stop, &mut sink);
@@ -875,7 +1171,7 @@ fn open_inputs(cfg: &StageConfig, ctx: &OpenContext<'_>) -> Result<Vec<Input>, S
 fn start_recorder(
     cfg: &StageConfig,
     path: &Path,
-    rig: &Rig,
+    marker_names: &[String],
     clock: &Arc<dyn Clock>,
 ) -> Result<
     (
@@ -893,7 +1189,7 @@ fn start_recorder(
     }
     let file = std::fs::File::create(path).map_err(io)?;
     let header = SessionHeader {
-        marker_names: rig.marker_names.clone(),
+        marker_names: marker_names.to_vec(),
         rate_hz: cfg.solver.rate_hz,
         started_unix_s: clock.unix_s(0.0),
         inputs: cfg.inputs.iter().map(|i| i.describe()).collect(),

@@ -110,7 +110,9 @@ pub struct NatNetInputConfig {
 pub struct OscInputConfig {
     /// `osc://HOST:PORT` or `vmc://HOST:PORT`: the address to bind.
     pub url: String,
-    /// Address patterns with a `{name}` part and three float arguments.
+    /// Address patterns with a `{name}` part and three float arguments; a `{subject}`
+    /// part names the performer (`/mocap/{subject}/{name}` makes `Ann:LFHD` of
+    /// `/mocap/Ann/LFHD`).
     pub patterns: Vec<String>,
     /// Metres per sender unit (0.001 for millimetres).
     pub scale: f64,
@@ -354,10 +356,17 @@ impl InputConfig {
                     push("up", format!("must be \"Y\" or \"Z\", got {:?}", o.up));
                 }
                 for p in &o.patterns {
-                    if p.matches("{name}").count() != 1 || !p.starts_with('/') {
+                    let subjects = p.matches("{subject}").count();
+                    let apart = subjects == 0
+                        || !(p.contains("{subject}{name}") || p.contains("{name}{subject}"));
+                    if p.matches("{name}").count() != 1
+                        || !p.starts_with('/')
+                        || subjects > 1
+                        || !apart
+                    {
                         push(
                             "patterns",
-                            format!("{p:?} needs to start with / and hold {{name}} once"),
+                            format!("{p:?} needs to start with / and hold {{name}} once, and {{subject}} at most once, apart from {{name}}"),
                         );
                     }
                 }

@@ -20,7 +20,7 @@ pub mod vrpn;
 
 use crate::character::procedural::Character;
 use crate::character::skeleton::Skeleton;
-use crate::markers::index::{MarkerIndex, SubjectFilter};
+use crate::markers::index::{ActorLabels, MarkerIndex, SubjectFilter};
 use crate::markers::MarkerSample;
 use crate::protocol::glove::GloveReading;
 use crate::rig::bind::Rig;
@@ -53,14 +53,18 @@ pub struct OpenContext<'a> {
     pub procedural: Option<&'a Arc<Character>>,
     /// Whose labels feed the character's markers (`[character] subject`).
     pub subject: &'a SubjectFilter,
+    /// A stage of several actors: each one's markers and claim (then `markers` are all
+    /// of theirs, by stage index, and `subject` is not used).
+    pub actors: Option<&'a [ActorLabels]>,
 }
 
 impl OpenContext<'_> {
     /// The index an input resolves names with.
     fn index(&self) -> MarkerIndex {
-        match self.markers {
-            Some(names) => MarkerIndex::fixed_for(names, self.subject.clone()),
-            None => MarkerIndex::growing(MAX_LISTEN_NAMES),
+        match (self.actors, self.markers) {
+            (Some(actors), _) => MarkerIndex::for_actors(actors),
+            (None, Some(names)) => MarkerIndex::fixed_for(names, self.subject.clone()),
+            (None, None) => MarkerIndex::growing(MAX_LISTEN_NAMES),
         }
     }
 }
@@ -357,7 +361,11 @@ pub struct PinTarget {
 /// A packet's source time passes its input's [`SourceClock`] first: while that clock is
 /// not trusted, the samples carry a source time derived from their receive time.
 pub struct ChannelSink {
-    tx: Sender<MarkerSample>,
+    /// One channel per actor (one for a stage of one), and each actor's first marker's
+    /// stage index (`starts[0] = 0`): a sample goes to its actor's channel with the
+    /// actor's own marker index.
+    tx: Vec<Sender<MarkerSample>>,
+    starts: Vec<u32>,
     counters: Arc<SourceCounters>,
     pins: Option<PinTarget>,
     clock: SourceClock,
@@ -376,7 +384,8 @@ impl ChannelSink {
         pins: Option<PinTarget>,
     ) -> Self {
         Self {
-            tx,
+            tx: vec![tx],
+            starts: vec![0],
             counters,
             pins,
             clock: SourceClock::new(SourceClockParams::default()),
@@ -384,6 +393,16 @@ impl ChannelSink {
             steady_lines: Throttle::new(CLOCK_LINE_INTERVAL_S),
             name: "input".into(),
         }
+    }
+
+    /// Routes samples to several actors: `tx[a]` takes the markers from `starts[a]` up
+    /// to the next actor's start (stage indices, [`MarkerIndex::for_actors`]), each
+    /// sent with the actor's own index. `starts` rises from 0, one per channel.
+    pub fn routed(mut self, tx: Vec<Sender<MarkerSample>>, starts: Vec<u32>) -> Self {
+        debug_assert!(tx.len() == starts.len() && starts.first() == Some(&0));
+        self.tx = tx;
+        self.starts = starts;
+        self
     }
 
     /// Names the input in what the sink logs (`input 0 (osc)`).
@@ -470,7 +489,15 @@ impl InputSink for ChannelSink {
             if let Some(t) = replaced {
                 s.source_time_s = t;
             }
-            match self.tx.try_send(s) {
+            // The last actor whose first marker is at or before this one's (a stage of
+            // one: the first).
+            let a = self
+                .starts
+                .partition_point(|&start| start <= s.marker)
+                .max(1)
+                - 1;
+            s.marker -= self.starts[a];
+            match self.tx[a].try_send(s) {
                 Ok(()) => c.samples.fetch_add(1, Ordering::Relaxed),
                 Err(TrySendError::Full(_)) => c.dropped.fetch_add(1, Ordering::Relaxed),
                 Err(TrySendError::Disconnected(_)) => return false,

@@ -44,7 +44,7 @@ impl ReplayInput {
             (None, None) => return Err(InputError::NoRecording),
         };
         let index = match ctx.markers {
-            Some(names) => MarkerIndex::fixed_for(names, ctx.subject.clone()),
+            Some(_) => ctx.index(),
             None => MarkerIndex::fixed(&rec.labels),
         };
         let map = LabelMap::new(&rec.labels, &index);

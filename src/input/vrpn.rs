@@ -650,13 +650,18 @@ impl VrpnInput {
     }
 
     /// The marker index of a sensor: its name from the config's `sensors`, or
-    /// `DEVICE_SENSOR`.
+    /// `DEVICE_SENSOR` (on a stage of several actors, behind `DEVICE:`).
     fn marker_of(&mut self, sensor: i32) -> Option<u32> {
-        let name = self
+        let mut name = self
             .sensors
             .get(&sensor.to_string())
             .cloned()
             .unwrap_or_else(|| sensor_name(&self.device, sensor));
+        // On a stage of several actors the tracker is the subject (an actor's `subject`
+        // names the tracker), unless the sensor's name has its own.
+        if self.index.is_for_actors() && !name.contains(':') {
+            name = format!("{}:{name}", self.device);
+        }
         self.index.resolve(&name)
     }
 

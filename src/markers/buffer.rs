@@ -26,6 +26,13 @@
 //! samples never reach the gate). So no non-finite or out-of-volume position reaches the
 //! solver, whatever a sender sends.
 //!
+//! On a stage of several actors an identity gate comes after the volume check
+//! ([`MarkerBuffer::set_body`]): the actor's last solved body says where each marker
+//! should be, and a sample whose offset from there jumps by more than
+//! `identity_gate_m` (plus `gate_max_speed_m_s` times the solve's age) from the marker's
+//! usual offset is not this actor's (a vendor's label swap between two performers
+//! standing close): it is dropped and counted, and never starts a re-acquisition.
+//!
 //! No allocation after construction: histories are fixed rings, frames are filled in
 //! place. Time is passed in; nothing here reads a clock.
 
@@ -64,6 +71,11 @@ pub struct BufferConfig {
     /// Consecutive rejected samples that agree with each other before the marker is
     /// re-acquired at their position.
     pub reacquire_samples: u32,
+    /// Identity gate (stages of several actors): a sample whose offset from where the
+    /// actor's solved body puts its marker jumps by more than this from the marker's
+    /// usual offset, metres (plus `gate_max_speed_m_s` times the solve's age), is
+    /// another performer's: dropped and counted. 0 turns it off.
+    pub identity_gate_m: f64,
     /// The stage volume's lowest corner `[x, y, z]`, metres, world frame (Y up): a sample
     /// outside the volume is implausible (dropped, counted), as is a filled position.
     pub volume_min_m: [f64; 3],
@@ -84,6 +96,7 @@ impl Default for BufferConfig {
             gate_max_accel_m_s2: 200.0,
             gate_max_speed_m_s: 10.0,
             reacquire_samples: 3,
+            identity_gate_m: 0.1,
             volume_min_m: [-20.0, -5.0, -20.0],
             volume_max_m: [20.0, 10.0, 20.0],
         }
@@ -129,6 +142,15 @@ impl BufferConfig {
         positive("gate_floor_m", self.gate_floor_m);
         positive("gate_max_accel_m_s2", self.gate_max_accel_m_s2);
         positive("gate_max_speed_m_s", self.gate_max_speed_m_s);
+        if !(self.identity_gate_m.is_finite() && self.identity_gate_m >= 0.0) {
+            out.push((
+                "identity_gate_m".into(),
+                format!(
+                    "must be zero (off) or more metres, got {:?}",
+                    self.identity_gate_m
+                ),
+            ));
+        }
         if !(self.rigid_after_secs.is_finite() && self.rigid_after_secs >= 0.0) {
             out.push((
                 "rigid_after_secs".into(),
@@ -193,6 +215,8 @@ pub struct BufferCounters {
     pub label_swaps: u64,
     /// Markers re-acquired after consistent rejected samples.
     pub reacquired: u64,
+    /// Samples the identity gate dropped as another performer's.
+    pub identity_gated: u64,
     /// Frames produced by `sample_at`.
     pub frames: u64,
     /// Marker-frames per fill state, indexed by the state's code.
@@ -333,6 +357,25 @@ pub struct MarkerBuffer {
     /// Scratch for the rigid fill.
     scratch_ref: Vec<DVec3>,
     scratch_cur: Vec<DVec3>,
+    /// The identity gate's body: where the last trusted solve put each marker, and when
+    /// (NaN: no body, the gate is open).
+    body_m: Vec<DVec3>,
+    body_at_s: f64,
+    /// Whether that solve saw each marker (only then does a sample teach the marker's
+    /// usual offset).
+    body_saw: Vec<bool>,
+    /// Each marker's usual offset from the body (a running mean of accepted samples'),
+    /// once known; learnt again after a gap longer than `predict_max_gap_secs` (the body
+    /// placed a marker it did not see only roughly).
+    body_offset_m: Vec<Option<DVec3>>,
+    /// When each marker's newest identity-gated sample came (−∞: none): a run of gated
+    /// samples is no gap, so a label stuck on another performer stays gated.
+    gated_at_s: Vec<f64>,
+    /// Samples taken, and those identity-gated, since the body was last set.
+    since_body: (u64, u64),
+    /// Where the other actors' bodies put their markers (NaN where they do not know),
+    /// metres, this buffer's frame ([`Self::set_others`]).
+    others_m: Vec<DVec3>,
 }
 
 impl MarkerBuffer {
@@ -382,7 +425,96 @@ impl MarkerBuffer {
             received_at_s: f64::NEG_INFINITY,
             scratch_ref: Vec::with_capacity(widest),
             scratch_cur: Vec::with_capacity(widest),
+            body_m: vec![DVec3::ZERO; n],
+            body_at_s: f64::NAN,
+            body_saw: vec![false; n],
+            body_offset_m: vec![None; n],
+            gated_at_s: vec![f64::NEG_INFINITY; n],
+            since_body: (0, 0),
+            others_m: Vec::new(),
         }
+    }
+
+    /// Tells the identity gate where the other actors' bodies put their markers
+    /// (metres, this buffer's frame; NaN where unknown): a sample nearer one of those
+    /// than to where this actor's body puts its marker, and not within
+    /// `identity_gate_m` of the latter, is another performer's. Copied; no allocation
+    /// once the count is steady.
+    pub fn set_others(&mut self, others_m: &[DVec3]) {
+        self.others_m.clear();
+        self.others_m.extend_from_slice(others_m);
+    }
+
+    /// Arms the identity gate with the actor's solved body: `predicted[k]` is where the
+    /// solve at `t_s` (daemon clock) put marker `k`, metres (the buffer's frame), and
+    /// `states[k]` how that solve had the marker (held: not seen).
+    pub fn set_body(&mut self, t_s: f64, predicted: &[DVec3], states: &[FillState]) {
+        let n = self.body_m.len();
+        if self.cfg.identity_gate_m <= 0.0 || predicted.len() != n || states.len() != n {
+            return;
+        }
+        self.body_m.copy_from_slice(predicted);
+        for (saw, st) in self.body_saw.iter_mut().zip(states) {
+            *saw = *st != FillState::Held;
+        }
+        self.body_at_s = t_s;
+        self.since_body = (0, 0);
+    }
+
+    /// Opens the identity gate and forgets the usual offsets (the body is not trusted:
+    /// the actor left, or the whole of it moved at once).
+    pub fn clear_body(&mut self) {
+        self.body_at_s = f64::NAN;
+        self.body_offset_m.iter_mut().for_each(|o| *o = None);
+    }
+
+    /// Samples that reached the identity gate since the body was last set, and those it
+    /// dropped.
+    pub fn since_body(&self) -> (u64, u64) {
+        self.since_body
+    }
+
+    /// Whether the identity gate drops `s` (of marker `k`) as another performer's; counts
+    /// it, and learns the marker's usual offset from the ones it lets through.
+    fn identity_gated(&mut self, k: usize, s: &MarkerSample) -> bool {
+        if self.body_at_s.is_nan() {
+            return false;
+        }
+        self.since_body.0 += 1;
+        let offset = s.position_m - self.body_m[k];
+        let last_s = self.tracks[k]
+            .newest()
+            .map_or(f64::NEG_INFINITY, |(t, _)| t)
+            .max(self.gated_at_s[k]);
+        if s.time_s - last_s > self.cfg.predict_max_gap_secs {
+            self.body_offset_m[k] = None;
+        }
+        let age_s = (s.time_s - self.body_at_s).max(0.0);
+        let radius = self.cfg.identity_gate_m + self.cfg.gate_max_speed_m_s * age_s;
+        let usual = self.body_offset_m[k];
+        // Off the marker's usual place on the body (while it is followed), or nearer
+        // another performer's marker than to where this body puts it.
+        let own_m = (offset - usual.unwrap_or(DVec3::ZERO)).length();
+        let off_usual = usual.is_some() && own_m > radius;
+        let nearer_other = own_m > self.cfg.identity_gate_m
+            && self
+                .others_m
+                .iter()
+                .any(|q| (s.position_m - *q).length() < own_m);
+        if off_usual || nearer_other {
+            self.gated_at_s[k] = s.time_s;
+            self.counters.identity_gated += 1;
+            self.since_body.1 += 1;
+            return true;
+        }
+        // A running mean over about ten samples, of those the body was fitted to.
+        if self.body_saw[k] {
+            self.body_offset_m[k] = Some(match self.body_offset_m[k] {
+                Some(usual) => usual + (offset - usual) * 0.1,
+                None => offset,
+            });
+        }
+        false
     }
 
     /// Names the markers (layout order) in what the buffer logs.
@@ -443,6 +575,9 @@ impl MarkerBuffer {
         }
         if !self.cfg.in_volume(s.position_m) {
             self.implausible(k, s.position_m);
+            return;
+        }
+        if self.identity_gated(k, s) {
             return;
         }
         // Innovation gate (only while the marker's own prediction means something).

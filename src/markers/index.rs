@@ -8,6 +8,13 @@
 //! ([`SubjectFilter`]): `Ann:LFHD` and `Bob:LFHD` in one stream never both feed its
 //! `LFHD`. Labels without a prefix are a subject of their own (`""`). The others'
 //! samples are refused and counted ([`MarkerIndex::refused`]).
+//!
+//! A stage of several actors resolves every label with one index over all of them
+//! ([`MarkerIndex::for_actors`]): each actor claims labels by subject, by pattern, or
+//! (none given) those without a prefix ([`Claim`]); a label goes to the actor that
+//! claims it, its marker found within that actor's alone, and comes back as a stage
+//! index (the actor's first marker's index plus the marker's). Labels no actor claims
+//! are refused and counted like another subject's.
 
 use std::collections::HashMap;
 
@@ -35,6 +42,118 @@ pub fn subject_of(name: &str) -> &str {
     name.rsplit_once(':').map_or("", |(s, _)| s.trim())
 }
 
+/// How an actor of a stage of several recognises its labels.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Claim {
+    /// `Subject:Label` labels of this subject (any case): a C3D or TSV subject, a NatNet
+    /// asset, a VRPN tracker.
+    Subject(String),
+    /// Labels matching any of these patterns (any case; `*` any run of characters, `?`
+    /// one). With one `*`, a label whose bare name is no marker's is tried by what the
+    /// `*` stood for (`Ann_*` finds `LFHD` in `Ann_LFHD`).
+    Patterns(Vec<String>),
+    /// Labels without a subject prefix.
+    Unprefixed,
+}
+
+impl Claim {
+    /// Whether it claims `name`, whose subject is `subject` ([`subject_of`]).
+    pub fn claims(&self, name: &str, subject: &str) -> bool {
+        match self {
+            Claim::Subject(s) => s.eq_ignore_ascii_case(subject),
+            Claim::Patterns(ps) => ps.iter().any(|p| glob_match(p, name)),
+            Claim::Unprefixed => subject.is_empty(),
+        }
+    }
+
+    /// What the `*` of a one-star pattern stood for in `name`, if one such claims it.
+    fn star_part<'n>(&self, name: &'n str) -> Option<&'n str> {
+        let Claim::Patterns(ps) = self else {
+            return None;
+        };
+        ps.iter().find_map(|p| {
+            let (pre, post) = p.split_once('*')?;
+            if post.contains('*') || !glob_match(p, name) {
+                return None;
+            }
+            name.get(pre.len()..name.len().checked_sub(post.len())?)
+        })
+    }
+
+    /// How a report names it: `subject "Ann"`, `labels "Ann_*"`, `labels without a prefix`.
+    pub fn describe(&self) -> String {
+        match self {
+            Claim::Subject(s) => format!("subject {s:?}"),
+            Claim::Patterns(ps) => format!("labels {}", ps.join(", ")),
+            Claim::Unprefixed => "labels without a subject prefix".to_owned(),
+        }
+    }
+}
+
+/// Whether `name` matches `pattern` in any ASCII case: `*` any run, `?` one byte (one
+/// character of an ASCII name). At most `pattern × name` steps (a star retried from each
+/// later byte), no allocation: it runs per sample.
+pub fn glob_match(pattern: &str, name: &str) -> bool {
+    let (p, n) = (pattern.as_bytes(), name.as_bytes());
+    let (mut pi, mut ni) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ni < n.len() {
+        if pi < p.len() && (p[pi] == b'?' || p[pi].eq_ignore_ascii_case(&n[ni])) {
+            pi += 1;
+            ni += 1;
+        } else if pi < p.len() && p[pi] == b'*' {
+            star = Some((pi, ni));
+            pi += 1;
+        } else if let Some((sp, sn)) = star {
+            pi = sp + 1;
+            ni = sn + 1;
+            star = Some((sp, sn + 1));
+        } else {
+            return false;
+        }
+    }
+    p[pi..].iter().all(|c| *c == b'*')
+}
+
+/// One actor's markers within a stage's index.
+#[derive(Clone, Debug)]
+struct ActorSpan {
+    claim: Claim,
+    /// Its first marker's stage index.
+    start: u32,
+    /// Its markers by their own names, and loosely, local indices.
+    exact: HashMap<String, u32>,
+    loose: HashMap<String, u32>,
+}
+
+impl ActorSpan {
+    /// The stage index of the marker `name` names in this actor (exact, loose, or by a
+    /// pattern's star), using `scratch`.
+    fn find(&self, name: &str, scratch: &mut String) -> Option<u32> {
+        if let Some(k) = self.exact.get(name) {
+            return Some(self.start + k);
+        }
+        bare_name_into(name, scratch);
+        if let Some(k) = self.loose.get(scratch.as_str()) {
+            return Some(self.start + k);
+        }
+        let star = self.claim.star_part(name)?;
+        bare_name_into(star, scratch);
+        self.loose.get(scratch.as_str()).map(|k| self.start + k)
+    }
+}
+
+/// An actor's markers and how it claims its labels, for [`MarkerIndex::for_actors`].
+#[derive(Clone, Debug)]
+pub struct ActorLabels {
+    /// Its markers' names as the stage names them (each with its subject:
+    /// `Ann:LFHD`).
+    pub names: Vec<String>,
+    /// Its markers' own names (`LFHD`), as labels are matched.
+    pub markers: Vec<String>,
+    pub claim: Claim,
+}
+
 /// Marker indices by name.
 #[derive(Clone, Debug)]
 pub struct MarkerIndex {
@@ -54,6 +173,8 @@ pub struct MarkerIndex {
     refused: u64,
     /// The other subjects seen (at most [`MAX_OTHER_SUBJECTS`]).
     others: Vec<String>,
+    /// A stage of several actors: each one's markers (empty: one character).
+    actors: Vec<ActorSpan>,
 }
 
 /// A name as it matches loosely: its part after the last `:`, trimmed, lower case.
@@ -93,6 +214,7 @@ impl MarkerIndex {
             taken,
             refused: 0,
             others: Vec::new(),
+            actors: Vec::new(),
         };
         for n in names {
             index.insert(n);
@@ -114,7 +236,49 @@ impl MarkerIndex {
             taken: None,
             refused: 0,
             others: Vec::new(),
+            actors: Vec::new(),
         }
+    }
+
+    /// The index of a stage of several actors: their markers one after the other (the
+    /// first actor's from 0), each label going to the actor that claims it (the first
+    /// listed, when several would).
+    pub fn for_actors(actors: &[ActorLabels]) -> Self {
+        let mut index = Self::growing(0);
+        index.grow_up_to = None;
+        for a in actors {
+            let start = index.names.len() as u32;
+            let mut span = ActorSpan {
+                claim: a.claim.clone(),
+                start,
+                exact: HashMap::with_capacity(a.markers.len()),
+                loose: HashMap::with_capacity(a.markers.len()),
+            };
+            for (k, m) in a.markers.iter().enumerate() {
+                span.exact.entry(m.clone()).or_insert(k as u32);
+                span.loose.entry(bare_name(m)).or_insert(k as u32);
+            }
+            index.names.extend(a.names.iter().cloned());
+            index.actors.push(span);
+        }
+        index
+    }
+
+    /// Whether it resolves for several actors ([`Self::for_actors`]).
+    pub fn is_for_actors(&self) -> bool {
+        !self.actors.is_empty()
+    }
+
+    /// For a stage of several actors: the actor that claims `name` and the stage index
+    /// of its marker, if it has one.
+    fn claimed(&self, name: &str, scratch: &mut String) -> Result<Option<u32>, ()> {
+        let subject = subject_of(name);
+        let span = self
+            .actors
+            .iter()
+            .find(|a| a.claim.claims(name, subject))
+            .ok_or(())?;
+        Ok(span.find(name, scratch))
     }
 
     fn insert(&mut self, name: &str) -> u32 {
@@ -130,6 +294,9 @@ impl MarkerIndex {
     /// The index of `name`, if it matches (exactly, or loosely) a known marker, whatever
     /// its subject.
     pub fn get(&self, name: &str) -> Option<u32> {
+        if self.is_for_actors() {
+            return self.claimed(name, &mut String::new()).ok().flatten();
+        }
         self.exact
             .get(name)
             .or_else(|| self.loose.get(&bare_name(name)))
@@ -142,6 +309,15 @@ impl MarkerIndex {
     /// growing index with room left also takes a new name (matched exactly only, so that
     /// `A` and `a` stay two markers of a stream).
     pub fn resolve(&mut self, name: &str) -> Option<u32> {
+        if self.is_for_actors() {
+            let mut scratch = std::mem::take(&mut self.scratch);
+            let found = self.claimed(name, &mut scratch);
+            self.scratch = scratch;
+            return found.unwrap_or_else(|()| {
+                self.refuse(subject_of(name));
+                None
+            });
+        }
         let exact = self.exact.get(name).copied();
         let Some(max) = self.grow_up_to else {
             let k = match exact {
@@ -179,11 +355,15 @@ impl MarkerIndex {
         self.refused += 1;
         let known = self.others.iter().any(|o| o.eq_ignore_ascii_case(subject));
         if !known && self.others.len() < MAX_OTHER_SUBJECTS && subject.len() <= MAX_NAME_BYTES {
-            tracing::warn!(
-                "labels of {} ignored: the character takes {} ([character] subject chooses)",
-                subjects_text(std::slice::from_ref(&subject.to_owned())),
-                subject_text(self.taken.as_deref().unwrap_or_default())
-            );
+            let whose = subjects_text(std::slice::from_ref(&subject.to_owned()));
+            if self.is_for_actors() {
+                tracing::warn!("labels of {whose} ignored: no actor claims them ([[actors]] subject or labels)");
+            } else {
+                tracing::warn!(
+                    "labels of {whose} ignored: the character takes {} ([character] subject chooses)",
+                    subject_text(self.taken.as_deref().unwrap_or_default())
+                );
+            }
             self.others.push(subject.to_owned());
         }
     }
@@ -206,6 +386,15 @@ impl MarkerIndex {
     /// What a report says of the other subjects' samples, if any were refused:
     /// `"412 samples of subjects Bob, Cy ignored (the character takes Ann's)"`.
     pub fn refused_text(&self) -> Option<String> {
+        if self.is_for_actors() {
+            return (self.refused > 0).then(|| {
+                format!(
+                    "{} samples of {} ignored (no actor claims them)",
+                    self.refused,
+                    subjects_text(&self.others)
+                )
+            });
+        }
         (self.refused > 0).then(|| {
             format!(
                 "{} samples of {} ignored (the character takes {})",
@@ -244,6 +433,17 @@ fn subject_text(subject: &str) -> String {
     }
 }
 
+/// The markers of `index` no label feeds.
+fn unfed(index: &MarkerIndex, marker_of_label: &[Option<u32>]) -> Vec<String> {
+    index
+        .names()
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !marker_of_label.contains(&Some(*k as u32)))
+        .map(|(_, m)| m.clone())
+        .collect()
+}
+
 /// How a recording's labels feed a character's markers.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LabelMap {
@@ -269,6 +469,9 @@ impl LabelMap {
     pub fn new(labels: &[String], index: &MarkerIndex) -> Self {
         fn loose<'l>(index: &MarkerIndex, l: &'l str) -> Option<&'l str> {
             index.get(l).map(|_| subject_of(l))
+        }
+        if index.is_for_actors() {
+            return Self::for_actors(labels, index);
         }
         let subject: Option<String> = match &index.filter {
             SubjectFilter::Named(s) => Some(s.clone()),
@@ -303,13 +506,7 @@ impl LabelMap {
             .filter(|(_, m)| m.is_none())
             .map(|(l, _)| l.clone())
             .partition(|l| index.get(l).is_some());
-        let unfed_markers = index
-            .names()
-            .iter()
-            .enumerate()
-            .filter(|(k, _)| !marker_of_label.contains(&Some(*k as u32)))
-            .map(|(_, m)| m.clone())
-            .collect();
+        let unfed_markers = unfed(index, &marker_of_label);
         Self {
             marker_of_label,
             unmatched_labels,
@@ -317,6 +514,27 @@ impl LabelMap {
             subject,
             other_subjects,
             other_subject_labels,
+        }
+    }
+
+    /// [`Self::new`] for an index of several actors: each label feeds the marker of the
+    /// actor that claims it; the rest are unmatched.
+    fn for_actors(labels: &[String], index: &MarkerIndex) -> Self {
+        let marker_of_label: Vec<Option<u32>> = labels.iter().map(|l| index.get(l)).collect();
+        let unmatched_labels = labels
+            .iter()
+            .zip(&marker_of_label)
+            .filter(|(_, m)| m.is_none())
+            .map(|(l, _)| l.clone())
+            .collect();
+        let unfed_markers = unfed(index, &marker_of_label);
+        Self {
+            marker_of_label,
+            unmatched_labels,
+            unfed_markers,
+            subject: None,
+            other_subjects: Vec::new(),
+            other_subject_labels: Vec::new(),
         }
     }
 
@@ -473,6 +691,70 @@ mod tests {
         );
     }
 
+    fn actor(subject: &str, claim: Claim, markers: &[&str]) -> ActorLabels {
+        ActorLabels {
+            names: markers.iter().map(|m| format!("{subject}:{m}")).collect(),
+            markers: names(markers),
+            claim,
+        }
+    }
+
+    /// Several actors: each label goes to the actor whose claim takes it, found among
+    /// that actor's markers alone; bare names never collide across actors; what no actor
+    /// claims is refused and counted.
+    #[test]
+    fn several_actors_take_each_their_own_labels() {
+        let body = ["LFHD", "RFHD", "C7"];
+        let mut index = MarkerIndex::for_actors(&[
+            actor("Ann", Claim::Subject("Ann".into()), &body),
+            actor("Bob", Claim::Subject("Bob".into()), &body),
+            actor("Cy", Claim::Patterns(vec!["cy_*".into()]), &body),
+            actor("", Claim::Unprefixed, &["wrist"]),
+        ]);
+        assert_eq!(index.names().len(), 10);
+        assert_eq!(index.resolve("Ann:LFHD"), Some(0));
+        assert_eq!(index.resolve("BOB:lfhd"), Some(3), "Bob's LFHD, not Ann's");
+        assert_eq!(index.resolve("Bob:C7"), Some(5));
+        assert_eq!(index.resolve("CY_RFHD"), Some(7), "by the pattern's star");
+        assert_eq!(index.resolve("wrist"), Some(9));
+        assert_eq!(
+            index.resolve("LFHD"),
+            None,
+            "unprefixed: only the wrist actor's"
+        );
+        assert_eq!(index.resolve("Ann:wrist"), None, "Ann has no wrist");
+        assert_eq!(index.resolve("Dee:LFHD"), None);
+        assert_eq!(index.resolve("Dee:RFHD"), None);
+        // Claimed labels without a marker are not another subject's: only Dee counts.
+        let (refused, others) = index.refused();
+        assert_eq!((refused, others), (2, &names(&["Dee"])[..]));
+        assert!(index
+            .refused_text()
+            .unwrap()
+            .contains("no actor claims them"));
+        let map = LabelMap::new(&names(&["Bob:RFHD", "Dee:C7", "Ann:C7"]), &index);
+        assert_eq!(map.marker_of_label, vec![Some(4), None, Some(2)]);
+        assert_eq!(map.unmatched_labels, names(&["Dee:C7"]));
+        assert_eq!(map.unfed_markers.len(), 8);
+    }
+
+    #[test]
+    fn patterns_match_any_case_with_stars_and_marks() {
+        for (p, n, want) in [
+            ("Ann_*", "ann_LFHD", true),
+            ("Ann_*", "Ann", false),
+            ("*:*HD", "Bob:LFHD", true),
+            ("?FHD", "LFHD", true),
+            ("?FHD", "LLFHD", false),
+            ("a*b*c", "aXbYbZc", true),
+            ("a*b*c", "aXbYbZ", false),
+            ("*", "", true),
+            ("", "x", false),
+        ] {
+            assert_eq!(glob_match(p, n), want, "{p} ~ {n}");
+        }
+    }
+
     proptest::proptest! {
         /// Over any stream of labels from a few subjects (in any case), no two subjects
         /// ever feed the index: every accepted sample's subject is the first accepted
@@ -504,6 +786,47 @@ mod tests {
                 }
             }
             proptest::prop_assert_eq!(index.refused().0, refused);
+        }
+
+        /// Over any label (arbitrary text, or a subject and a marker name in any case),
+        /// a stage index is within the span of the one actor whose subject the label
+        /// carries: no sample ever crosses actors.
+        #[test]
+        fn no_label_ever_feeds_another_actor(
+            picks in proptest::collection::vec((0usize..4, 0usize..4, proptest::bool::ANY), 0..64),
+            junk in proptest::collection::vec(".{0,40}", 0..16),
+        ) {
+            let body = ["LFHD", "RFHD", "C7"];
+            let mut index = MarkerIndex::for_actors(&[
+                actor("Ann", Claim::Subject("Ann".into()), &body),
+                actor("Bob", Claim::Subject("Bob".into()), &body),
+                actor("", Claim::Unprefixed, &body),
+            ]);
+            let subjects = ["Ann", "bob", "", "Dee"];
+            let labels = ["LFHD", "rfhd", "C7", "T10"];
+            for (s, l, upper) in &picks {
+                let mut label = if subjects[*s].is_empty() {
+                    labels[*l].to_owned()
+                } else {
+                    format!("{}:{}", subjects[*s], labels[*l])
+                };
+                if *upper {
+                    label = label.to_ascii_uppercase();
+                }
+                let span = match *s {
+                    3 => None,
+                    s => Some(3 * s as u32..3 * s as u32 + 3),
+                };
+                match index.resolve(&label) {
+                    Some(k) => proptest::prop_assert!(span.is_some_and(|r| r.contains(&k)), "{label} -> {k}"),
+                    None => proptest::prop_assert!(span.is_none() || *l == 3, "{label} lost"),
+                }
+            }
+            for j in &junk {
+                if let Some(k) = index.resolve(j) {
+                    proptest::prop_assert!(k < 9);
+                }
+            }
         }
     }
 }

@@ -192,12 +192,31 @@ fn seconds_1900(t: [u8; 8]) -> Option<f64> {
     (!(secs == 0 && frac <= 1)).then(|| secs as f64 + frac as f64 / 4_294_967_296.0)
 }
 
-/// Matches `addr` against `pattern` with one `{name}` part; returns the name.
-fn match_pattern<'a>(pattern: &str, addr: &'a str) -> Option<&'a str> {
-    let (pre, post) = pattern.split_once("{name}")?;
-    let rest = addr.strip_prefix(pre)?;
-    let name = rest.strip_suffix(post)?;
-    (!name.is_empty() && !name.contains('/')).then_some(name)
+/// Matches `addr` against `pattern` with one `{name}` part and at most one `{subject}`
+/// part (each one address segment or part of one, never empty); returns the subject, if
+/// the pattern has one, and the name.
+fn match_pattern<'a>(pattern: &str, addr: &'a str) -> Option<(Option<&'a str>, &'a str)> {
+    let part = |p: &'a str| (!p.is_empty() && !p.contains('/')).then_some(p);
+    let Some((pre, post)) = pattern.split_once("{subject}") else {
+        let (pre, post) = pattern.split_once("{name}")?;
+        let name = addr.strip_prefix(pre)?.strip_suffix(post)?;
+        return Some((None, part(name)?));
+    };
+    // `{subject}` first, then `{name}`, or the other way round; literal text between.
+    let (first_is_subject, pre, mid, post) = match post.split_once("{name}") {
+        Some((mid, post)) => (true, pre, mid, post),
+        None => {
+            let (pre, mid) = pre.split_once("{name}")?;
+            (false, pre, mid, post)
+        }
+    };
+    let rest = addr.strip_prefix(pre)?.strip_suffix(post)?;
+    if mid.is_empty() {
+        return None;
+    }
+    let (a, b) = rest.split_once(mid)?;
+    let (subject, name) = if first_is_subject { (a, b) } else { (b, a) };
+    Some((Some(part(subject)?), part(name)?))
 }
 
 /// Seconds between the NTP epoch (1900) and the Unix epoch (1970).
@@ -241,22 +260,37 @@ impl OscMapping {
         p: Option<DVec3>,
         world: impl Fn(DVec3) -> DVec3,
     ) {
+        self.push_of(out, None, name, p, world);
+    }
+
+    /// [`Self::push`] of a subject's marker, named `subject:name`.
+    fn push_of(
+        &self,
+        out: &mut OscFrame,
+        subject: Option<&str>,
+        name: &str,
+        p: Option<DVec3>,
+        world: impl Fn(DVec3) -> DVec3,
+    ) {
         let ok = p.filter(|p| p.is_finite());
         let position_m = ok.map_or(DVec3::NAN, world);
         let occluded = ok.is_none();
-        if out.used < out.markers.len() {
-            let m = &mut out.markers[out.used];
-            m.name.clear();
-            m.name.push_str(name);
-            m.position_m = position_m;
-            m.occluded = occluded;
-        } else {
+        if out.used == out.markers.len() {
             out.markers.push(OscMarker {
-                name: name.to_owned(),
+                name: String::new(),
                 position_m,
                 occluded,
             });
         }
+        let m = &mut out.markers[out.used];
+        m.name.clear();
+        if let Some(s) = subject {
+            m.name.push_str(s);
+            m.name.push(':');
+        }
+        m.name.push_str(name);
+        m.position_m = position_m;
+        m.occluded = occluded;
         out.used += 1;
     }
 
@@ -307,9 +341,9 @@ impl OscMapping {
             return true;
         }
         for pat in &self.patterns {
-            if let Some(name) = match_pattern(pat, addr) {
+            if let Some((subject, name)) = match_pattern(pat, addr) {
                 if let Some(p) = args.xyz(0) {
-                    self.push(out, name, Some(p), |p| self.to_world(p));
+                    self.push_of(out, subject, name, Some(p), |p| self.to_world(p));
                     return true;
                 }
             }
@@ -491,6 +525,19 @@ mod tests {
         assert_eq!(f.markers()[0].name, "C7");
         assert!((f.markers()[0].position_m - DVec3::new(0.1, 1.5, -0.2)).length() < 1e-9);
         assert_eq!(match_pattern("/a/{name}", "/a/b/c"), None);
+        assert_eq!(
+            match_pattern("/mocap/{subject}/{name}", "/mocap/Ann/LFHD"),
+            Some((Some("Ann"), "LFHD"))
+        );
+        assert_eq!(
+            match_pattern("/m/{name}@{subject}", "/m/LFHD@Bob"),
+            Some((Some("Bob"), "LFHD"))
+        );
+        assert_eq!(match_pattern("/mocap/{subject}/{name}", "/mocap/Ann"), None);
+        assert_eq!(
+            match_pattern("/mocap/{subject}/{name}", "/mocap//LFHD"),
+            None
+        );
     }
 
     #[test]

@@ -33,6 +33,9 @@ pub struct SolverConfig {
     /// compressed flesh at creases back its volume within a few frames; above 2 it may
     /// oscillate).
     pub volume_gain: f64,
+    /// Solver threads of a stage of several actors (each actor is solved on one of
+    /// them); default: the machine's cores. One actor always takes one thread.
+    pub threads: Option<usize>,
 }
 
 impl Default for SolverConfig {
@@ -48,11 +51,22 @@ impl Default for SolverConfig {
             rest_prior: super::ik::IkParams::default().rest_prior,
             prev_prior: super::ik::IkParams::default().prev_prior,
             volume_gain: super::frame::SolverParams::default().volume_gain,
+            threads: None,
         }
     }
 }
 
+/// Most solver threads a stage asks for.
+pub const MAX_THREADS: usize = 256;
+
 impl SolverConfig {
+    /// Solver threads for `actors` actors: [`Self::threads`], else the machine's cores;
+    /// never more than the actors.
+    pub fn threads_for(&self, actors: usize) -> usize {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        self.threads.unwrap_or(cores).clamp(1, actors.max(1))
+    }
+
     /// The frame solver's settings.
     pub fn params(&self) -> super::frame::SolverParams {
         super::frame::SolverParams {
@@ -119,6 +133,9 @@ impl SolverConfig {
                 "harmonic_margin",
                 format!("must be in [0, 0.5), got {:?}", self.harmonic_margin),
             );
+        }
+        if let Some(t) = self.threads.filter(|t| !(1..=MAX_THREADS).contains(t)) {
+            push("threads", format!("must be 1 to {MAX_THREADS}, got {t}"));
         }
         if !(16..=1 << 24).contains(&self.channel_capacity) {
             push(

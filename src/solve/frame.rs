@@ -786,6 +786,12 @@ impl Solver {
         }
     }
 
+    /// Where the last posture fit puts each marker, metres, world frame (the fitted
+    /// skeleton's marker positions).
+    pub fn fitted_markers(&self) -> &[DVec3] {
+        &self.ik.predicted
+    }
+
     /// Full mesh from the control mesh through its Green coordinates.
     pub fn write_mesh(&mut self, out: &mut [DVec3]) {
         self.rig
