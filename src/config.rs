@@ -581,6 +581,12 @@ on = true
             "stages/body-walk.toml",
         )
         .unwrap();
+        let two = parse_stage(
+            include_str!("../stages/two-actors.toml"),
+            "stages/two-actors.toml",
+        )
+        .unwrap();
+        assert_eq!(two.actor_specs().len(), 2);
         let glove = parse_stage(
             include_str!("../stages/hand-glove.toml"),
             "stages/hand-glove.toml",

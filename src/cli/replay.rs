@@ -86,6 +86,12 @@ pub struct ReplayArgs {
     /// named.
     #[arg(long, value_name = "NAME", requires = "solve")]
     subject: Option<String>,
+    /// With --solve (live, not --export): drive one actor per performer of the take,
+    /// each the same character: every subject with at least 3 labels matching its
+    /// markers (a prop's few markers are not a performer). The status lines and the
+    /// summary report each; the vertex stream, viewer and Rerun carry the first.
+    #[arg(long, requires = "solve", conflicts_with_all = ["subject", "export"])]
+    actors: bool,
     /// With --solve: solve every frame off line, as fast as the machine goes (no
     /// deadline, no stream), and write each to this file at the take's rate, in the
     /// format of its extension: `.pc2` (the full mesh's vertices, a point cache for
@@ -368,6 +374,58 @@ fn export(a: &ReplayArgs, character: &str, out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Labels of a subject that make it a performer for `--actors`.
+const PERFORMER_LABELS: usize = 3;
+
+/// `--actors`: an `[[actors]]` table per performer of the take (each `character`, its
+/// table `ch`), named and claimed by subject.
+fn take_actors(a: &ReplayArgs, character: &str, ch: &toml::Table) -> Result<Vec<toml::Value>> {
+    use rigless::markers::index::performers;
+    let rec = Recording::load_with(&a.file, a.bvh_scale)?;
+    let markers: Vec<String> = match character {
+        "hand" => rigless::character::demo::demo_hand().markers,
+        "body" => rigless::character::demo::demo_body().markers,
+        path => {
+            rigless::character::file::load_character(Path::new(path))?
+                .character
+                .markers
+        }
+    }
+    .into_iter()
+    .map(|m| m.name)
+    .collect();
+    let found = performers(&rec.labels, &markers, PERFORMER_LABELS);
+    if found.len() < 2 {
+        let whose: Vec<String> = found
+            .iter()
+            .map(|(s, n)| format!("{s:?} ({n} labels)"))
+            .collect();
+        bail!(
+            "--actors: {} has {} performer{} with at least {PERFORMER_LABELS} labels matching the character's markers ({}); --actors needs two or more (without it one is driven)",
+            a.file.display(),
+            found.len(),
+            if found.len() == 1 { "" } else { "s" },
+            if whose.is_empty() { "none".to_owned() } else { whose.join(", ") }
+        );
+    }
+    Ok(found
+        .into_iter()
+        .map(|(subject, _)| {
+            let mut t = ch.clone();
+            let name = if subject.is_empty() {
+                "unprefixed".to_owned()
+            } else {
+                subject.clone()
+            };
+            t.insert("name".into(), toml::Value::String(name));
+            if !subject.is_empty() {
+                t.insert("subject".into(), toml::Value::String(subject));
+            }
+            toml::Value::Table(t)
+        })
+        .collect())
+}
+
 /// The stage `--solve CHARACTER` runs: the recording as a replay input, validated like a
 /// stage file.
 fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::StageConfig> {
@@ -387,6 +445,11 @@ fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::Stage
     if let Some(s) = &a.subject {
         ch.insert("subject".into(), Value::String(s.clone()));
     }
+    let actors = if a.actors {
+        take_actors(a, character, &ch)?
+    } else {
+        Vec::new()
+    };
     let mut input = Table::new();
     input.insert("type".into(), Value::String("replay".into()));
     input.insert("path".into(), abs(&a.file)?);
@@ -401,7 +464,11 @@ fn solve_stage(a: &ReplayArgs, character: &str) -> Result<rigless::config::Stage
         [outputs.stream]
         tcp = (a.stream.to_string())
     };
-    stage.insert("character".into(), Value::Table(ch));
+    if actors.is_empty() {
+        stage.insert("character".into(), Value::Table(ch));
+    } else {
+        stage.insert("actors".into(), Value::Array(actors));
+    }
     stage.insert("inputs".into(), Value::Array(vec![Value::Table(input)]));
     Ok(rigless::config::parse_stage(
         &toml::to_string(&stage)?,

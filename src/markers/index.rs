@@ -433,6 +433,28 @@ fn subject_text(subject: &str) -> String {
     }
 }
 
+/// The performers of a take for a character whose markers are `markers`: each subject
+/// (`Ann` of `Ann:LFHD`; `""` for labels without a prefix) with at least `min_labels`
+/// labels matching a marker, and how many, in the order first met. A prop's few markers,
+/// or a model's outputs, are not a performer.
+pub fn performers(
+    labels: &[String],
+    markers: &[String],
+    min_labels: usize,
+) -> Vec<(String, usize)> {
+    let index = MarkerIndex::fixed(markers);
+    let mut found: Vec<(String, usize)> = Vec::new();
+    for l in labels.iter().filter(|l| index.get(l).is_some()) {
+        let s = subject_of(l);
+        match found.iter_mut().find(|(n, _)| n.eq_ignore_ascii_case(s)) {
+            Some((_, c)) => *c += 1,
+            None => found.push((s.to_owned(), 1)),
+        }
+    }
+    found.retain(|(_, c)| *c >= min_labels);
+    found
+}
+
 /// The markers of `index` no label feeds.
 fn unfed(index: &MarkerIndex, marker_of_label: &[Option<u32>]) -> Vec<String> {
     index
@@ -736,6 +758,26 @@ mod tests {
         assert_eq!(map.marker_of_label, vec![Some(4), None, Some(2)]);
         assert_eq!(map.unmatched_labels, names(&["Dee:C7"]));
         assert_eq!(map.unfed_markers.len(), 8);
+    }
+
+    #[test]
+    fn the_performers_of_a_take_are_the_subjects_with_enough_markers() {
+        let markers = names(&["LFHD", "RFHD", "C7", "T10"]);
+        let labels = names(&[
+            "Ann:LFHD",
+            "Ann:RFHD",
+            "Ann:C7",
+            "Box:C7",
+            "Bob:lfhd",
+            "Bob:RFHD",
+            "Bob:T10",
+            "Bob:LKneeAngles",
+        ]);
+        assert_eq!(
+            performers(&labels, &markers, 3),
+            vec![("Ann".to_owned(), 3), ("Bob".to_owned(), 3)]
+        );
+        assert_eq!(performers(&labels, &markers, 4), vec![]);
     }
 
     #[test]
