@@ -258,3 +258,42 @@ fn a_label_swap_between_two_actors_never_pulls_one_towards_the_other() {
         "{off:?}"
     );
 }
+
+/// The command line's actor flags refuse what they cannot do, naming what the take has:
+/// `calibrate --actor` a subject the take lacks, `replay --solve --actors` a take of one
+/// performer.
+#[test]
+fn the_actor_flags_name_what_the_take_has() {
+    let take = |name: &str| format!("{}/replay/{name}.c3d", env!("CARGO_MANIFEST_DIR"));
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigless"))
+            .args(args)
+            .output()
+            .expect("rigless runs");
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, err) = run(&[
+        "calibrate",
+        "body",
+        &take("body_two_actors"),
+        "--actor",
+        "Cy",
+    ]);
+    assert!(
+        !ok && err.contains("its subjects: \"Ann\", \"Bob\""),
+        "{err}"
+    );
+    let (ok, err) = run(&[
+        "replay",
+        &take("body_walk"),
+        "--solve",
+        "body",
+        "--actors",
+        "--viewer",
+        "off",
+    ]);
+    assert!(!ok && err.contains("has 1 performer"), "{err}");
+}

@@ -86,6 +86,11 @@ pub struct CalibrateArgs {
     /// Print the result as one JSON object.
     #[arg(long)]
     json: bool,
+    /// A take of several performers: calibrate this one's labels (`Ann` for `Ann:LFHD`,
+    /// the subject an `[[actors]]` entry claims; "" for labels without a prefix). Without
+    /// it the subject with most labels is taken and the others are left out, named.
+    #[arg(long, value_name = "NAME")]
+    actor: Option<String>,
 }
 
 /// What a calibration needs of a character.
@@ -226,7 +231,31 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
             a.character
         );
     }
-    let (rec, is_bvh) = take(&a)?;
+    let (mut rec, is_bvh) = take(&a)?;
+    if let Some(actor) = &a.actor {
+        let subjects: Vec<String> = {
+            let mut s: Vec<String> = Vec::new();
+            for l in &rec.labels {
+                let sub = rigless::markers::index::subject_of(l);
+                if !s.iter().any(|x| x.eq_ignore_ascii_case(sub)) {
+                    s.push(sub.to_owned());
+                }
+            }
+            s
+        };
+        rec.keep_subject(actor);
+        if rec.labels.is_empty() {
+            bail!(
+                "--actor {actor:?}: {} has no label of that subject (its subjects: {})",
+                a.take,
+                subjects
+                    .iter()
+                    .map(|s| format!("{s:?}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     let mut map = map;
     if is_bvh {
         map.extend(bvh_roles(Path::new(&a.take), a.bvh_scale)?);

@@ -81,10 +81,11 @@ pub struct ReplayArgs {
     #[arg(long, requires = "solve")]
     marker_scale: Option<f64>,
     /// With --solve: the performer whose labels drive the character when the take
-    /// holds several (`Ann` for `Ann:LFHD`; "" for labels without a prefix). Default:
+    /// holds several (`Ann` for `Ann:LFHD`; "" for labels without a prefix; `--actor`
+    /// says the same, e.g. with `--export` for one actor's file). Default:
     /// the subject with most labels matching a marker; the others are ignored and
     /// named.
-    #[arg(long, value_name = "NAME", requires = "solve")]
+    #[arg(long, value_name = "NAME", requires = "solve", alias = "actor")]
     subject: Option<String>,
     /// With --solve (live, not --export): drive one actor per performer of the take,
     /// each the same character: every subject with at least 3 labels matching its
