@@ -272,13 +272,6 @@ pub fn label_swap(dir: &Path, apart_m: f64, identity_gate: bool) -> Result<SwapR
                 .fold(0.0, f64::max)
         })
         .collect();
-    if std::env::var_os("RIGLESS_DEBUG_SWAP").is_some() {
-        for (i, p) in pulls.iter().enumerate() {
-            if *p > 0.02 {
-                eprintln!("frame {i} t {:.3} pull {p:.3}", i as f64 / 120.0);
-            }
-        }
-    }
     Ok(SwapRecord {
         suite: "actors",
         case: "label swap",

@@ -233,16 +233,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     }
     let (mut rec, is_bvh) = take(&a)?;
     if let Some(actor) = &a.actor {
-        let subjects: Vec<String> = {
-            let mut s: Vec<String> = Vec::new();
-            for l in &rec.labels {
-                let sub = rigless::markers::index::subject_of(l);
-                if !s.iter().any(|x| x.eq_ignore_ascii_case(sub)) {
-                    s.push(sub.to_owned());
-                }
-            }
-            s
-        };
+        let subjects = rec.subjects();
         rec.keep_subject(actor);
         if rec.labels.is_empty() {
             bail!(

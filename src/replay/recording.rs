@@ -135,6 +135,19 @@ impl Recording {
         .and_then(Self::nonempty)
     }
 
+    /// The subjects its labels name (`Ann` of `Ann:LFHD`, `""` for labels without a
+    /// prefix), each once (any case), in the order first met.
+    pub fn subjects(&self) -> Vec<String> {
+        use crate::markers::index::subject_of;
+        let mut out: Vec<String> = Vec::new();
+        for s in self.labels.iter().map(|l| subject_of(l)) {
+            if !out.iter().any(|o| o.eq_ignore_ascii_case(s)) {
+                out.push(s.to_owned());
+            }
+        }
+        out
+    }
+
     /// Keeps the labels of `subject` alone (`Ann` keeps `Ann:LFHD` and `ann:rfhd`; `""`
     /// the labels without a `Subject:` prefix), with their columns; returns how many
     /// labels it left out.
