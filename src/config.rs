@@ -283,6 +283,10 @@ impl StageConfig {
     }
 }
 
+/// The most actors a stage drives (the vertex stream carries an actor's index in a byte;
+/// past a few dozen, no machine solves them all at a capture rate anyway).
+pub const MAX_ACTORS: usize = 64;
+
 /// The `[[actors]]` rules: not with `[character]`, names unique, no two claiming the
 /// same labels, each entry's own problems; and what a stage of several cannot do yet.
 fn actors_problems(
@@ -299,6 +303,15 @@ fn actors_problems(
         problems.push(lines.at(
             "character",
             "give either [character] (one performer) or [[actors]], not both",
+        ));
+    }
+    if c.actors.len() > MAX_ACTORS {
+        problems.push(lines.at(
+            "actors",
+            format!(
+                "{} actors: a stage drives at most {MAX_ACTORS} (the vertex stream tags each frame with its actor's index in one byte)",
+                c.actors.len()
+            ),
         ));
     }
     for (i, a) in c.actors.iter().enumerate() {

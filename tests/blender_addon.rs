@@ -76,4 +76,14 @@ fn the_blender_addon_applies_records_and_refuses_in_blender() {
         refused.contains("5001 vertices") && refused.contains("has 8"),
         "{refused}"
     );
+    // The two-actor demo: following Bob drives a mesh named after him with his frames,
+    // equal to the stream's; an actor the stream lacks is refused, naming those it has.
+    let choice = &r["actor_choice"];
+    assert_eq!(choice["object"], "rigless Bob", "{r}");
+    assert_eq!(n(&choice["compared"]), 10.0, "{r}");
+    assert_eq!(n(&choice["max_diff_m"]), 0.0, "{r}");
+    assert_eq!(
+        choice["refused"], "no actor 'Carl' in this stream (it has Ann, Bob)",
+        "{r}"
+    );
 }

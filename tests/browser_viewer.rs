@@ -56,6 +56,7 @@ fn the_viewer_page_draws_the_stream_and_reconnects_in_chromium() {
         "{r}"
     );
     assert_eq!(r["topology"]["character"], "hand", "{r}");
+    assert_eq!(r["topology"]["actors"], 1, "{r}");
     assert_eq!(r["topology"]["markers"], 8, "{r}");
 
     // The solver publishes at 120 Hz; the page must take at least half of it. It draws
@@ -80,5 +81,43 @@ fn the_viewer_page_draws_the_stream_and_reconnects_in_chromium() {
 
     // The daemon was stopped and started again on the same ports: a second connection.
     assert!(r["reconnect"]["connects"].as_f64().unwrap() >= 2.0, "{r}");
+    assert_eq!(r["page_errors"], serde_json::json!([]), "{r}");
+}
+
+/// The two-actor demo: both bodies drawn once their markers appear, each labelled with
+/// its name, and kept inside the picture by the camera as they walk (Bob passes Ann and
+/// the two end about 4 m apart).
+#[test]
+fn the_viewer_draws_every_actor_labelled_and_keeps_them_in_view() {
+    if let Some(why) = missing_peer() {
+        common::skip_for_missing_peer(&why);
+        return;
+    }
+    let out = tempfile::tempdir().unwrap();
+    let r = common::run_json_check_with(
+        "node",
+        "tests/browser/viewer_check.mjs",
+        out.path(),
+        &["--actors", "2"],
+        Duration::from_secs(TIMEOUT_S),
+    );
+    assert_eq!(r["topology"]["actors"], 2, "{r}");
+    assert_eq!(r["topology"]["actor"], "Ann", "{r}");
+    // The page's first actor's vertices are the stream's, exactly.
+    assert!(r["compared_frames"].as_f64().unwrap() >= 3.0, "{r}");
+    assert_eq!(r["max_vertex_diff_m"], 0.0, "{r}");
+    assert_eq!(r["actors"]["follow"], true, "{r}");
+    for name in ["Ann", "Bob"] {
+        let a = &r["actors"]["each"][name];
+        let n = |k: &str| a[k].as_u64().unwrap_or_else(|| panic!("{name} {k}: {r}"));
+        // 24 reads over 6 s, after both were drawn: each read shows the actor, labelled,
+        // every corner of its box inside the picture (the camera follows them; a box
+        // corner is at most 0.9 of the way to the edge with the 1.15 margin).
+        assert_eq!(n("samples"), 24, "{r}");
+        assert_eq!(n("shown"), 24, "{name}: {r}");
+        assert_eq!(n("labelled"), 24, "{name}: {r}");
+        assert_eq!(n("inside"), 24, "{name}: {r}");
+    }
+    assert!(out.path().join("actors.png").is_file());
     assert_eq!(r["page_errors"], serde_json::json!([]), "{r}");
 }

@@ -47,6 +47,9 @@ fn topology() -> Topology {
                 triangle_count: 1,
             },
         ],
+        actor: "Bob".into(),
+        actor_index: 1,
+        actor_count: 2,
     }
 }
 
@@ -54,6 +57,7 @@ fn frame(n: u64) -> WireFrame {
     let k = n as f32;
     WireFrame {
         frame: n,
+        actor: 1,
         source_time_s: 0.5 * n as f64,
         publish_time_s: 1.7e9 + n as f64 / 120.0,
         status: FrameStatus {
@@ -137,9 +141,15 @@ fn check(r: &serde_json::Value, frames: &[WireFrame]) {
         serde_json::json!(["tip", "nail", "wrist"])
     );
     assert_eq!(d[0]["jointParents"], serde_json::json!([-1, 0]));
+    // Version 4: the topology names its actor, its index and the count; frames carry
+    // the index.
+    assert_eq!(d[0]["actor"], "Bob", "{r}");
+    assert_eq!(d[0]["actorIndex"], 1);
+    assert_eq!(d[0]["actorCount"], 2);
     for (i, f) in frames.iter().enumerate() {
         let g = &d[1 + i];
         assert_eq!(g["frame"], f.frame, "{r}");
+        assert_eq!(g["actor"], f.actor, "{r}");
         assert_eq!(g["publishTime"], f.publish_time_s);
         assert_eq!(g["receivedTime"], f.received_time_s);
         assert_eq!(g["states"], serde_json::json!(f.marker_states));

@@ -109,6 +109,9 @@ fn packets() -> Vec<(&'static str, Vec<u8>)> {
                     triangle_count: 1,
                 },
             ],
+            actor: "Ann".into(),
+            actor_index: 1,
+            actor_count: 2,
         },
         &mut stream,
     );
@@ -117,6 +120,7 @@ fn packets() -> Vec<(&'static str, Vec<u8>)> {
     vertex_stream::encode_frame(
         &FrameView {
             frame: 9,
+            actor: 1,
             source_time_s: 1.0,
             publish_time_s: 2.0,
             status: FrameStatus {

@@ -283,3 +283,52 @@ fn errors_are_said_once() {
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
     assert!(err.contains("take.c3d"), "{err}");
 }
+
+/// `demo --actors 2`: the reference client gets both actors' topologies (Ann 0 and Bob 1
+/// of 2, each the 10,116-vertex body) and frames of each, every frame checked against
+/// its own actor's topology; Bob, who walks in late, ends metres from where Ann does.
+#[test]
+fn python_client_reads_every_actor_of_a_two_actor_stage() {
+    let demo = Daemon::start(&[
+        "demo",
+        "--actors",
+        "2",
+        "--seconds",
+        "4",
+        "--stream",
+        "127.0.0.1:0",
+        "--viewer",
+        "off",
+    ]);
+    let addr = demo.addr.clone();
+    let s = &client_summary(&addr, &["--timeout", "20"]);
+    let (ok, lines) = demo.finish();
+    assert!(ok, "demo failed: {lines:?}");
+    assert_eq!(s["goodbye"], "time limit reached", "{s}");
+    for k in [
+        "frame_numbers_increasing",
+        "vertex_count_matches",
+        "marker_count_matches",
+        "joint_count_matches",
+        "all_finite",
+    ] {
+        assert_eq!(s[k], true, "{k}: {s}");
+    }
+    let actors = s["actors"].as_array().unwrap();
+    assert_eq!(actors.len(), 2, "{s}");
+    for (i, (a, name)) in actors.iter().zip(["Ann", "Bob"]).enumerate() {
+        assert_eq!(a["name"], name, "{s}");
+        assert_eq!(a["index"], i, "{s}");
+        assert_eq!(a["vertex_count"], 10116, "{s}");
+        // 4 s at 120 Hz each; the client joins a little late and may skip a few.
+        let frames = a["frames"].as_u64().unwrap();
+        assert!((240..=481).contains(&frames), "{name}: {frames} frames: {s}");
+    }
+    // Each actor's own frames, not the other's: their paths differ by metres along z
+    // (Ann walks from z ≈ 1 m, Bob from z ≈ 8 m back towards her).
+    let z = |a: &serde_json::Value, k: &str| a[k][2].as_f64().unwrap();
+    assert!(
+        (z(&actors[1], "bbox_max") - z(&actors[0], "bbox_max")).abs() > 1.0,
+        "{s}"
+    );
+}

@@ -30,7 +30,7 @@ for chunk in reader.stream():
     batch = chunk.to_record_batch()
     for name in batch.schema.names:
         col = None
-        if path == "/character/markers" and name.endswith("Points3D:positions"):
+        if path.startswith("/character/") and path.endswith("/markers") and name.endswith("Points3D:positions"):
             col = batch.column(name).to_pylist()
             markers = max([markers] + [len(v or []) for v in col])
         if path == "/solver/iterations" and name.endswith("Scalars:scalars"):
@@ -382,4 +382,52 @@ fn replay_solves_a_recording_into_rerun() {
     assert_eq!(rows("/character/markers"), logged, "{v}");
     assert_eq!(v["markers"], 8, "{v}");
     assert!(rows("/inputs/0_replay/packet_rate_hz") >= 5, "{v}");
+}
+
+/// The two-actor demo logs each actor under its own paths (`character/Ann/...`,
+/// `solver/Bob/...`), each with its own 36 markers, and nothing under the one-actor
+/// paths; the frames logged are both actors' (each frame one actor's).
+#[test]
+fn two_actors_log_under_their_own_paths() {
+    if !rerun_sdk() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rrd = dir.path().join("two.rrd");
+    let (_, logged) = run_rigless(&[
+        "demo",
+        "--actors",
+        "2",
+        "--seconds",
+        "2",
+        "--stream",
+        "127.0.0.1:0",
+        "--viewer",
+        "off",
+        "--rerun",
+        &format!("save={}", rrd.display()),
+    ]);
+    let v = read_back(&rrd);
+    let rows = |p: &str| v["rows"][p].as_u64().unwrap_or(0);
+    let mut each = 0;
+    for actor in ["Ann", "Bob"] {
+        // Each actor's frames: its mesh (plus the static triangles), markers, skeleton
+        // and series, row for row; 2 s at 120 Hz, less what the sink skipped.
+        let meshes = rows(&format!("/character/{actor}/mesh")) - 1;
+        assert!(meshes >= 60, "{actor}: {v}");
+        for path in ["markers", "skeleton"] {
+            assert_eq!(rows(&format!("/character/{actor}/{path}")), meshes, "{v}");
+        }
+        for path in ["solver/{a}/solve_ms", "markers/{a}/measured"] {
+            let path = format!("/{}", path.replace("{a}", actor));
+            assert_eq!(rows(&path), meshes, "{path}: {v}");
+        }
+        each += meshes;
+    }
+    assert_eq!(each, logged, "{v}");
+    // The body's 36 markers in an actor's row, never both actors' 72 in one.
+    assert_eq!(v["markers"], 36, "{v}");
+    for path in ["/character/mesh", "/character/markers", "/solver/solve_ms"] {
+        assert_eq!(rows(path), 0, "{path}: {v}");
+    }
 }

@@ -61,8 +61,8 @@ fn tcp_and_websocket_clients_get_the_solver_output_exactly() {
             websocket: Some(loopback),
             ..StreamOutputConfig::default()
         },
-        &Scene::of_rig(&rig, "hand", 120.0).topology(),
-        slot,
+        &[Scene::of_rig(&rig, "hand", 120.0).topology()],
+        vec![slot],
     )
     .unwrap();
     let (tcp_addr, ws_addr) = (server.local_addr().unwrap(), server.ws_addr().unwrap());
@@ -278,8 +278,8 @@ fn the_websocket_port_serves_the_viewer_page() {
                 viewer,
                 ..StreamOutputConfig::default()
             },
-            &common::tiny_topology(),
-            Arc::clone(&slot),
+            &[common::tiny_topology()],
+            vec![Arc::clone(&slot)],
         )
         .unwrap();
         let addr = server.ws_addr().unwrap();

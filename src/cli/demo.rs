@@ -9,12 +9,18 @@ use std::net::SocketAddr;
 
 #[derive(clap::Args)]
 pub struct DemoArgs {
-    /// Which procedural character: the hand (8 markers) or the body (36 markers).
-    #[arg(long, value_enum, default_value_t = DemoCharacter::Hand)]
-    character: DemoCharacter,
-    /// The body's motion (the hand always plays its finger play).
-    #[arg(long, value_enum, default_value_t = DemoMotion::Walk)]
-    motion: DemoMotion,
+    /// Which procedural character: the hand (8 markers, the default) or the body (36
+    /// markers).
+    #[arg(long, value_enum)]
+    character: Option<DemoCharacter>,
+    /// The body's motion (default: walk; the hand always plays its finger play).
+    #[arg(long, value_enum)]
+    motion: Option<DemoMotion>,
+    /// How many performers: 1, or 2 for the bundled two-actor session (two bodies,
+    /// `Ann:` and `Bob:` labels; Bob walks in 1.5 s late and passes 0.4 m from Ann),
+    /// each driving its own body on the stream, the viewer and Rerun.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    actors: u8,
     /// Stop after this many seconds (default: at the end of the session).
     #[arg(long)]
     seconds: Option<f64>,
@@ -42,7 +48,15 @@ pub struct DemoArgs {
     json: bool,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
+/// The cast of the two-actor session (as `stages/two-actors.toml`).
+const TWO_BODIES: &str = "[[actors]]\nname = \"Ann\"\nprocedural = \"body\"\nsubject = \"Ann\"\n\n[[actors]]\nname = \"Bob\"\nprocedural = \"body\"\nsubject = \"Bob\"\n";
+
+/// A stage of one procedural character.
+fn one(procedural: &str) -> String {
+    format!("[character]\nprocedural = \"{procedural}\"\n")
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
 enum DemoCharacter {
     Hand,
     Body,
@@ -58,15 +72,21 @@ enum DemoMotion {
 
 pub fn run(a: DemoArgs) -> Result<()> {
     check_seconds(a.seconds)?;
-    let (procedural, session) = match (a.character, a.motion) {
-        (DemoCharacter::Hand, _) => ("hand", "hand_finger_play"),
-        (DemoCharacter::Body, DemoMotion::Walk) => ("body", "body_walk"),
-        (DemoCharacter::Body, DemoMotion::Reach) => ("body", "body_reach"),
-        (DemoCharacter::Body, DemoMotion::Rom) => ("body", "body_rom"),
+    let motion = a.motion.unwrap_or(DemoMotion::Walk);
+    let (cast, session) = match (a.actors, a.character.unwrap_or(DemoCharacter::Hand), motion) {
+        (2, DemoCharacter::Hand, _) if a.character.is_some() => {
+            anyhow::bail!("--actors 2 plays two bodies: leave out --character hand")
+        }
+        (2, _, DemoMotion::Walk) => (TWO_BODIES.to_owned(), "body_two_actors"),
+        (2, _, _) => anyhow::bail!("--actors 2 plays a walk: leave out --motion"),
+        (_, DemoCharacter::Hand, _) => (one("hand"), "hand_finger_play"),
+        (_, DemoCharacter::Body, DemoMotion::Walk) => (one("body"), "body_walk"),
+        (_, DemoCharacter::Body, DemoMotion::Reach) => (one("body"), "body_reach"),
+        (_, DemoCharacter::Body, DemoMotion::Rom) => (one("body"), "body_rom"),
     };
     // The embedded default stage, with the flags applied; validated like a file.
     let text = format!(
-        "[character]\nprocedural = \"{procedural}\"\n\n[[inputs]]\ntype = \"replay\"\nsession = \"{session}\"\nspeed = {:?}\nloop = {}\n\n[outputs.stream]\ntcp = \"{}\"\n",
+        "{cast}\n[[inputs]]\ntype = \"replay\"\nsession = \"{session}\"\nspeed = {:?}\nloop = {}\n\n[outputs.stream]\ntcp = \"{}\"\n",
         a.speed, a.looping, a.stream
     );
     let cfg = rigless::config::parse_stage(&text, "demo flags")?;

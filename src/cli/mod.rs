@@ -314,11 +314,10 @@ fn print_started(stage: &Stage, viewer: bool, json: bool) {
                 );
             }
             println!(
-                "{} actors on {} solver thread{}; the vertex stream and Rerun carry the first, {}",
+                "{} actors on {} solver thread{}; the vertex stream, the viewer and Rerun carry them all",
                 i.actors.len(),
                 i.solver_threads,
                 if i.solver_threads == 1 { "" } else { "s" },
-                i.actors[0].name
             );
         }
         if let Some(c) = &i.calibration {

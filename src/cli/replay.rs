@@ -90,7 +90,7 @@ pub struct ReplayArgs {
     /// With --solve (live, not --export): drive one actor per performer of the take,
     /// each the same character: every subject with at least 3 labels matching its
     /// markers (a prop's few markers are not a performer). The status lines and the
-    /// summary report each; the vertex stream, viewer and Rerun carry the first.
+    /// summary report each; the vertex stream, viewer and Rerun carry them all.
     #[arg(long, requires = "solve", conflicts_with_all = ["subject", "export"])]
     actors: bool,
     /// With --solve: solve every frame off line, as fast as the machine goes (no

@@ -298,6 +298,8 @@ pub struct Pipeline {
     /// its full channel had no room for.
     frame_log: Option<Sender<Arc<DeformedFrame>>>,
     frames_unlogged: u64,
+    /// The actor's index on the stage, stamped on every frame ([`Self::as_actor`]).
+    actor: u8,
 }
 
 impl Pipeline {
@@ -345,6 +347,7 @@ impl Pipeline {
             others: Vec::new(),
             frame_log: None,
             frames_unlogged: 0,
+            actor: 0,
         }
     }
 
@@ -448,6 +451,12 @@ impl Pipeline {
     /// drops it): an in-process reader that must see every frame (tests, benchmarks).
     pub fn with_frame_log(mut self, tx: Sender<Arc<DeformedFrame>>) -> Self {
         self.frame_log = Some(tx);
+        self
+    }
+
+    /// Stamps every frame as actor `index`'s (its index in the stage's config).
+    pub fn as_actor(mut self, index: u8) -> Self {
+        self.actor = index;
         self
     }
 
@@ -630,6 +639,7 @@ impl Pipeline {
         {
             let f = Arc::get_mut(&mut frame).expect("a recycled frame is unshared");
             f.frame = self.frame_no;
+            f.actor = self.actor;
             f.source_time_s = self.markers.source_time_s;
             f.publish_time_s = unix_now();
             // The newest sample's age on the daemon's clock, to the publish time's clock:

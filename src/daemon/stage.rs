@@ -295,7 +295,8 @@ struct RunningRerun {
     thread: JoinHandle<()>,
     stop: Arc<AtomicBool>,
     stats: Arc<RerunStats>,
-    slot: Arc<LatestSlot<DeformedFrame>>,
+    /// Each actor's slot.
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
 }
 
 /// A bound character: the rig, its name, and the procedural character if it is one.
@@ -434,6 +435,21 @@ struct Actors {
     calibration: Option<LiveCalibration>,
 }
 
+impl Actors {
+    /// What every sink knows of each actor before the first frame.
+    fn scenes(&self, rate_hz: f64) -> Vec<Scene> {
+        let count = self.bound.len() as u8;
+        (self.bound.iter().zip(&self.solvers).zip(&self.infos))
+            .enumerate()
+            .map(|(i, ((b, solver), info))| {
+                Scene::of_rig(&b.rig, &b.name, rate_hz)
+                    .with_tied(solver.harmonic_tied())
+                    .for_actor(&info.name, i as u8, count)
+            })
+            .collect()
+    }
+}
+
 /// Binds every actor of the stage and sets up its solver.
 fn bind_actors(
     cfg: &StageConfig,
@@ -526,8 +542,8 @@ type ActorWiring = (
 );
 
 /// Each actor's pipeline and the sending end of its channel; the glove's pin slot (the
-/// first actor's). The stream and Rerun carry the first actor; an in-process reader
-/// may take any. On a stage of several actors each gates samples by identity, sharing
+/// first actor's). The stream and Rerun carry every actor; the in-process reader of
+/// `opts.frames` the first, those of `opts.actor_frames` any. On a stage of several actors each gates samples by identity, sharing
 /// its fitted markers with the others on a board.
 fn actor_pipelines(
     cfg: &StageConfig,
@@ -543,17 +559,15 @@ fn actor_pipelines(
     let board = Arc::new(ActorBoard::new(&markers));
     for (i, solver) in solvers.into_iter().enumerate() {
         let (tx, rx) = crossbeam_channel::bounded(cfg.solver.channel_capacity);
-        let mut slots = if i == 0 {
-            sinks.slots.clone()
-        } else {
-            Vec::new()
-        };
+        let mut slots = sinks.slots[i].clone();
         slots.extend(opts.actor_frames.get(i).cloned());
-        let rerun_on = i == 0 && sinks.rerun_target != RerunTarget::Off;
+        let rerun_on = sinks.rerun_target != RerunTarget::Off;
         let (pipeline, p) = assemble(cfg, solver, rx, slots, rerun_on, i == 0);
         pins = pins.or(p);
         txs.push(tx);
-        let mut pipeline = pipeline.with_marker_scale(actors.bound[i].marker_scale);
+        let mut pipeline = pipeline
+            .with_marker_scale(actors.bound[i].marker_scale)
+            .as_actor(i as u8);
         if let Some(tx) = opts.frame_logs.get(i) {
             pipeline = pipeline.with_frame_log(tx.clone());
         }
@@ -702,10 +716,8 @@ impl Stage {
             opts.progress.as_deref_mut().unwrap_or(&mut |_, _| {}),
         )?;
         let bind_s = t0.elapsed().as_secs_f64();
-        let first = &actors.bound[0];
-        let scene = Scene::of_rig(&first.rig, &first.name, cfg.solver.rate_hz)
-            .with_tied(actors.solvers[0].harmonic_tied());
-        let sinks = Sinks::start(cfg, base_dir, &scene, opts.frames.take(), opts.rerun.take())?;
+        let scenes = actors.scenes(cfg.solver.rate_hz);
+        let sinks = Sinks::start(cfg, base_dir, &scenes, opts.frames.take(), opts.rerun.take())?;
         let solvers = std::mem::take(&mut actors.solvers);
         let (txs, mut pipelines, pins) = actor_pipelines(cfg, solvers, &actors, &sinks, &opts);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {
@@ -742,9 +754,9 @@ impl Stage {
         let rerun = start_rerun(
             cfg,
             &sinks.rerun_target,
-            scene,
+            scenes,
             &infos,
-            Arc::clone(&sinks.rerun_slot),
+            sinks.rerun_slots.clone(),
         )?;
         // Everything is open: the clock starts the inputs and the loop a moment from now.
         let start_s = clock.now_s() + START_DELAY_S;
@@ -947,7 +959,7 @@ impl Stage {
                 match r.thread.join() {
                     Ok(()) => Ok(Some(RerunSummary {
                         frames_logged: r.stats.frames_logged.load(Ordering::Relaxed),
-                        frames_skipped: r.slot.dropped(),
+                        frames_skipped: r.slots.iter().map(|s| s.dropped()).sum(),
                         log_errors: r.stats.log_errors.load(Ordering::Relaxed),
                     })),
                     Err(_) => Err(StageError::Panicked { thread: "rerun" }),
@@ -1018,64 +1030,68 @@ impl InputInfo {
     }
 }
 
-/// Where frames go: the vertex stream's server, Rerun's slot (used when its target is
-/// not off), an in-process reader's slot.
+/// Where frames go: the vertex stream's server, Rerun's slots (used when its target is
+/// not off), an in-process reader's slot; each actor's in `slots`.
 struct Sinks {
     server: Option<StreamServer>,
-    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
+    /// Each actor's slots: the stream's, Rerun's, and the reader's (the first actor's).
+    slots: Vec<Vec<Arc<LatestSlot<DeformedFrame>>>>,
     rerun_target: RerunTarget,
     rerun_note: Option<String>,
-    rerun_slot: Arc<LatestSlot<DeformedFrame>>,
+    /// Each actor's slot for Rerun.
+    rerun_slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
 }
 
 impl Sinks {
-    /// Starts the stream server (when the config has an address) and decides the Rerun
-    /// target.
+    /// Starts the stream server (when the config has an address) with every actor of
+    /// `scenes`, and decides the Rerun target.
     fn start(
         cfg: &StageConfig,
         base_dir: &Path,
-        scene: &Scene,
+        scenes: &[Scene],
         reader: Option<Arc<LatestSlot<DeformedFrame>>>,
         rerun: Option<RerunTarget>,
     ) -> Result<Self, StageError> {
-        let stream_slot = Arc::new(LatestSlot::new());
+        let fresh = || -> Vec<Arc<LatestSlot<DeformedFrame>>> {
+            scenes.iter().map(|_| Arc::new(LatestSlot::new())).collect()
+        };
+        let stream_slots = fresh();
         let (tcp, ws) = (cfg.outputs.stream.tcp, cfg.outputs.stream.websocket);
         let server = if tcp.is_some() || ws.is_some() {
+            let topologies: Vec<_> = scenes.iter().map(Scene::topology).collect();
             Some(
-                StreamServer::start(
-                    &cfg.outputs.stream,
-                    &scene.topology(),
-                    Arc::clone(&stream_slot),
-                )
-                .map_err(|source| StageError::Stream {
-                    addresses: [tcp, ws]
-                        .iter()
-                        .flatten()
-                        .map(ToString::to_string)
-                        .collect::<Vec<_>>()
-                        .join(" and "),
-                    source,
-                })?,
+                StreamServer::start(&cfg.outputs.stream, &topologies, stream_slots.clone())
+                    .map_err(|source| StageError::Stream {
+                        addresses: [tcp, ws]
+                            .iter()
+                            .flatten()
+                            .map(ToString::to_string)
+                            .collect::<Vec<_>>()
+                            .join(" and "),
+                        source,
+                    })?,
             )
         } else {
             None
         };
         let (rerun_target, rerun_note) = usable_rerun_target(
             rerun.unwrap_or_else(|| cfg.outputs.rerun.target(base_dir)),
-            base_dir.join(format!("rigless-{}.rrd", scene.character)),
+            base_dir.join(format!("rigless-{}.rrd", scenes[0].character)),
         );
-        let rerun_slot = Arc::new(LatestSlot::new());
-        let mut slots = vec![stream_slot];
+        let rerun_slots = fresh();
+        let mut slots: Vec<Vec<_>> = stream_slots.into_iter().map(|s| vec![s]).collect();
         if rerun_target != RerunTarget::Off {
-            slots.push(Arc::clone(&rerun_slot));
+            for (s, r) in slots.iter_mut().zip(&rerun_slots) {
+                s.push(Arc::clone(r));
+            }
         }
-        slots.extend(reader);
+        slots[0].extend(reader);
         Ok(Self {
             server,
             slots,
             rerun_target,
             rerun_note,
-            rerun_slot,
+            rerun_slots,
         })
     }
 }
@@ -1209,9 +1225,9 @@ fn start_recorder(
 fn start_rerun(
     cfg: &StageConfig,
     target: &RerunTarget,
-    scene: Scene,
+    scenes: Vec<Scene>,
     infos: &[InputInfo],
-    slot: Arc<LatestSlot<DeformedFrame>>,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
 ) -> Result<Option<RunningRerun>, StageError> {
     let stop = Arc::new(AtomicBool::new(false));
     let stats = Arc::new(RerunStats::default());
@@ -1228,9 +1244,9 @@ fn start_rerun(
             control_mesh: r.control_mesh,
             harmonic_field: r.harmonic_field,
         },
-        scene,
+        scenes,
         series,
-        Arc::clone(&slot),
+        slots.clone(),
         Arc::clone(&stop),
         Arc::clone(&stats),
     )?;
@@ -1238,6 +1254,6 @@ fn start_rerun(
         thread,
         stop,
         stats,
-        slot,
+        slots,
     }))
 }

@@ -12,6 +12,8 @@ use glam::Vec3;
 pub struct DeformedFrame {
     /// Frame number, counting solver ticks from 0.
     pub frame: u64,
+    /// The actor solved: its index in the stage's config (0 on a stage of one).
+    pub actor: u8,
     /// The markers' source time, seconds.
     pub source_time_s: f64,
     /// When the newest marker sample this frame used reached the daemon, seconds since
@@ -69,6 +71,7 @@ impl DeformedFrame {
     pub fn with_sizes(markers: usize, vertices: usize, convergence: usize) -> Self {
         Self {
             frame: 0,
+            actor: 0,
             source_time_s: 0.0,
             received_time_s: 0.0,
             publish_time_s: 0.0,
@@ -90,6 +93,7 @@ impl DeformedFrame {
     pub fn wire(&self) -> FrameView<'_> {
         FrameView {
             frame: self.frame,
+            actor: self.actor,
             source_time_s: self.source_time_s,
             publish_time_s: self.publish_time_s,
             status: self.status,

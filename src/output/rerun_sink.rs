@@ -32,6 +32,11 @@
 //!   [`InputWindowPoint`]s); each point at the frame that closed its window, so frames the
 //!   sink skips lose none.
 //!
+//! A stage of several actors logs each under its own paths: `character/NAME/mesh`,
+//! `character/NAME/markers`, ..., `solver/NAME/*` and `markers/NAME/*` (`NAME` the
+//! actor's name, any character outside `A-Z a-z 0-9 _ -` as `_`); the inputs' series
+//! stay as they are.
+//!
 //! A default blueprint lays out the 3D view beside the plots (see [`blueprint`]).
 //!
 //! World frame: metres, Y up (`ViewCoordinates::RIGHT_HAND_Y_UP` on `character`).
@@ -130,12 +135,19 @@ fn joint_color(j: u32) -> ::rerun::Color {
 
 /// The default layout: the 3D view (mesh, markers, skeleton) on the left; on the right,
 /// tabs of plots: the solver's figures, the convergence of each frame (on the
-/// `iteration` timeline), markers by fill state, and the inputs.
-pub fn blueprint() -> ::rerun::blueprint::Blueprint {
+/// `iteration` timeline), markers by fill state, and the inputs. `solvers` are the
+/// actors' solver series bases (`solver`, or `solver/NAME` each on a stage of several).
+pub fn blueprint(solvers: &[String]) -> ::rerun::blueprint::Blueprint {
     use ::rerun::blueprint::{
         Blueprint, Horizontal, Spatial3DView, Tabs, TimeSeriesView, Vertical,
     };
     let plots = |name: &str, origin: &str| TimeSeriesView::new(name).with_origin(origin).into();
+    let of = |names: &[&str]| -> Vec<String> {
+        solvers
+            .iter()
+            .flat_map(|b| names.iter().map(move |n| format!("{b}/{n}")))
+            .collect()
+    };
     Blueprint::new(Horizontal::new([
         Spatial3DView::new("character")
             .with_origin("character")
@@ -144,18 +156,18 @@ pub fn blueprint() -> ::rerun::blueprint::Blueprint {
             Tabs::new([
                 TimeSeriesView::new("timing")
                     .with_origin("solver")
-                    .with_contents(["solver/solve_ms", "solver/gc_ms", "solver/iterations"])
+                    .with_contents(of(&["solve_ms", "gc_ms", "iterations"]))
                     .into(),
                 TimeSeriesView::new("quality")
                     .with_origin("solver")
-                    .with_contents([
-                        "solver/rrms",
-                        "solver/bone_length_error",
-                        "solver/joint_limit_violation_deg",
-                        "solver/marker_residual_rms_mm",
-                        "solver/volume_error",
-                        "solver/untangle_projections",
-                    ])
+                    .with_contents(of(&[
+                        "rrms",
+                        "bone_length_error",
+                        "joint_limit_violation_deg",
+                        "marker_residual_rms_mm",
+                        "volume_error",
+                        "untangle_projections",
+                    ]))
                     .into(),
             ])
             .into(),
@@ -209,12 +221,16 @@ fn fill_color(s: FillState) -> [u8; 4] {
 }
 
 /// Opens the recording for `target` (not [`RerunTarget::Off`]).
-fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStream, RerunError> {
+fn open(
+    target: &RerunTarget,
+    character: &str,
+    solvers: &[String],
+) -> Result<::rerun::RecordingStream, RerunError> {
     // The application id must be static; the character names the recording. The
     // blueprint is the default: a layout the user changed in the viewer stays.
     let b = ::rerun::RecordingStreamBuilder::new("rigless")
         .recording_name(character)
-        .with_default_blueprint(blueprint());
+        .with_default_blueprint(blueprint(solvers));
     Ok(match target {
         RerunTarget::Off | RerunTarget::Spawn => b.spawn()?,
         RerunTarget::Connect(a) => {
@@ -229,16 +245,18 @@ fn open(target: &RerunTarget, character: &str) -> Result<::rerun::RecordingStrea
     })
 }
 
-/// Starts the sink thread: it takes frames from `slot` until `stop` is set, then logs
-/// the last one and flushes. Returns `None` for [`RerunTarget::Off`].
+/// Starts the sink thread: it takes each actor's frames from its `slots[i]` (one per
+/// scene of `scenes`, in the stage's order) until `stop` is set, then logs the last ones
+/// and flushes. Returns `None` for [`RerunTarget::Off`].
 pub fn start(
     opts: &RerunOptions,
-    scene: Scene,
+    scenes: Vec<Scene>,
     inputs: Vec<String>,
-    slot: Arc<LatestSlot<DeformedFrame>>,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
     stop: Arc<AtomicBool>,
     stats: Arc<RerunStats>,
 ) -> Result<Option<std::thread::JoinHandle<()>>, RerunError> {
+    assert_eq!(scenes.len(), slots.len(), "a slot per actor");
     if opts.target == RerunTarget::Off {
         return Ok(None);
     }
@@ -255,7 +273,9 @@ pub fn start(
         .spawn(move || {
             lower_thread_priority();
             // `start` waits for this answer, so its receiver is there to take it.
-            let rec = match open(&opts.target, &scene.character) {
+            let actors: Vec<ActorLog> = scenes.into_iter().map(ActorLog::new).collect();
+            let solvers: Vec<String> = actors.iter().map(|a| a.solver.clone()).collect();
+            let rec = match open(&opts.target, &actors[0].scene.character, &solvers) {
                 Ok(rec) => {
                     opened_tx.send(Ok(())).expect("start waits for the answer");
                     rec
@@ -265,16 +285,21 @@ pub fn start(
                     return;
                 }
             };
-            let mut logger = Logger::new(rec, scene, &opts, inputs, Arc::clone(&stats));
+            let mut logger = Logger::new(rec, actors, &opts, inputs, Arc::clone(&stats));
             loop {
                 let stopping = stop.load(Ordering::Relaxed);
-                match slot.take() {
-                    Some(f) => {
+                let mut logged = false;
+                for slot in &slots {
+                    if let Some(f) = slot.take() {
                         logger.log(&f);
                         stats.frames_logged.fetch_add(1, Ordering::Relaxed);
+                        logged = true;
                     }
-                    None if stopping => break,
-                    None => std::thread::sleep(std::time::Duration::from_millis(1)),
+                }
+                match logged {
+                    true => {}
+                    false if stopping => break,
+                    false => std::thread::sleep(std::time::Duration::from_millis(1)),
                 }
             }
             logger.finish();
@@ -310,16 +335,99 @@ fn lower_thread_priority() {
 struct Logger {
     rec: ::rerun::RecordingStream,
     stats: Arc<RerunStats>,
-    scene: Scene,
+    /// Each actor's paths and state, by its index on the stage.
+    actors: Vec<ActorLog>,
     mesh_every: u64,
     control_mesh: bool,
     harmonic_field: bool,
-    /// The markers' names as Rerun text (shared buffers: a clone does not copy).
-    labels: Vec<::rerun::components::Text>,
     inputs: Vec<InputSeries>,
     first_time_s: Option<f64>,
+}
+
+/// The solver's series, under each actor's `solver` base.
+const SOLVER_SERIES: [&str; 8] = [
+    "iterations",
+    "solve_ms",
+    "gc_ms",
+    "rrms",
+    "bone_length_error",
+    "joint_limit_violation_deg",
+    "marker_residual_rms_mm",
+    "untangle_projections",
+];
+
+/// One actor's entity paths (built once) and what its frames are drawn with.
+struct ActorLog {
+    scene: Scene,
+    /// `solver` or `solver/NAME`.
+    solver: String,
+    mesh: String,
+    markers: String,
+    skeleton: String,
+    control_mesh: String,
+    correspondences: String,
+    volume_error: String,
+    convergence: String,
+    /// [`SOLVER_SERIES`] under `solver`.
+    series: Vec<String>,
+    /// `markers/STATE` (or `markers/NAME/STATE`) for each fill state.
+    states: Vec<String>,
+    /// The markers' names as Rerun text (shared buffers: a clone does not copy).
+    labels: Vec<::rerun::components::Text>,
     strips: Vec<Vec<[f32; 3]>>,
     strip_colors: Vec<::rerun::Color>,
+}
+
+/// An actor's name as one entity path part: `A-Z a-z 0-9 _ -` kept, anything else `_`.
+fn path_part(name: &str) -> String {
+    name.chars()
+        .map(|c| match c {
+            'A'..='Z' | 'a'..='z' | '0'..='9' | '_' | '-' => c,
+            _ => '_',
+        })
+        .collect()
+}
+
+impl ActorLog {
+    fn new(scene: Scene) -> Self {
+        let (base, solver, markers_base) = if scene.actor_count > 1 {
+            let n = path_part(&scene.actor);
+            (
+                format!("character/{n}"),
+                format!("solver/{n}"),
+                format!("markers/{n}"),
+            )
+        } else {
+            ("character".into(), "solver".into(), "markers".into())
+        };
+        let labels = scene
+            .marker_names
+            .iter()
+            .map(|n| ::rerun::components::Text::from(n.as_str()))
+            .collect();
+        Self {
+            mesh: format!("{base}/mesh"),
+            markers: format!("{base}/markers"),
+            skeleton: format!("{base}/skeleton"),
+            control_mesh: format!("{base}/control_mesh"),
+            correspondences: format!("{base}/correspondences"),
+            volume_error: format!("{solver}/volume_error"),
+            convergence: format!("{solver}/convergence"),
+            series: SOLVER_SERIES
+                .iter()
+                .map(|n| format!("{solver}/{n}"))
+                .collect(),
+            states: FillState::ALL
+                .iter()
+                .map(|st| format!("{markers_base}/{}", st.name()))
+                .collect(),
+            labels,
+            strips: Vec::new(),
+            strip_colors: Vec::new(),
+            scene,
+            solver,
+        }
+    }
 }
 
 /// An input's plotted series: its entity path and the last window logged.
@@ -358,51 +466,128 @@ impl InputSeries {
     }
 }
 
+/// Logs actor `a`'s mesh of frame `f`, with the harmonic field as its colours and the
+/// control mesh when `(harmonic_field, control_mesh)` ask for them and the frame has them.
+fn log_mesh(
+    rec: &::rerun::RecordingStream,
+    stats: &RerunStats,
+    a: &ActorLog,
+    f: &DeformedFrame,
+    (harmonic_field, control_mesh): (bool, bool),
+) {
+    let mut mesh = ::rerun::Mesh3D::update_fields()
+        .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array()));
+    // The harmonic method's field as the vertices' colours.
+    let field = harmonic_field && !a.scene.tied.is_empty() && f.field_deg.len() == f.vertices_m.len();
+    if field {
+        mesh = mesh.with_vertex_colors(f.field_deg.iter().map(|a| field_color(*a)));
+    }
+    stats.check(rec.log(a.mesh.as_str(), &mesh));
+    if field {
+        stats.check(
+            rec.log(
+                a.correspondences.as_str(),
+                &::rerun::Points3D::update_fields().with_positions(
+                    a.scene
+                        .tied
+                        .iter()
+                        .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
+                        .map(|p| p.to_array()),
+                ),
+            ),
+        );
+    }
+    if control_mesh && !f.control_m.is_empty() {
+        let p = &f.control_m;
+        stats.check(
+            rec.log(
+                a.control_mesh.as_str(),
+                &::rerun::LineStrips3D::new(
+                    a.scene
+                        .control_edges
+                        .iter()
+                        .map(|&[i, j]| [p[i as usize].to_array(), p[j as usize].to_array()]),
+                )
+                .with_radii([::rerun::Radius::new_ui_points(0.5)])
+                .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
+            ),
+        );
+    }
+}
+
+/// Logs actor `a`'s fitted skeleton of frame `f`: one strip per bone, red where its
+/// parent joint exceeds its limits by more than 0.5° (the quality target) on the solved
+/// mesh.
+fn log_skeleton(
+    rec: &::rerun::RecordingStream,
+    stats: &RerunStats,
+    a: &mut ActorLog,
+    f: &DeformedFrame,
+) {
+    a.strips.clear();
+    a.strip_colors.clear();
+    for (j, parent) in a.scene.joint_parents.iter().enumerate() {
+        let Some(p) = *parent else { continue };
+        if let (Some(x), Some(y)) = (f.joints_m.get(p), f.joints_m.get(j)) {
+            a.strips.push(vec![x.to_array(), y.to_array()]);
+            let over = f.joint_limit_excess_deg.get(p).is_some_and(|e| *e > 0.5);
+            a.strip_colors.push(if over {
+                ::rerun::Color::from_rgb(230, 60, 60)
+            } else {
+                ::rerun::Color::from_rgb(200, 200, 200)
+            });
+        }
+    }
+    stats.check(
+        rec.log(
+            a.skeleton.as_str(),
+            &::rerun::LineStrips3D::new(a.strips.iter().cloned())
+                .with_colors(a.strip_colors.iter().copied()),
+        ),
+    );
+}
+
 impl Logger {
     fn new(
         rec: ::rerun::RecordingStream,
-        scene: Scene,
+        actors: Vec<ActorLog>,
         opts: &RerunOptions,
         inputs: Vec<String>,
         stats: Arc<RerunStats>,
     ) -> Self {
         stats.check(rec.log_static("character", &::rerun::ViewCoordinates::RIGHT_HAND_Y_UP()));
-        // The triangles never change: logged once, static; frames carry positions only.
-        stats.check(
-            rec.log_static(
-                "character/mesh",
-                &::rerun::Mesh3D::update_fields().with_triangle_indices(
-                    scene
-                        .triangles
-                        .iter()
-                        .map(|t| ::rerun::components::TriangleIndices::from(*t)),
-                ),
-            ),
-        );
-        if opts.harmonic_field && !scene.tied.is_empty() {
+        for a in &actors {
+            let scene = &a.scene;
+            // The triangles never change: logged once, static; frames carry positions.
             stats.check(
                 rec.log_static(
-                    "character/correspondences",
-                    &::rerun::Points3D::update_fields()
-                        .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
-                        .with_radii([::rerun::Radius::new_ui_points(2.0)]),
+                    a.mesh.as_str(),
+                    &::rerun::Mesh3D::update_fields().with_triangle_indices(
+                        scene
+                            .triangles
+                            .iter()
+                            .map(|t| ::rerun::components::TriangleIndices::from(*t)),
+                    ),
                 ),
             );
+            if opts.harmonic_field && !scene.tied.is_empty() {
+                stats.check(
+                    rec.log_static(
+                        a.correspondences.as_str(),
+                        &::rerun::Points3D::update_fields()
+                            .with_colors(scene.tied.iter().map(|&(_, j)| joint_color(j)))
+                            .with_radii([::rerun::Radius::new_ui_points(2.0)]),
+                    ),
+                );
+            }
         }
-        let harmonic_field = opts.harmonic_field && !scene.tied.is_empty();
-        let labels = scene
-            .marker_names
-            .iter()
-            .map(|n| ::rerun::components::Text::from(n.as_str()))
-            .collect();
         Self {
-            labels,
             rec,
             stats,
-            scene,
+            actors,
             mesh_every: opts.mesh_every,
             control_mesh: opts.control_mesh,
-            harmonic_field,
+            harmonic_field: opts.harmonic_field,
             inputs: inputs
                 .into_iter()
                 .map(|name| InputSeries {
@@ -411,132 +596,68 @@ impl Logger {
                 })
                 .collect(),
             first_time_s: None,
-            strips: Vec::new(),
-            strip_colors: Vec::new(),
         }
     }
 
     fn log(&mut self, f: &DeformedFrame) {
         let rec = &self.rec;
         let stats = &*self.stats;
+        let Some(a) = self.actors.get_mut(usize::from(f.actor)) else {
+            return;
+        };
         rec.set_time_sequence("frame", f.frame as i64);
         let t0 = *self.first_time_s.get_or_insert(f.publish_time_s);
         rec.set_duration_secs("time", (f.publish_time_s - t0).max(0.0));
         if f.frame.is_multiple_of(self.mesh_every) {
-            let mut mesh = ::rerun::Mesh3D::update_fields()
-                .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array()));
-            // The harmonic method's field as the vertices' colours.
-            let field = self.harmonic_field && f.field_deg.len() == f.vertices_m.len();
-            if field {
-                mesh = mesh.with_vertex_colors(f.field_deg.iter().map(|a| field_color(*a)));
-            }
-            stats.check(rec.log("character/mesh", &mesh));
-            if field {
-                stats.check(
-                    rec.log(
-                        "character/correspondences",
-                        &::rerun::Points3D::update_fields().with_positions(
-                            self.scene
-                                .tied
-                                .iter()
-                                .filter_map(|&(v, _)| f.vertices_m.get(v as usize))
-                                .map(|p| p.to_array()),
-                        ),
-                    ),
-                );
-            }
-            if self.control_mesh && !f.control_m.is_empty() {
-                let p = &f.control_m;
-                stats.check(
-                    rec.log(
-                        "character/control_mesh",
-                        &::rerun::LineStrips3D::new(
-                            self.scene.control_edges.iter().map(|&[a, b]| {
-                                [p[a as usize].to_array(), p[b as usize].to_array()]
-                            }),
-                        )
-                        .with_radii([::rerun::Radius::new_ui_points(0.5)])
-                        .with_colors([::rerun::Color::from_unmultiplied_rgba(120, 160, 220, 90)]),
-                    ),
-                );
-            }
+            let opts = (self.harmonic_field, self.control_mesh);
+            log_mesh(rec, stats, a, f, opts);
         }
         let present: Vec<usize> = (0..f.markers_m.len())
             .filter(|&k| f.markers_m[k].is_finite())
             .collect();
         stats.check(
             rec.log(
-                "character/markers",
+                a.markers.as_str(),
                 &::rerun::Points3D::new(present.iter().map(|&k| f.markers_m[k].to_array()))
                     .with_colors(present.iter().map(|&k| {
                         let [r, g, b, a] = fill_color(f.marker_states[k]);
                         ::rerun::Color::from_unmultiplied_rgba(r, g, b, a)
                     }))
-                    .with_labels(present.iter().map(|&k| self.labels[k].clone()))
+                    .with_labels(present.iter().filter_map(|&k| a.labels.get(k).cloned()))
                     .with_radii([0.006f32]),
             ),
         );
         if !f.joints_m.is_empty() {
-            // One strip per bone, red where its parent joint exceeds its limits by more
-            // than 0.5° (the quality target) on the solved mesh.
-            self.strips.clear();
-            self.strip_colors.clear();
-            for (j, parent) in self.scene.joint_parents.iter().enumerate() {
-                let Some(p) = *parent else { continue };
-                if let (Some(a), Some(b)) = (f.joints_m.get(p), f.joints_m.get(j)) {
-                    self.strips.push(vec![a.to_array(), b.to_array()]);
-                    let over = f.joint_limit_excess_deg.get(p).is_some_and(|e| *e > 0.5);
-                    self.strip_colors.push(if over {
-                        ::rerun::Color::from_rgb(230, 60, 60)
-                    } else {
-                        ::rerun::Color::from_rgb(200, 200, 200)
-                    });
-                }
-            }
-            stats.check(
-                rec.log(
-                    "character/skeleton",
-                    &::rerun::LineStrips3D::new(self.strips.iter().cloned())
-                        .with_colors(self.strip_colors.iter().copied()),
-                ),
-            );
+            log_skeleton(rec, stats, a, f);
         }
-        if self.scene.rest_volume_m3 != 0.0 {
+        if a.scene.rest_volume_m3 != 0.0 {
             // Relative change of the enclosed volume.
-            let v = crate::character::procedural::mesh_volume_of(&self.scene.triangles, |i| {
+            let v = crate::character::procedural::mesh_volume_of(&a.scene.triangles, |i| {
                 f.vertices_m[i as usize].as_dvec3()
             });
-            let err = (v - self.scene.rest_volume_m3).abs() / self.scene.rest_volume_m3.abs();
-            stats.check(rec.log("solver/volume_error", &::rerun::Scalars::single(err)));
+            let err = (v - a.scene.rest_volume_m3).abs() / a.scene.rest_volume_m3.abs();
+            stats.check(rec.log(a.volume_error.as_str(), &::rerun::Scalars::single(err)));
         }
         let s = &f.status;
-        for (name, v) in [
-            ("solver/iterations", f64::from(s.iterations)),
-            ("solver/solve_ms", f64::from(s.solve_ms)),
-            ("solver/gc_ms", f64::from(s.gc_ms)),
-            ("solver/rrms", f64::from(s.rrms)),
-            ("solver/bone_length_error", f64::from(s.bone_length_error)),
-            (
-                "solver/joint_limit_violation_deg",
-                f64::from(s.joint_limit_violation_deg),
-            ),
-            (
-                "solver/marker_residual_rms_mm",
-                f64::from(s.marker_residual_rms_mm),
-            ),
-            (
-                "solver/untangle_projections",
-                f64::from(f.untangle_projections),
-            ),
-        ] {
-            stats.check(rec.log(name, &::rerun::Scalars::single(v)));
+        let values = [
+            f64::from(s.iterations),
+            f64::from(s.solve_ms),
+            f64::from(s.gc_ms),
+            f64::from(s.rrms),
+            f64::from(s.bone_length_error),
+            f64::from(s.joint_limit_violation_deg),
+            f64::from(s.marker_residual_rms_mm),
+            f64::from(f.untangle_projections),
+        ];
+        for (name, v) in a.series.iter().zip(values) {
+            stats.check(rec.log(name.as_str(), &::rerun::Scalars::single(v)));
         }
         // The criterion per iteration of this frame, on the `iteration` timeline (with
         // the frame's own `frame` and `time`).
         for (i, c) in f.convergence.iter().enumerate() {
             rec.set_time_sequence("iteration", i as i64);
             stats.check(rec.log(
-                "solver/convergence",
+                a.convergence.as_str(),
                 &::rerun::Scalars::single(f64::from(*c)),
             ));
         }
@@ -545,19 +666,8 @@ impl Logger {
         for st in &f.marker_states {
             counts[*st as usize] += 1;
         }
-        for (state, n) in [
-            FillState::Measured,
-            FillState::Predicted,
-            FillState::RigidFilled,
-            FillState::Held,
-        ]
-        .iter()
-        .zip(counts)
-        {
-            stats.check(rec.log(
-                format!("markers/{}", state.name()),
-                &::rerun::Scalars::single(f64::from(n)),
-            ));
+        for (path, n) in a.states.iter().zip(counts) {
+            stats.check(rec.log(path.as_str(), &::rerun::Scalars::single(f64::from(n))));
         }
         // Last: each window moves the timelines to the frame that closed it.
         for p in &f.input_windows {

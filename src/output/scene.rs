@@ -32,6 +32,12 @@ pub struct Scene {
     pub tied: Vec<(u32, u32)>,
     /// The mesh file's parts and their vertex and triangle ranges.
     pub parts: Vec<WirePart>,
+    /// The actor this scene is for: its name on the stage, its index in the stage's
+    /// config, and how many actors the stage has (the character's name, 0 and 1 on a
+    /// stage of one).
+    pub actor: String,
+    pub actor_index: u8,
+    pub actor_count: u8,
 }
 
 impl Scene {
@@ -62,7 +68,18 @@ impl Scene {
                     triangle_count: p.triangle_count,
                 })
                 .collect(),
+            actor: character.to_owned(),
+            actor_index: 0,
+            actor_count: 1,
         }
+    }
+
+    /// The same, for actor `name`, `index` of `count` on the stage.
+    pub fn for_actor(mut self, name: &str, index: u8, count: u8) -> Self {
+        self.actor = name.to_owned();
+        self.actor_index = index;
+        self.actor_count = count;
+        self
     }
 
     /// The same, with the harmonic method's correspondences (`Solver::harmonic_tied`).
@@ -89,6 +106,9 @@ impl Scene {
                 .map(|p| p.map_or(-1, |p| p as i32))
                 .collect(),
             parts: self.parts.clone(),
+            actor: self.actor.clone(),
+            actor_index: self.actor_index,
+            actor_count: self.actor_count,
         }
     }
 }

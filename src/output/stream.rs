@@ -5,10 +5,14 @@
 //! also serves the browser viewer's page ([`super::viewer`]): a request there that does
 //! not ask for an upgrade gets the page and is closed, and does not count as a client.
 //!
-//! Runs on its own thread with a single-threaded tokio runtime. The solver publishes into
-//! a [`LatestSlot`]; a dispatcher task encodes each frame once and puts the bytes into a
-//! `watch` channel that every client task follows, so a slow client skips to the newest frame (the skipped frames
-//! are counted) and never holds up the loop or the other clients.
+//! A stage of several actors streams them all on one connection: a topology per actor
+//! (in the stage's order), then each actor's frames, tagged with its index.
+//!
+//! Runs on its own thread with a single-threaded tokio runtime. Each actor's solver
+//! publishes into its own [`LatestSlot`]; a dispatcher task per actor encodes each frame
+//! once and puts the bytes into that actor's place in a `watch` channel that every
+//! client task follows, so a slow client skips to each actor's newest frame (the skipped
+//! frames are counted) and never holds up the loop or the other clients.
 //!
 //! At most `max_clients` are served at once; the next is sent a goodbye saying the server
 //! is full and closed. A connection to the WebSocket port is no client until its
@@ -108,7 +112,9 @@ struct Encoded {
     bytes: Vec<u8>,
 }
 
-type FrameRx = watch::Receiver<Option<Arc<Encoded>>>;
+/// Each actor's newest encoded frame (`None` before its first).
+type Newest = Vec<Option<Arc<Encoded>>>;
+type FrameRx = watch::Receiver<Newest>;
 type ShutdownRx = watch::Receiver<Option<String>>;
 
 /// A running vertex stream server.
@@ -122,12 +128,19 @@ pub struct StreamServer {
 
 impl StreamServer {
     /// Binds `cfg.tcp` and `cfg.websocket` (either may be `None`; port 0 picks a free
-    /// port) and serves frames published to `slot` to at most `cfg.max_clients` clients.
+    /// port) and serves to at most `cfg.max_clients` clients each actor's `topologies[i]`
+    /// and the frames published to its `slots[i]` (one of each per actor, in the stage's
+    /// order).
     pub fn start(
         cfg: &StreamOutputConfig,
-        topology: &Topology,
-        slot: Arc<LatestSlot<DeformedFrame>>,
+        topologies: &[Topology],
+        slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
     ) -> io::Result<Self> {
+        assert_eq!(
+            topologies.len(),
+            slots.len(),
+            "a topology and a slot per actor"
+        );
         let (tcp, ws, max_clients) = (cfg.tcp, cfg.websocket, cfg.max_clients.max(1));
         let viewer = cfg.viewer;
         let bind = |a: Option<SocketAddr>| -> io::Result<Option<std::net::TcpListener>> {
@@ -149,8 +162,14 @@ impl StreamServer {
         let tcp_l = bind(tcp)?;
         let local_addr = tcp_l.as_ref().map(|l| l.local_addr()).transpose()?;
         let ws_addr = ws_l.as_ref().map(|l| l.local_addr()).transpose()?;
-        let mut topo = Vec::new();
-        encode_topology(topology, &mut topo);
+        let topo: Vec<Vec<u8>> = topologies
+            .iter()
+            .map(|t| {
+                let mut b = Vec::new();
+                encode_topology(t, &mut b);
+                b
+            })
+            .collect();
         let topo = Arc::new(topo);
         let stats = Arc::new(StreamStats::default());
         let (shutdown, shutdown_rx) = watch::channel(None);
@@ -167,7 +186,7 @@ impl StreamServer {
                     max_clients,
                     viewer,
                 };
-                rt.block_on(serve(listeners, topo, slot, shutdown_rx, thread_stats));
+                rt.block_on(serve(listeners, topo, slots, shutdown_rx, thread_stats));
             })?;
         Ok(Self {
             local_addr,
@@ -475,7 +494,8 @@ struct Connections {
     viewer: bool,
     /// The goodbye of a connection the server has no room for.
     full: Arc<Vec<u8>>,
-    topo: Arc<Vec<u8>>,
+    /// Each actor's topology message.
+    topo: Arc<Vec<Vec<u8>>>,
     frames: FrameRx,
     shutdown: ShutdownRx,
     stats: Arc<StreamStats>,
@@ -549,8 +569,8 @@ impl Connections {
 
 async fn serve(
     listeners: Listeners,
-    topo: Arc<Vec<u8>>,
-    slot: Arc<LatestSlot<DeformedFrame>>,
+    topo: Arc<Vec<Vec<u8>>>,
+    slots: Vec<Arc<LatestSlot<DeformedFrame>>>,
     mut shutdown: ShutdownRx,
     stats: Arc<StreamStats>,
 ) {
@@ -564,8 +584,15 @@ async fn serve(
     };
     let max_clients = listeners.max_clients;
     let (tcp, ws) = (register(listeners.tcp), register(listeners.ws));
-    let (frames_tx, frames_rx) = watch::channel(None);
-    let dispatcher = tokio::spawn(dispatch(slot, frames_tx, shutdown.clone()));
+    let (frames_tx, frames_rx) = watch::channel(vec![None; slots.len()]);
+    let frames_tx = Arc::new(frames_tx);
+    let mut dispatchers = JoinSet::new();
+    for (actor, slot) in slots.into_iter().enumerate() {
+        let tx = Arc::clone(&frames_tx);
+        dispatchers.spawn(dispatch(slot, actor, tx, shutdown.clone()));
+    }
+    // The dispatchers hold the sender: when they have all ended, the clients see it.
+    drop(frames_tx);
     let mut full = Vec::new();
     encode_goodbye(
         &format!("server full: {max_clients} clients connected (its max_clients)"),
@@ -646,8 +673,10 @@ async fn serve(
         ..
     } = c;
     drop((tcp, ws, refusals, handshakes));
-    if let Err(e) = dispatcher.await {
-        tracing::error!("the stream's frame dispatcher failed: {e}");
+    while let Some(r) = dispatchers.join_next().await {
+        if let Err(e) = r {
+            tracing::error!("a stream frame dispatcher failed: {e}");
+        }
     }
     let goodbye_limit = Duration::from_secs_f64(GOODBYE_TIMEOUT_SECS * 2.0);
     let all_said = tokio::time::timeout(goodbye_limit, async {
@@ -663,11 +692,12 @@ async fn serve(
     }
 }
 
-/// Encodes each frame published to `slot` once and hands the bytes to every client,
-/// until shutdown.
+/// Encodes each frame published to `slot` (actor `actor`'s) once and hands the bytes to
+/// every client, until shutdown.
 async fn dispatch(
     slot: Arc<LatestSlot<DeformedFrame>>,
-    frames_tx: watch::Sender<Option<Arc<Encoded>>>,
+    actor: usize,
+    frames_tx: Arc<watch::Sender<Newest>>,
     mut shutdown: ShutdownRx,
 ) {
     loop {
@@ -677,7 +707,8 @@ async fn dispatch(
                 encode_frame(&f.wire(), &mut bytes);
                 let e = Encoded { frame: f.frame, bytes };
                 drop(f);
-                frames_tx.send_replace(Some(Arc::new(e)));
+                let e = Arc::new(e);
+                frames_tx.send_modify(|newest| newest[actor] = Some(e));
             }
             _ = shutdown.changed() => break,
         }
@@ -694,17 +725,22 @@ async fn refuse(mut conn: Conn, goodbye: Arc<Vec<u8>>) {
 
 async fn serve_client(
     mut conn: Conn,
-    topo: Arc<Vec<u8>>,
+    topo: Arc<Vec<Vec<u8>>>,
     mut frames: FrameRx,
     mut shutdown: ShutdownRx,
     stats: Arc<StreamStats>,
 ) {
     stats.clients.fetch_add(1, Ordering::Relaxed);
-    let mut ok = conn.send(&topo, WRITE_TIMEOUT_SECS).await;
-    // Send the newest frame at once rather than waiting for the next.
+    let mut ok = true;
+    for t in topo.iter() {
+        ok = ok && conn.send(t, WRITE_TIMEOUT_SECS).await;
+    }
+    // Send the newest frames at once rather than waiting for the next.
     frames.mark_changed();
     let mut buf = Vec::new();
-    let mut last: Option<u64> = None;
+    // Each actor's last frame sent, and the newest ones to send.
+    let mut last: Vec<Option<u64>> = vec![None; topo.len()];
+    let mut newest: Newest = Vec::with_capacity(topo.len());
     // The client closed (its close answered) or hung up: no goodbye, and no error.
     let mut gone = false;
     while ok {
@@ -731,14 +767,22 @@ async fn serve_client(
                     drop(shutdown.wait_for(Option::is_some).await);
                     break;
                 }
-                let Some(f) = frames.borrow_and_update().clone() else { continue };
-                if let Some(l) = last {
-                    let skipped = f.frame.saturating_sub(l + 1);
-                    stats.frames_skipped.fetch_add(skipped, Ordering::Relaxed);
-                }
-                last = Some(f.frame);
-                ok = conn.send(&f.bytes, WRITE_TIMEOUT_SECS).await;
-                if ok {
+                newest.clear();
+                newest.extend(frames.borrow_and_update().iter().cloned());
+                for (f, last) in newest.iter().zip(&mut last) {
+                    let Some(f) = f else { continue };
+                    match *last {
+                        Some(l) if l >= f.frame => continue,
+                        Some(l) => {
+                            stats.frames_skipped.fetch_add(f.frame - l - 1, Ordering::Relaxed);
+                        }
+                        None => {}
+                    }
+                    *last = Some(f.frame);
+                    ok = conn.send(&f.bytes, WRITE_TIMEOUT_SECS).await;
+                    if !ok {
+                        break;
+                    }
                     stats.frames_sent.fetch_add(1, Ordering::Relaxed);
                 }
             }

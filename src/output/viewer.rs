@@ -212,11 +212,11 @@ mod tests {
     }
 
     #[test]
-    fn the_page_refers_to_its_scripts_and_the_decoder_reads_version_3() {
+    fn the_page_refers_to_its_scripts_and_the_decoder_reads_version_4() {
         assert!(INDEX_HTML.contains("viewer.js"));
         assert!(VIEWER_JS.contains("from \"./decode.js\""));
         assert!(
-            DECODE_JS.contains("version > 3"),
+            DECODE_JS.contains("version > 4"),
             "the page must refuse versions it does not know"
         );
         let js = parse_head(b"GET /decode.js HTTP/1.1\r\n\r\n").unwrap();

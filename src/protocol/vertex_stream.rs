@@ -1,4 +1,4 @@
-//! The vertex stream's wire format (version 3), as pure functions over bytes: encode a
+//! The vertex stream's wire format (version 4), as pure functions over bytes: encode a
 //! [`Topology`], a frame (a [`FrameView`] of whatever holds it) or a goodbye into a
 //! caller's buffer, and decode any of them back (a frame as a [`WireFrame`]). No I/O and
 //! no solver or marker types here; `protocols/vertex-stream.md` is the specification and
@@ -13,9 +13,10 @@ use glam::Vec3;
 pub const MAGIC: [u8; 4] = *b"RGLS";
 /// The format version this build writes; it reads this one and every earlier one
 /// ([`OLDEST_VERSION`]..=`VERSION`).
-pub const VERSION: u16 = 3;
+pub const VERSION: u16 = 4;
 /// The oldest version this build reads (version 1: no parts in the topology; versions 1
-/// and 2: no arrival time and no joints in a frame).
+/// and 2: no arrival time and no joints in a frame; versions 1 to 3: one actor, named
+/// after its character, and no actor index in a frame).
 pub const OLDEST_VERSION: u16 = 1;
 /// Header length, bytes.
 pub const HEADER_LEN: usize = 12;
@@ -63,6 +64,14 @@ pub struct Topology {
     /// The mesh file's parts (glTF primitives, OBJ groups) with their vertex and triangle
     /// ranges (version 2; empty from a version 1 server).
     pub parts: Vec<WirePart>,
+    /// The actor this topology is for: its name on the stage (version 4; the character's
+    /// name from an older server).
+    pub actor: String,
+    /// The actor's index, the one its frames carry (version 4; 0 from an older server).
+    pub actor_index: u8,
+    /// How many actors the stream carries, each with its own topology (version 4; 1
+    /// from an older server). `actor_index < actor_count`.
+    pub actor_count: u8,
 }
 
 /// A part of the mesh in the topology: its name and its vertex and triangle ranges.
@@ -114,6 +123,8 @@ pub struct FrameStatus {
 pub struct FrameView<'a> {
     /// Frame number, counting solver ticks from 0.
     pub frame: u64,
+    /// The actor the frame is for (its topology's `actor_index`). Version 4.
+    pub actor: u8,
     /// The markers' source time, seconds.
     pub source_time_s: f64,
     /// When the frame was published, seconds since the Unix epoch.
@@ -138,6 +149,9 @@ pub struct FrameView<'a> {
 pub struct WireFrame {
     /// Frame number, counting solver ticks from 0.
     pub frame: u64,
+    /// The actor the frame is for (its topology's `actor_index`; 0 from a server older
+    /// than version 4).
+    pub actor: u8,
     /// The markers' source time, seconds.
     pub source_time_s: f64,
     /// When the frame was published, seconds since the Unix epoch.
@@ -162,6 +176,7 @@ impl WireFrame {
     pub fn view(&self) -> FrameView<'_> {
         FrameView {
             frame: self.frame,
+            actor: self.actor,
             source_time_s: self.source_time_s,
             publish_time_s: self.publish_time_s,
             status: self.status,
@@ -283,6 +298,9 @@ pub fn encode_topology(t: &Topology, out: &mut Vec<u8>) {
             put_u32(out, v);
         }
     }
+    out.push(t.actor_index);
+    out.push(t.actor_count);
+    put_str(out, &t.actor);
     finish(out, start);
 }
 
@@ -296,7 +314,7 @@ pub fn encode_frame(f: &FrameView<'_>, out: &mut Vec<u8>) {
     let s = &f.status;
     out.extend_from_slice(&s.iterations.to_le_bytes());
     out.push(s.stop as u8);
-    out.push(0);
+    out.push(f.actor);
     for v in [
         s.solve_ms,
         s.gc_ms,
@@ -422,6 +440,10 @@ impl<'a> Reader<'a> {
         Ok(s)
     }
 
+    fn u8(&mut self) -> Result<u8, DecodeError> {
+        Ok(self.take(1, "truncated u8")?[0])
+    }
+
     fn u16(&mut self) -> Result<u16, DecodeError> {
         let s = self.take(2, "truncated u16")?;
         Ok(u16::from_le_bytes([s[0], s[1]]))
@@ -518,6 +540,15 @@ fn decode_topology(b: &[u8], version: u16) -> Result<Topology, DecodeError> {
     } else {
         Vec::new()
     };
+    let (actor_index, actor_count, actor) = if version >= 4 {
+        let [index, count] = [r.u8()?, r.u8()?];
+        if index >= count {
+            return Err(r.err("actor index not below the actor count"));
+        }
+        (index, count, r.string()?)
+    } else {
+        (0, 1, character.clone())
+    };
     r.end()?;
     Ok(Topology {
         character,
@@ -531,6 +562,9 @@ fn decode_topology(b: &[u8], version: u16) -> Result<Topology, DecodeError> {
         joint_names,
         joint_parents,
         parts,
+        actor,
+        actor_index,
+        actor_count,
     })
 }
 
@@ -571,8 +605,11 @@ fn decode_frame(b: &[u8], version: u16) -> Result<WireFrame, DecodeError> {
     let source_time_s = r.f64()?;
     let publish_time_s = r.f64()?;
     let iterations = r.u16()?;
-    let code = r.take(2, "truncated stop code")?[0];
+    let code = r.u8()?;
     let stop = StopCode::from_code(code).ok_or_else(|| r.err("unknown stop code"))?;
+    // Reserved (zero) before version 4.
+    let actor = r.u8()?;
+    let actor = if version >= 4 { actor } else { 0 };
     let mut f = [0f32; 7];
     for v in &mut f {
         *v = r.f32()?;
@@ -597,6 +634,7 @@ fn decode_frame(b: &[u8], version: u16) -> Result<WireFrame, DecodeError> {
     r.end()?;
     Ok(WireFrame {
         frame,
+        actor,
         source_time_s,
         publish_time_s,
         status: FrameStatus {
@@ -642,12 +680,16 @@ mod tests {
                 first_triangle: 0,
                 triangle_count: 1,
             }],
+            actor: "Bob".into(),
+            actor_index: 1,
+            actor_count: 2,
         }
     }
 
     fn example_frame() -> WireFrame {
         WireFrame {
             frame: 7,
+            actor: 1,
             source_time_s: 0.5,
             publish_time_s: 1.0e9,
             status: FrameStatus {
@@ -684,9 +726,9 @@ mod tests {
     fn frame_bytes_match_the_documented_example() {
         // protocols/vertex-stream.md, "Worked example", byte for byte.
         const HEX: &str = "
-            52 47 4c 53 03 00 02 00 8c 00 00 00 07 00 00 00
+            52 47 4c 53 04 00 02 00 8c 00 00 00 07 00 00 00
             00 00 00 00 00 00 00 00 00 00 e0 3f 00 00 00 00
-            65 cd cd 41 03 00 02 00 00 00 40 3f 00 00 00 00
+            65 cd cd 41 03 00 02 01 00 00 40 3f 00 00 00 00
             00 00 00 00 00 00 00 00 00 00 00 00 00 00 00 00
             00 00 00 00 01 00 00 00 01 00 00 00 00 00 00 00
             00 00 80 3f 00 00 00 00 03 00 00 00 00 00 80 3f
@@ -701,22 +743,49 @@ mod tests {
         let mut b = Vec::new();
         encode_frame(&example_frame().view(), &mut b);
         assert_eq!(b, expected);
+        // Bob's topology ends with his index, the count and his name.
+        b.clear();
+        encode_topology(&example_topology(), &mut b);
+        assert_eq!(b[b.len() - 7..], [0x01, 0x02, 0x03, 0x00, b'B', b'o', b'b']);
     }
 
-    /// A version 1 topology (no parts) still reads, with no parts; a version 2 part
-    /// outside the mesh is malformed.
+    /// The bytes of `b` (one message) without its last `cut` payload bytes, announced
+    /// as `version`.
+    fn older(b: &[u8], cut: usize, version: u8) -> Vec<u8> {
+        let mut o = b[..b.len() - cut].to_vec();
+        o[4] = version;
+        let len = (o.len() - HEADER_LEN) as u32;
+        o[8..12].copy_from_slice(&len.to_le_bytes());
+        o
+    }
+
+    /// Versions 1 to 3 topologies (no parts before 2, no actor before 4) still read, as
+    /// the one actor named after its character; a part outside the mesh, or an actor
+    /// index not below the count, is malformed; version 5 is refused.
     #[test]
-    fn version_1_topologies_read_and_parts_are_checked() {
+    fn older_topologies_read_and_parts_and_actors_are_checked() {
         let mut t = example_topology();
         t.parts.clear();
         let mut b = Vec::new();
         encode_topology(&t, &mut b);
-        // Version 2 with zero parts is version 1 and a trailing u32 count.
-        let mut v1 = b[..b.len() - 4].to_vec();
-        v1[4] = 1;
-        let len = (v1.len() - HEADER_LEN) as u32;
-        v1[8..12].copy_from_slice(&len.to_le_bytes());
-        assert_eq!(decode(&v1).unwrap().0, Message::Topology(t.clone()));
+        // Index, count, and the name "Bob" (2 + 3 bytes).
+        let actor_len = 2 + 2 + t.actor.len();
+        let alone = Topology {
+            actor: t.character.clone(),
+            actor_index: 0,
+            actor_count: 1,
+            ..t.clone()
+        };
+        // Version 3 is version 4 without the actor; version 1 also without the parts'
+        // u32 count.
+        assert_eq!(
+            decode(&older(&b, actor_len, 3)).unwrap().0,
+            Message::Topology(alone.clone())
+        );
+        assert_eq!(
+            decode(&older(&b, actor_len + 4, 1)).unwrap().0,
+            Message::Topology(alone)
+        );
         for (vertex_count, triangle_count) in [(4, 1), (3, 2), (u32::MAX, 1)] {
             t.parts = vec![WirePart {
                 name: "x".into(),
@@ -738,23 +807,41 @@ mod tests {
                 "{vertex_count} {triangle_count}"
             );
         }
+        for (index, count) in [(2, 2), (0, 0), (255, 1)] {
+            b.clear();
+            let t = Topology {
+                actor_index: index,
+                actor_count: count,
+                ..example_topology()
+            };
+            encode_topology(&t, &mut b);
+            assert_eq!(
+                decode(&b),
+                Err(DecodeError::Malformed {
+                    kind: "topology",
+                    offset: b.len() - HEADER_LEN - 3 - 2,
+                    what: "actor index not below the actor count"
+                }),
+                "{index} of {count}"
+            );
+        }
         b.clear();
         encode_topology(&example_topology(), &mut b);
-        b[4] = 4;
-        assert_eq!(decode(&b), Err(DecodeError::Version { found: 4 }));
+        b[4] = 5;
+        assert_eq!(decode(&b), Err(DecodeError::Version { found: 5 }));
     }
 
-    /// A version 2 frame (no arrival time, no joints) still reads, with neither; the
-    /// same bytes announced as version 3 are malformed (the new fields are missing).
+    /// A version 2 frame (no arrival time, no joints) still reads, with neither, as
+    /// actor 0's; the same bytes announced as version 3 are malformed (the new fields
+    /// are missing).
     #[test]
     fn version_2_frames_read_without_arrival_time_or_joints() {
         let mut f = example_frame();
         let mut b = Vec::new();
         encode_frame(&f.view(), &mut b);
-        let mut v2 = b[..b.len() - 8 - 4 - 12].to_vec();
-        v2[4] = 2;
-        let len = (v2.len() - HEADER_LEN) as u32;
-        v2[8..12].copy_from_slice(&len.to_le_bytes());
+        let mut v2 = older(&b, 8 + 4 + 12, 2);
+        // Byte 27 was reserved before version 4: an older server's frame is actor 0's.
+        f.actor = 0;
         f.received_time_s = 0.0;
         f.joints_m.clear();
         assert_eq!(decode(&v2).unwrap().0, Message::Frame(f));
@@ -779,7 +866,7 @@ mod tests {
 
     #[test]
     fn oversized_header_is_refused_before_reading() {
-        let mut b = b"RGLS\x02\x00\x02\x00".to_vec();
+        let mut b = b"RGLS\x04\x00\x02\x00".to_vec();
         b.extend_from_slice(&u32::MAX.to_le_bytes());
         assert_eq!(
             decode_header(&b),

@@ -3,8 +3,10 @@
 equal, float for float, the stream's vertices for the same frame numbers (read by the
 reference client's decoder on a socket of its own) in Blender's axes; a recording
 writes a PC2 cache of one sample per stream frame that a Mesh Cache modifier plays back
-on the timeline; a mesh of another vertex count is refused with a message. Prints one
-JSON line of measurements; exits 1 on a failed check.
+on the timeline; a mesh of another vertex count is refused with a message; on the
+two-actor demo, the actor named is followed (its frames, not the other's) and a name the
+stream lacks is refused, naming the actors it has. Prints one JSON line of
+measurements; exits 1 on a failed check.
 
     python3 check_addon.py RIGLESS_BINARY OUT_DIR
 
@@ -43,8 +45,8 @@ def free_port():
     return port
 
 
-def start_demo(binary, port):
-    p = subprocess.Popen([binary, "demo", "--character", "hand", "--loop", "--seconds", "120",
+def start_demo(binary, port, cast=("--character", "hand")):
+    p = subprocess.Popen([binary, "demo", *cast, "--loop", "--seconds", "120",
                           "--stream", f"127.0.0.1:{port}", "--viewer", "off", "--rerun", "off"],
                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     deadline = time.time() + WAIT_S
@@ -59,7 +61,8 @@ def start_demo(binary, port):
 
 
 class Reference(threading.Thread):
-    """The stream's frames by number, read with the reference client's decoder."""
+    """The stream's frames by actor and number, read with the reference client's
+    decoder."""
 
     def __init__(self, port):
         super().__init__(daemon=True)
@@ -76,15 +79,16 @@ class Reference(threading.Thread):
                 if kind == ref.KIND_FRAME:
                     f = ref.decode_frame(p, version)
                     with self.lock:
-                        self.frames[f["frame"]] = np.array(f["vertices_m"], dtype=np.float32)
+                        key = (f["actor"], f["frame"])
+                        self.frames[key] = np.array(f["vertices_m"], dtype=np.float32)
                         if len(self.frames) > 4000:
                             self.frames.pop(min(self.frames))
         except OSError:
             return
 
-    def get(self, n):
+    def get(self, n, actor=0):
         with self.lock:
-            return self.frames.get(n)
+            return self.frames.get((actor, n))
 
 
 def check(cond, what):
@@ -207,6 +211,57 @@ def check_zip_install(out_dir):
     return True
 
 
+def to_blender_axes(v):
+    v = v.reshape(-1, 3)
+    return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1).ravel()
+
+
+def check_actor_choice(binary, scene):
+    """On the two-actor demo: following "Bob" applies Bob's frames (equal to the
+    stream's actor 1 frames of the same number); "Carl" is refused, naming Ann and Bob."""
+    port = free_port()
+    demo = start_demo(binary, port, cast=("--actors", "2"))
+    try:
+        reference = Reference(port)
+        reference.start()
+        scene.rigless_target = None
+        rigless_live.connect("127.0.0.1", port, actor="Bob")
+        compared, max_diff, deadline = 0, 0.0, time.time() + WAIT_S
+        while compared < 10:
+            check(time.time() < deadline, f"only {compared} of Bob's frames compared: {rigless_live._state['message']}")
+            if rigless_live.apply_newest(scene) != "applied":
+                time.sleep(0.002)
+                continue
+            f = rigless_live._state["applied"]
+            check(f["actor"] == 1, f"applied a frame of actor {f['actor']}, not Bob's (1)")
+            want = None
+            for _ in range(100):
+                want = reference.get(f["frame"], actor=1)
+                if want is not None:
+                    break
+                time.sleep(0.005)
+            if want is None:
+                continue
+            obj = bpy.data.objects[rigless_live._state["object"]]
+            co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
+            obj.data.vertices.foreach_get("co", co)
+            max_diff = max(max_diff, float(np.abs(co - to_blender_axes(want)).max()))
+            compared += 1
+        out = {"object": rigless_live._state["object"], "compared": compared, "max_diff_m": max_diff}
+        rigless_live.connect("127.0.0.1", port, actor="Carl")
+        deadline, status = time.time() + WAIT_S, None
+        while status != "closed":
+            check(time.time() < deadline, "an actor the stream lacks was not refused")
+            status = rigless_live.apply_newest(scene)
+            time.sleep(0.01)
+        out["refused"] = rigless_live._state["message"]
+        rigless_live.disconnect()
+        return out
+    finally:
+        demo.terminate()
+        demo.wait(timeout=20)
+
+
 def main():
     binary, out_dir = sys.argv[1], sys.argv[2]
     os.makedirs(out_dir, exist_ok=True)
@@ -301,6 +356,8 @@ def main():
             time.sleep(0.01)
         result["refused"] = rigless_live._state["message"]
         check([tuple(v.co) for v in cube.data.vertices] == before, "the refused mesh was changed")
+        rigless_live.disconnect()
+        result["actor_choice"] = check_actor_choice(binary, scene)
         rigless_live.unregister()
     finally:
         demo.terminate()

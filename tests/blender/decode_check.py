@@ -39,9 +39,10 @@ def main():
                             "triangles": [i for t in d["triangles"] for i in t], "markerNames": d["marker_names"],
                             "jointNames": d["joint_names"], "jointParents": d["joint_parents"],
                             "parts": [[p["name"], p["first_vertex"], p["vertex_count"], p["first_triangle"],
-                                       p["triangle_count"]] for p in d["parts"]]})
+                                       p["triangle_count"]] for p in d["parts"]],
+                            "actor": d["actor"], "actorIndex": d["actor_index"], "actorCount": d["actor_count"]})
         elif kind == stream.KIND_FRAME:
-            decoded.append({"kind": kind, "frame": d["frame"], "publishTime": d["publish_time_s"],
+            decoded.append({"kind": kind, "frame": d["frame"], "actor": d["actor"], "publishTime": d["publish_time_s"],
                             "receivedTime": d["received_time_s"], "states": list(d["marker_states"]),
                             "vertices": list(d["vertices_m"]), "joints": list(d["joints_m"])})
         else:

@@ -32,11 +32,12 @@ const decoded = messages.map((m) => {
   if (d.topology) {
     const t = d.topology;
     return { kind: d.kind, version: d.version, character: t.character, vertexCount: t.vertexCount, triangles: Array.from(t.triangles),
-      markerNames: t.markerNames, jointNames: t.jointNames, jointParents: Array.from(t.jointParents), parts: t.parts };
+      markerNames: t.markerNames, jointNames: t.jointNames, jointParents: Array.from(t.jointParents), parts: t.parts,
+      actor: t.actor, actorIndex: t.actorIndex, actorCount: t.actorCount };
   }
   if (d.frame) {
     const f = d.frame;
-    return { kind: d.kind, version: d.version, frame: f.frame, sourceTime: f.sourceTime, publishTime: f.publishTime, receivedTime: f.receivedTime,
+    return { kind: d.kind, version: d.version, frame: f.frame, actor: f.actor, sourceTime: f.sourceTime, publishTime: f.publishTime, receivedTime: f.receivedTime,
       iterations: f.iterations, stop: f.stop, solveMs: f.solveMs, states: Array.from(f.states), markers: Array.from(f.markers),
       vertices: Array.from(f.vertices), joints: Array.from(f.joints) };
   }

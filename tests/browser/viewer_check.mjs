@@ -2,9 +2,11 @@
 // as a user would open it, and checks it: frames advance, the page's vertices change and
 // equal the vertex stream's for the same frame number (bytes read by a TCP client here),
 // the character covers part of the picture, and the page reconnects by itself after the
-// daemon restarts. Prints one JSON line of measurements; exits 1 on a failed check.
+// daemon restarts. With --actors 2 (the two-actor demo), it also follows each actor over
+// a few seconds: drawn once its markers appear, labelled, and inside the picture.
+// Prints one JSON line of measurements; exits 1 on a failed check.
 //
-//   node viewer_check.mjs RIGLESS_BINARY OUT_DIR [--character hand|body]
+//   node viewer_check.mjs RIGLESS_BINARY OUT_DIR [--character hand|body] [--actors 2]
 //
 // CHROMIUM names the browser (default /usr/bin/chromium). tests/browser_viewer.rs runs it.
 
@@ -15,7 +17,8 @@ import fs from "node:fs";
 import path from "node:path";
 
 const [bin, outDir] = process.argv.slice(2, 4);
-const character = process.argv.includes("--character") ? process.argv[process.argv.indexOf("--character") + 1] : "hand";
+const flag = (name, dflt) => process.argv.includes(name) ? process.argv[process.argv.indexOf(name) + 1] : dflt;
+const character = flag("--character", "hand"), actors = Number(flag("--actors", "1"));
 if (!bin || !outDir) { console.error("usage: node viewer_check.mjs RIGLESS_BINARY OUT_DIR"); process.exit(2); }
 const browserPath = process.env.CHROMIUM || "/usr/bin/chromium";
 // Longest wait for anything the page or the daemon should do, ms.
@@ -34,7 +37,8 @@ async function freePort() {
 
 // Starts `rigless demo` looping and resolves once it prints the viewer's address.
 function startDemo(tcpPort, viewerPort) {
-  const child = spawn(bin, ["demo", "--character", character, "--loop", "--seconds", "120",
+  const cast = actors > 1 ? ["--actors", String(actors)] : ["--character", character];
+  const child = spawn(bin, ["demo", ...cast, "--loop", "--seconds", "120",
     "--stream", `127.0.0.1:${tcpPort}`, "--viewer", `127.0.0.1:${viewerPort}`, "--rerun", "off"],
   { stdio: ["ignore", "pipe", "pipe"] });
   let out = "", err = "";
@@ -57,7 +61,8 @@ async function stopDemo(child) {
   await Promise.race([exited, sleep(10000).then(() => child.kill("SIGKILL"))]);
 }
 
-// A TCP client of the vertex stream keeping the vertices of the last frames by number.
+// A TCP client of the vertex stream keeping the vertices of the last frames of actor 0
+// (the page's snapshot's) by number.
 function streamClient(port) {
   const frames = new Map();
   let buf = Buffer.alloc(0);
@@ -68,7 +73,7 @@ function streamClient(port) {
       const version = buf.readUInt16LE(4), kind = buf.readUInt16LE(6), len = buf.readUInt32LE(8);
       if (buf.length < 12 + len) break;
       const p = buf.subarray(12, 12 + len);
-      if (kind === 2) {
+      if (kind === 2 && p[27] === 0) {
         const frame = Number(p.readBigUInt64LE(0));
         const nm = p.readUInt32LE(56);
         let at = 60 + nm + ((4 - nm % 4) % 4) + 12 * nm;
@@ -83,6 +88,29 @@ function streamClient(port) {
   });
   sock.on("error", () => {});
   return { frames, close: () => sock.destroy() };
+}
+
+// Reads the page's actors every 250 ms for 6 s: how often each was drawn, labelled, and
+// inside the picture (every corner of its box within the normalised -1..1), and the
+// worst corner seen.
+async function followActors(page) {
+  await page.waitForFunction((n) => window.rigless.actors().filter((a) => a.shown).length >= n, actors, { timeout: WAIT_MS });
+  const seen = {};
+  for (let k = 0; k < 24; k++) {
+    for (const a of await page.evaluate(() => window.rigless.actors())) {
+      const s = seen[a.name] ??= { samples: 0, shown: 0, labelled: 0, inside: 0, worst: 0 };
+      s.samples++;
+      if (!a.shown) continue;
+      s.shown++;
+      if (a.label && a.label.startsWith(a.name)) s.labelled++;
+      const w = Math.max(Math.abs(a.ndc.minX), Math.abs(a.ndc.maxX), Math.abs(a.ndc.minY), Math.abs(a.ndc.maxY));
+      s.worst = Math.max(s.worst, w);
+      if (w <= 1) s.inside++;
+    }
+    await sleep(250);
+  }
+  await page.screenshot({ path: path.join(outDir, "actors.png") });
+  return { follow: await page.evaluate(() => window.rigless.follow), each: seen };
 }
 
 async function main() {
@@ -157,6 +185,8 @@ async function main() {
       }
       return { total: d.length / 4, skin, marker };
     });
+
+    if (actors > 1) result.actors = await followActors(page);
 
     // Restart the daemon on the same ports: the page reconnects by itself.
     const before = await page.evaluate(() => ({ connects: window.rigless.connects, drawn: window.rigless.framesDrawn }));

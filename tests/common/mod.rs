@@ -176,6 +176,9 @@ pub fn tiny_topology() -> rigless::protocol::vertex_stream::Topology {
             first_triangle: 0,
             triangle_count: 1,
         }],
+        actor: "tiny".into(),
+        actor_index: 0,
+        actor_count: 1,
     }
 }
 
@@ -201,11 +204,24 @@ pub fn run_json_check(
     out_dir: &std::path::Path,
     timeout: Duration,
 ) -> serde_json::Value {
+    run_json_check_with(program, script, out_dir, &[], timeout)
+}
+
+/// [`run_json_check`] with `extra` arguments after the output folder.
+#[allow(dead_code)]
+pub fn run_json_check_with(
+    program: &str,
+    script: &str,
+    out_dir: &std::path::Path,
+    extra: &[&str],
+    timeout: Duration,
+) -> serde_json::Value {
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(script);
     let mut child = Command::new(program)
         .arg(&script)
         .arg(env!("CARGO_BIN_EXE_rigless"))
         .arg(out_dir)
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -284,8 +300,8 @@ pub fn loopback_stream(
             viewer: true,
             websocket_any_port_if_taken: false,
         },
-        &tiny_topology(),
-        std::sync::Arc::clone(slot),
+        &[tiny_topology()],
+        vec![std::sync::Arc::clone(slot)],
     )
     .unwrap()
 }

@@ -1,8 +1,8 @@
 """rigless live: drives a Blender mesh from a running rigless daemon's vertex stream.
 
 A panel in the 3D view's sidebar (tab "rigless"): host and port of the stream (TCP,
-127.0.0.1:7878 by default), an optional mesh of your own to drive, Connect, Disconnect
-and Record. The stream is read on a thread; a timer on Blender's main thread applies the
+127.0.0.1:7878 by default), the actor to follow on a stage of several (by name; empty:
+the first), an optional mesh of your own to drive, Connect, Disconnect and Record. The stream is read on a thread; a timer on Blender's main thread applies the
 newest frame with `foreach_set` (older frames are dropped, so Blender never falls
 behind). Without a mesh of your own, one is made from the stream's topology. Record
 keeps every frame and, on stop, writes a PC2 point cache at the stream's rate and adds a
@@ -55,6 +55,11 @@ def to_blender(vertices_m):
     return out.ravel()
 
 
+def _who(t):
+    """The actor a topology is for, with its character when its name is another."""
+    return t["actor"] if t["actor"] == t["character"] else f"{t['actor']} ({t['character']})"
+
+
 def _mesh_for(scene, t):
     """The object the stream drives: the user's target (checked) or one made from the
     topology. Returns (object, None) or (None, why it is refused)."""
@@ -64,12 +69,12 @@ def _mesh_for(scene, t):
         have = len(target.data.vertices)
         if have != n:
             return None, (
-                f"refused: the stream's {t['character']!r} has {n} vertices, "
+                f"refused: the stream's {_who(t)!r} has {n} vertices, "
                 f"{target.name!r} has {have}; import the asset without merging vertices "
                 "(glTF importer: untick Merge Vertices) or clear the target"
             )
         return target, None
-    name = f"rigless {t['character']}"
+    name = f"rigless {t['actor']}"
     obj = bpy.data.objects.get(name)
     if obj is None or obj.type != "MESH" or len(obj.data.vertices) != n:
         mesh = bpy.data.meshes.new(name)
@@ -108,7 +113,7 @@ def apply_newest(scene):
     obj.data.vertices.foreach_set("co", to_blender(f["vertices_m"]))
     obj.data.update()
     _state["applied"], _state["applied_count"] = f, _state["applied_count"] + 1
-    _state["message"] = (f"{t['character']}: frame {f['frame']}, {r.frames_received} received, "
+    _state["message"] = (f"{t['actor']}: frame {f['frame']}, {r.frames_received} received, "
                          f"{_state['applied_count']} applied, solve {f['solve_ms']:.2f} ms")
     return "applied"
 
@@ -120,9 +125,11 @@ def _timer():
     return APPLY_INTERVAL_S
 
 
-def connect(host, port):
+def connect(host, port, actor=""):
+    """Starts following the stream at host:port: the actor named `actor` (the first when
+    empty)."""
     disconnect()
-    r = stream.Receiver(host, port)
+    r = stream.Receiver(host, port, actor=actor)
     _state.update(receiver=r, serial=0, object=None, applied=None, applied_count=0, refused=None,
                   message=f"connecting to {host}:{port}")
     r.start()
@@ -192,7 +199,7 @@ class RIGLESS_OT_connect(bpy.types.Operator):
 
     def execute(self, context):
         s = context.scene
-        connect(s.rigless_host, s.rigless_port)
+        connect(s.rigless_host, s.rigless_port, s.rigless_actor.strip())
         return {"FINISHED"}
 
 
@@ -240,6 +247,7 @@ class RIGLESS_PT_panel(bpy.types.Panel):
         row = col.row()
         row.prop(s, "rigless_host")
         row.prop(s, "rigless_port")
+        col.prop(s, "rigless_actor")
         col.prop(s, "rigless_target")
         row = col.row()
         r = _state["receiver"]
@@ -261,6 +269,9 @@ def register():
         name="Host", default="127.0.0.1", description="The rigless daemon's address")
     bpy.types.Scene.rigless_port = bpy.props.IntProperty(
         name="Port", default=7878, min=1, max=65535, description="The vertex stream's TCP port")
+    bpy.types.Scene.rigless_actor = bpy.props.StringProperty(
+        name="Actor", default="",
+        description="On a stage of several actors, the one to follow, by name (empty: the first)")
     bpy.types.Scene.rigless_target = bpy.props.PointerProperty(
         name="Mesh", type=bpy.types.Object, poll=lambda _self, o: o.type == "MESH",
         description="Your own copy of the character's mesh (same vertex order and count); "
@@ -276,3 +287,4 @@ def unregister():
     del bpy.types.Scene.rigless_host
     del bpy.types.Scene.rigless_port
     del bpy.types.Scene.rigless_target
+    del bpy.types.Scene.rigless_actor

@@ -1,5 +1,5 @@
 """The rigless vertex stream for the Blender add-on, without Blender: the decoder
-(protocols/vertex-stream.md, versions 1 to 3), a receiver thread that keeps only the
+(protocols/vertex-stream.md, versions 1 to 4), a receiver thread that keeps only the
 newest frame (and every frame while recording), and a PC2 point-cache writer.
 
 Pure Python (standard library): the add-on's Blender side lives in __init__.py. The
@@ -14,7 +14,7 @@ import sys
 import threading
 
 MAGIC = b"RGLS"
-VERSIONS = (1, 2, 3)
+VERSIONS = (1, 2, 3, 4)
 KIND_TOPOLOGY, KIND_FRAME, KIND_GOODBYE = 1, 2, 3
 HEADER = struct.Struct("<4sHHI")
 MAX_PAYLOAD_LEN = 64 << 20
@@ -93,6 +93,13 @@ def decode_topology(p, version):
                 raise ProtocolError(f"topology: part {name!r} runs past the mesh")
             t["parts"].append({"name": name, "first_vertex": fv, "vertex_count": nv,
                                "first_triangle": ft, "triangle_count": ntp})
+    # Version 4: the actor this topology is for; before, one actor named after its character.
+    t["actor"], t["actor_index"], t["actor_count"] = t["character"], 0, 1
+    if version >= 4:
+        t["actor_index"], t["actor_count"] = r.unpack("BB")
+        if t["actor_index"] >= t["actor_count"]:
+            raise ProtocolError(f"topology: actor index {t['actor_index']} not below the count {t['actor_count']}")
+        t["actor"] = r.string()
     r.end()
     return t
 
@@ -101,7 +108,9 @@ def decode_frame(p, version):
     r = Reader(p, "frame")
     f = {}
     f["frame"], f["source_time_s"], f["publish_time_s"] = r.unpack("Qdd")
-    f["iterations"], f["stop"], _ = r.unpack("HBB")
+    f["iterations"], f["stop"], f["actor"] = r.unpack("HBB")
+    if version < 4:
+        f["actor"] = 0  # reserved (zero) before version 4
     (f["solve_ms"], f["gc_ms"], f["rrms"], f["bone_length_error"], f["joint_limit_violation_deg"],
      f["marker_residual_rms_mm"], f["marker_residual_max_mm"]) = r.unpack("7f")
     nm = r.count(13)
@@ -162,7 +171,7 @@ def read_message(sock):
     if magic != MAGIC:
         raise ProtocolError(f"bad magic {magic!r}: is this a rigless vertex stream (TCP port)?")
     if version not in VERSIONS:
-        raise ProtocolError(f"unsupported version {version} (this add-on reads 1 to 3)")
+        raise ProtocolError(f"unsupported version {version} (this add-on reads 1 to 4)")
     if length > MAX_PAYLOAD_LEN:
         raise ProtocolError(f"payload of {length} bytes exceeds the limit")
     p = read_exact(sock, length)
@@ -174,12 +183,19 @@ def read_message(sock):
 class Receiver(threading.Thread):
     """Reads the stream on its own thread. The Blender side takes `newest()` on its
     timer: frames that arrive faster than it applies them are dropped. While
-    `recording` is a list, every frame is appended to it as (frame number, vertices)."""
+    `recording` is a list, every frame is appended to it as (frame number, vertices).
 
-    def __init__(self, host, port, timeout_s=5.0):
+    A stream of several actors (version 4) carries a topology per actor and frames
+    tagged with the actor's index: the receiver follows the actor named `actor` (the
+    first when empty) and ignores the others; a name the stream lacks is an error naming
+    the actors it has."""
+
+    def __init__(self, host, port, timeout_s=5.0, actor=""):
         super().__init__(name="rigless-stream", daemon=True)
-        self.host, self.port, self.timeout_s = host, port, timeout_s
+        self.host, self.port, self.timeout_s, self.actor = host, port, timeout_s, actor
         self.lock = threading.Lock()
+        # Every actor's topology by index, and the index followed (None: not yet known).
+        self.topologies, self.index = {}, None
         self.topology = None
         self.topology_serial = 0
         self.frame = None
@@ -200,12 +216,11 @@ class Receiver(threading.Thread):
                     break
                 version, kind, p = m
                 if kind == KIND_TOPOLOGY:
-                    t = decode_topology(p, version)
-                    with self.lock:
-                        self.topology, self.frame = t, None
-                        self.topology_serial += 1
+                    self._on_topology(decode_topology(p, version))
                 elif kind == KIND_FRAME:
                     f = decode_frame(p, version)
+                    if self.index is None or f["actor"] != self.index:
+                        continue
                     with self.lock:
                         t = self.topology
                         if t is None or len(f["vertices_m"]) != 3 * t["vertex_count"]:
@@ -224,6 +239,19 @@ class Receiver(threading.Thread):
             self.closed.set()
             if self.sock is not None:
                 self.sock.close()
+
+    def _on_topology(self, t):
+        """Keeps actor t's topology; follows it when it is the one asked for. Once every
+        actor's topology came and none is, that is an error."""
+        self.topologies[t["actor_index"]] = t
+        if t["actor"] == self.actor or (not self.actor and t["actor_index"] == 0):
+            self.index = t["actor_index"]
+            with self.lock:
+                self.topology, self.frame = t, None
+                self.topology_serial += 1
+        elif self.index is None and len(self.topologies) >= t["actor_count"]:
+            names = ", ".join(self.topologies[i]["actor"] for i in sorted(self.topologies))
+            raise ProtocolError(f"no actor {self.actor!r} in this stream (it has {names})")
 
     def newest(self):
         """(topology serial, topology, newest frame)."""

@@ -1,5 +1,5 @@
 // The vertex stream's decoder for the browser viewer (protocols/vertex-stream.md,
-// versions 1 to 3): one message (an ArrayBuffer holding exactly one) to an object, or an
+// versions 1 to 4): one message (an ArrayBuffer holding exactly one) to an object, or an
 // Error saying what is wrong. Pure: no DOM, no network; viewer.js uses it, and
 // tests/browser/decode_check.mjs runs it under Node.js on good and mutated messages.
 
@@ -57,7 +57,7 @@ export function decodeMessage(buf) {
   const dv = new DataView(buf);
   for (let i = 0; i < 4; i++) if (dv.getUint8(i) !== MAGIC[i]) throw new Error("bad magic");
   const version = dv.getUint16(4, true), kind = dv.getUint16(6, true), len = dv.getUint32(8, true);
-  if (version < 1 || version > 3) throw new Error(`unsupported version ${version}`);
+  if (version < 1 || version > 4) throw new Error(`unsupported version ${version} (this viewer reads 1 to 4)`);
   if (len > MAX_PAYLOAD || 12 + len !== buf.byteLength) throw new Error(`bad payload length ${len}`);
   if (kind === KIND_TOPOLOGY) return { kind, version, topology: decodeTopology(new Reader(buf, 12, 12 + len, "topology"), version) };
   if (kind === KIND_FRAME) return { kind, version, frame: decodeFrame(new Reader(buf, 12, 12 + len, "frame"), version) };
@@ -85,13 +85,22 @@ function decodeTopology(r, version) {
       t.parts.push(part);
     }
   }
+  // Version 4: the actor this topology is for; before, the one actor, named after its character.
+  t.actor = t.character; t.actorIndex = 0; t.actorCount = 1;
+  if (version >= 4) {
+    t.actorIndex = r.u8(); t.actorCount = r.u8();
+    if (t.actorIndex >= t.actorCount) throw new Error(`topology: actor index ${t.actorIndex} not below the actor count ${t.actorCount}`);
+    t.actor = r.string();
+  }
   r.done();
   return t;
 }
 
 function decodeFrame(r, version) {
   const f = { frame: r.u64(), sourceTime: r.f64(), publishTime: r.f64(), iterations: r.u16() };
-  const stop = r.u8(); r.u8();
+  const stop = r.u8(), actor = r.u8();
+  // Byte 27 was reserved (zero) before version 4.
+  f.actor = version >= 4 ? actor : 0;
   if (stop >= STOPS.length) throw new Error(`frame: unknown stop code ${stop}`);
   f.stop = STOPS[stop];
   f.solveMs = r.f32(); f.gcMs = r.f32(); f.rrms = r.f32(); f.boneLengthError = r.f32();
