@@ -340,11 +340,21 @@ fn actors_problems(
             ));
         }
     }
-    if c.calibration.first_secs.is_some() && c.actors.len() > 1 {
-        problems.push(lines.at(
-            "calibration.first_secs",
-            "a live calibration calibrates one performer: not yet for a stage of several actors (calibrate each actor's character file with `rigless calibrate --write` on a take of that performer)",
-        ));
+    if c.calibration.write {
+        for (i, a) in c.actors.iter().enumerate() {
+            let at = format!("actors[{i}]");
+            if a.path.is_none() {
+                problems.push(lines.at(
+                    &at,
+                    format!("calibration.write writes each actor's layout into its character file; actor {:?} has none (a procedural character)", a.name),
+                ));
+            } else if let Some(j) = c.actors[..i].iter().position(|b| b.path == a.path) {
+                problems.push(lines.at(
+                    &at,
+                    format!("calibration.write: actors {:?} and {:?} share one character file, and each performer's layout is its own; give each a copy of the file", c.actors[j].name, a.name),
+                ));
+            }
+        }
     }
 }
 

@@ -297,3 +297,62 @@ fn the_actor_flags_name_what_the_take_has() {
     ]);
     assert!(!ok && err.contains("has 1 performer"), "{err}");
 }
+
+/// `[calibration] first_secs` on a stage of two: the first seconds are captured once and
+/// each actor is calibrated on its own labels. Ann is 1.1 times the body and Bob 0.9
+/// times (the range-of-motion take scaled, Bob's 3 m to the side): each calibration
+/// finds its own performer's size within 1 % (the calibration's target) and places all
+/// 36 labels, and then each body follows its performer within 0.7 mm RMS (0.35 mm
+/// measured for each).
+#[test]
+fn a_live_calibration_calibrates_each_actor_on_its_own_labels() {
+    let dir = tempfile::tempdir().unwrap();
+    let rom = Recording::from_c3d("body_rom", bundled("body_rom").unwrap()).unwrap();
+    let mut labels = Vec::new();
+    for subject in ["Ann", "Bob"] {
+        labels.extend(rom.labels.iter().map(|l| format!("{subject}:{l}")));
+    }
+    let frames: Vec<Vec<DVec3>> = rom
+        .frames
+        .iter()
+        .map(|f| {
+            let ann = f.iter().map(|p| *p * 1.1);
+            let bob = f.iter().map(|p| *p * 0.9 + DVec3::new(3.0, 0.0, 0.0));
+            ann.chain(bob).collect()
+        })
+        .collect();
+    let bytes = write_c3d(&labels, rom.rate_hz, &frames, Processor::Intel).unwrap();
+    std::fs::write(dir.path().join("two.c3d"), bytes).unwrap();
+    let text = two_actor_stage(
+        "[[inputs]]\ntype = \"replay\"\npath = \"two.c3d\"\n\n[calibration]\nfirst_secs = 12.0\nalways = true\n\n[outputs.stream]\ntcp = \"127.0.0.1:0\"\n",
+    );
+    let cfg = parse_stage(&text, "two calibrated").unwrap();
+    let stage = Stage::start_with(
+        &cfg,
+        dir.path(),
+        Arc::new(ManualClock::new(0.0)),
+        StartOptions {
+            stop_after_secs: Some(2.0),
+            ..StartOptions::default()
+        },
+    )
+    .unwrap();
+    for (a, size) in stage.info().actors.iter().zip([1.1, 0.9]) {
+        let line = a.calibration.as_deref().expect("each actor calibrated");
+        println!("{}: {line}", a.name);
+        assert!(line.contains("36 placed, 0 left out"), "{line}");
+        let found: f64 = line
+            .split("the actor is ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|x| x.parse().ok())
+            .unwrap_or_else(|| panic!("no size in {line}"));
+        assert!((found / size - 1.0).abs() < 0.01, "{}: {found} for {size}", a.name);
+    }
+    let summary = stage.join().unwrap();
+    for a in &summary.actors {
+        let rms = a.status.marker_residual_mm_rms;
+        println!("{}: residual {rms:.2} mm RMS after calibration", a.name);
+        assert!(rms > 0.0 && rms < 0.7, "{}: {rms}", a.name);
+    }
+}

@@ -377,7 +377,14 @@ fn take(a: &CalibrateArgs) -> Result<(Recording, bool)> {
         );
     }
     let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
-    let (rec, lines) = capture(&[cfg], Path::new("."), &clock, a.seconds, &a.take)?;
+    let (rec, lines) = capture(
+        &[cfg],
+        Path::new("."),
+        &clock,
+        a.seconds,
+        &a.take,
+        &rigless::markers::index::SubjectFilter::One,
+    )?;
     if !a.json {
         for l in lines.iter().chain(&rec.warnings) {
             eprintln!("  {l}");

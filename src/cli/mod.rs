@@ -312,6 +312,9 @@ fn print_started(stage: &Stage, viewer: bool, json: bool) {
                     a.markers,
                     a.claim.as_deref().unwrap_or("its labels")
                 );
+                if let Some(c) = &a.calibration {
+                    println!("  {c}");
+                }
             }
             println!(
                 "{} actors on {} solver thread{}; the vertex stream, the viewer and Rerun carry them all",
@@ -320,7 +323,7 @@ fn print_started(stage: &Stage, viewer: bool, json: bool) {
                 if i.solver_threads == 1 { "" } else { "s" },
             );
         }
-        if let Some(c) = &i.calibration {
+        if let (Some(c), 1) = (&i.calibration, i.actors.len()) {
             println!("{}", c.describe());
         }
         for input in &i.inputs {

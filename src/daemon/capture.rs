@@ -262,6 +262,7 @@ pub fn capture(
     clock: &Arc<dyn Clock>,
     seconds: f64,
     name: &str,
+    subject: &crate::markers::index::SubjectFilter,
 ) -> Result<(Recording, Vec<String>), CaptureError> {
     if !(seconds > 0.0 && seconds <= MAX_CAPTURE_SECS) {
         return Err(CaptureError::Seconds { seconds });
@@ -271,7 +272,7 @@ pub fn capture(
         markers: None,
         skeleton: None,
         procedural: None,
-        subject: &crate::markers::index::SubjectFilter::One,
+        subject,
         actors: None,
     };
     let mut opened = Vec::new();

@@ -15,7 +15,8 @@ use crate::character::bind_params::BindParams;
 use crate::character::roles::Role;
 use crate::character::{Character, MarkerDef};
 use crate::input::config::InputConfig;
-use crate::markers::index::MarkerIndex;
+use crate::markers::index::{MarkerIndex, SubjectFilter};
+use crate::replay::recording::Recording;
 use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::runtime::clock::Clock;
 use std::path::{Path, PathBuf};
@@ -136,7 +137,35 @@ pub fn calibrate_live(
     let Some(seconds) = cfg.first_secs else {
         return Ok(None);
     };
-    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input")?;
+    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input", &SubjectFilter::One)?;
+    calibrate_captured(cfg, seconds, &rec, target, progress).map(Some)
+}
+
+/// Captures `cfg.first_secs` of the marker `inputs` on `clock` once, for the live
+/// calibration of each actor of a stage of several ([`calibrate_captured`] on each's
+/// labels); `None` when `cfg` asks for no live calibration.
+pub fn capture_for_calibration(
+    cfg: &LiveCalibrationConfig,
+    inputs: &[InputConfig],
+    base_dir: &Path,
+    clock: &Arc<dyn Clock>,
+) -> Result<Option<(f64, Recording)>, LiveCalibrationError> {
+    let Some(seconds) = cfg.first_secs else {
+        return Ok(None);
+    };
+    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input", &SubjectFilter::All)?;
+    Ok(Some((seconds, rec)))
+}
+
+/// Calibrates `rec` (`seconds` of live input already captured) onto `target`, as
+/// [`calibrate_live`] does after its capture.
+pub fn calibrate_captured(
+    cfg: &LiveCalibrationConfig,
+    seconds: f64,
+    rec: &Recording,
+    target: Target<'_>,
+    progress: &mut dyn FnMut(BindStage, f64),
+) -> Result<(LiveCalibration, Option<Rig>), LiveCalibrationError> {
     let mut out = LiveCalibration {
         seconds,
         frames: rec.frames.len(),
@@ -150,7 +179,7 @@ pub fn calibrate_live(
     let seen = |k: usize| rec.frames.iter().any(|f| f[k].is_finite());
     let lacking = (0..rec.labels.len()).any(|k| seen(k) && index.get(&rec.labels[k]).is_none());
     if !(lacking || cfg.always) {
-        return Ok(Some((out, None)));
+        return Ok((out, None));
     }
     let opts = CalibrationOptions {
         frames: cfg.frames,
@@ -192,7 +221,7 @@ pub fn calibrate_live(
         out.written = Some(path.to_path_buf());
     }
     out.calibration = Some(cal);
-    Ok(Some((out, Some(rig))))
+    Ok((out, Some(rig)))
 }
 
 /// Writes `cal` into the character file at `path`, keeping the old text as FILE.bak.

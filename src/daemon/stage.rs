@@ -11,7 +11,11 @@
 //! computes and deterministically: inputs that pace themselves and the loop take turns
 //! in time order.
 
-use super::live_calibration::{calibrate_live, LiveCalibration, LiveCalibrationError, Target};
+use super::live_calibration::{
+    calibrate_captured, calibrate_live, capture_for_calibration, LiveCalibration,
+    LiveCalibrationError, Target,
+};
+use crate::replay::recording::Recording;
 use super::pipeline::{run_loop_many, ActorBoard, LoopParams, LoopStatus, Pipeline};
 use crate::calibrate::labels::map_entries;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
@@ -165,6 +169,9 @@ pub struct ActorInfo {
     /// Its first marker's stage index (markers are numbered across actors in inputs and
     /// session files).
     pub first_marker: u32,
+    /// What the live calibration of its first seconds did, in a line (a stage of
+    /// several actors with `[calibration] first_secs`; `None` otherwise).
+    pub calibration: Option<String>,
 }
 
 /// One input of a started stage.
@@ -310,16 +317,24 @@ struct Bound {
     marker_scale: f64,
 }
 
+/// Binds `character`, calibrated live when the config asks for it: on the seconds
+/// `captured` already (an actor's labels of them, on a stage of several), else on a
+/// capture of its own.
 fn bind_character(
     cfg: &StageConfig,
     character: &crate::character::config::CharacterConfig,
     base_dir: &Path,
     clock: &Arc<dyn Clock>,
     progress: &mut dyn FnMut(BindStage, f64),
+    captured: Option<(f64, &Recording)>,
 ) -> Result<(Bound, Option<LiveCalibration>), StageError> {
     // The live calibration, when the config asks for one, and its rig.
-    let live = |target: Target<'_>, progress: &mut dyn FnMut(BindStage, f64)| {
-        calibrate_live(
+    let live = |target: Target<'_>, progress: &mut dyn FnMut(BindStage, f64)| match captured {
+        Some((seconds, rec)) => {
+            calibrate_captured(&cfg.calibration, seconds, rec, target, progress)
+                .map(|(l, r)| (Some(l), r))
+        }
+        None => calibrate_live(
             &cfg.calibration,
             &cfg.inputs,
             base_dir,
@@ -327,7 +342,7 @@ fn bind_character(
             target,
             progress,
         )
-        .map(|found| found.map_or((None, None), |(l, r)| (Some(l), r)))
+        .map(|found| found.map_or((None, None), |(l, r)| (Some(l), r))),
     };
     // The stage's marker_scale, else the live calibration's, else the file's.
     let scale = |live: &Option<LiveCalibration>, file: f64| {
@@ -468,16 +483,39 @@ fn bind_actors(
         labels: several.then(Vec::new),
         calibration: None,
     };
+    // A stage of several calibrating live captures the first seconds once; each actor
+    // is calibrated on its own labels of them.
+    let captured = match several {
+        true => capture_for_calibration(&cfg.calibration, &cfg.inputs, base_dir, clock)?,
+        false => None,
+    };
     for (i, spec) in specs.iter().enumerate() {
-        // Actors of the same character share its rig (bound once).
+        // Actors of the same character share its rig (bound once), unless each is
+        // calibrated to its own performer.
         let same = specs[..i]
             .iter()
-            .position(|s| s.character == spec.character);
+            .position(|s| s.character == spec.character)
+            .filter(|_| captured.is_none());
+        let mut calibrated = None;
         let bound = match same {
             Some(j) => out.bound[j].clone(),
             None => {
-                let (bound, calibration) =
-                    bind_character(cfg, &spec.character, base_dir, clock, progress)?;
+                let mine = captured.as_ref().map(|(seconds, rec)| {
+                    let mut rec = rec.clone();
+                    if let Some(claim) = &spec.claim {
+                        rec.keep_claimed(claim);
+                    }
+                    (*seconds, rec)
+                });
+                let (bound, calibration) = bind_character(
+                    cfg,
+                    &spec.character,
+                    base_dir,
+                    clock,
+                    progress,
+                    mine.as_ref().map(|(s, r)| (*s, r)),
+                )?;
+                calibrated = calibration.as_ref().map(LiveCalibration::describe);
                 out.calibration = out.calibration.or(calibration);
                 bound
             }
@@ -525,6 +563,7 @@ fn bind_actors(
             markers: rig.n_markers,
             claim: spec.claim.as_ref().map(Claim::describe),
             first_marker: start,
+            calibration: calibrated.filter(|_| several),
         });
         out.starts.push(start);
         out.solvers.push(solver);

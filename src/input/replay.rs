@@ -45,7 +45,7 @@ impl ReplayInput {
         };
         let index = match ctx.markers {
             Some(_) => ctx.index(),
-            None => MarkerIndex::fixed(&rec.labels),
+            None => MarkerIndex::fixed_for(&rec.labels, ctx.subject.clone()),
         };
         let map = LabelMap::new(&rec.labels, &index);
         if map.marker_of_label.iter().all(Option::is_none) {

@@ -34,6 +34,9 @@ pub enum SubjectFilter {
     /// This subject's only (`Ann` takes `Ann:LFHD` and `ann:lfhd`; `""` takes labels
     /// without a prefix).
     Named(String),
+    /// Every subject's labels, each as its own name (a capture for a stage of several
+    /// actors, each of which then takes its own).
+    All,
 }
 
 /// The subject of a `Subject:Label` name: the part before the last `:`, trimmed; `""`
@@ -67,7 +70,7 @@ impl Claim {
     }
 
     /// What the `*` of a one-star pattern stood for in `name`, if one such claims it.
-    fn star_part<'n>(&self, name: &'n str) -> Option<&'n str> {
+    pub fn star_part<'n>(&self, name: &'n str) -> Option<&'n str> {
         let Claim::Patterns(ps) = self else {
             return None;
         };
@@ -201,7 +204,7 @@ impl MarkerIndex {
     /// [`Self::fixed`], taking the labels of the subjects `filter` says.
     pub fn fixed_for(names: &[String], filter: SubjectFilter) -> Self {
         let taken = match &filter {
-            SubjectFilter::One => None,
+            SubjectFilter::One | SubjectFilter::All => None,
             SubjectFilter::Named(s) => Some(s.clone()),
         };
         let mut index = Self {
@@ -328,6 +331,10 @@ impl MarkerIndex {
                 }
             };
             let subject = subject_of(name);
+            if self.filter == SubjectFilter::All {
+                // Every subject: only an exact name (`Bob:LFHD` is not `Ann:LFHD`).
+                return exact;
+            }
             return match &self.taken {
                 Some(t) if t.eq_ignore_ascii_case(subject) => Some(k),
                 Some(_) => {
@@ -497,6 +504,7 @@ impl LabelMap {
         }
         let subject: Option<String> = match &index.filter {
             SubjectFilter::Named(s) => Some(s.clone()),
+            SubjectFilter::All => None,
             SubjectFilter::One => {
                 let mut counts: Vec<(&str, usize)> = Vec::new();
                 for s in labels.iter().filter_map(|l| loose(index, l)) {

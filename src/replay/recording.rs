@@ -168,6 +168,32 @@ impl Recording {
         keep.iter().filter(|k| !**k).count()
     }
 
+    /// Keeps the labels `claim` claims (an actor's of a stage of several) and drops the
+    /// others; a label a one-star pattern claims is renamed to what its `*` stood for
+    /// (`Ann_LFHD` under `Ann_*` becomes `LFHD`), so that it reads as the marker's name.
+    /// Returns how many labels were dropped.
+    pub fn keep_claimed(&mut self, claim: &crate::markers::index::Claim) -> usize {
+        use crate::markers::index::subject_of;
+        let keep: Vec<bool> = self
+            .labels
+            .iter()
+            .map(|l| claim.claims(l, subject_of(l)))
+            .collect();
+        retain_by(&mut self.labels, &keep);
+        for l in &mut self.labels {
+            if let Some(bare) = claim.star_part(l) {
+                *l = bare.to_owned();
+            }
+        }
+        for f in &mut self.frames {
+            retain_by(f, &keep);
+        }
+        if self.point_groups.len() == keep.len() {
+            retain_by(&mut self.point_groups, &keep);
+        }
+        keep.iter().filter(|k| !**k).count()
+    }
+
     /// Reads a file by its extension (`.c3d`, `.tsv`, `.rlsession`, `.bvh` with
     /// [`DEFAULT_BVH_METRES_PER_UNIT`]).
     pub fn load(path: &Path) -> Result<Self, RecordingError> {
