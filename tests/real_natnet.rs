@@ -178,11 +178,11 @@ fn the_input_names_markers_and_receives_real_packets_on_loopback() {
     );
     assert!(frames[0][1].occluded && !frames[0][1].position_m.is_finite());
     assert!(frames[0].iter().filter(|m| m.occluded).count() == 1);
-    // The other frame has no marker sets: its six labelled markers, by asset and member
-    // (ids 0x20001..0x20005 and 0xc357, a point-cloud marker of no asset, read off the
-    // packet independently).
+    // The other frame has no marker sets: its labelled markers, by asset and member (ids
+    // 0x20001..0x20005 read off the packet independently); the sixth, 0xc357, is a
+    // point-cloud marker of no asset (asset 0), no marker's.
     let names: Vec<&str> = frames[1].iter().map(|m| m.name.as_str()).collect();
-    assert_eq!(names, ["2_1", "2_2", "2_3", "2_4", "2_5", "0_50007"]);
+    assert_eq!(names, ["2_1", "2_2", "2_3", "2_4", "2_5"]);
 }
 
 /// The command port with Motive's real answers: a loopback server takes the client's
@@ -275,8 +275,69 @@ fn the_command_port_names_markers_and_keeps_unicast_alive() {
             "RaceQuad:Marker2",
             "RaceQuad:Marker3",
             "RaceQuad:Marker4",
-            "RaceQuad:Marker5",
-            "0_50007"
+            "RaceQuad:Marker5"
         ]
     );
+}
+
+/// Two assets in one real frame, without model definitions (a client that never got
+/// them names a labelled marker `ASSET_MEMBER` from the asset id packed in its id): the
+/// real frame's labelled markers of asset 2, and the same again as asset 5, 3 m to the
+/// side, re-encoded and decoded. Two actors claiming `2_*` and `5_*` each get their own
+/// asset's, member by member, and nothing of the other's. The frame's markers of asset
+/// 0 (Motive's unlabelled points, ids 50000 and up) are no asset's: not named at all.
+#[test]
+fn two_assets_route_by_the_asset_id_without_model_definitions() {
+    use rigless::input::natnet::{markers_of, ModelNames};
+    use rigless::markers::index::{ActorLabels, Claim, MarkerIndex};
+    use rigless::protocol::natnet::encode_frame;
+    let Some(b) = packet("mocapframe_packet_v3.bin") else {
+        return;
+    };
+    let Message::Frame(mut f) = decode(&b, V3).unwrap() else {
+        panic!("a frame")
+    };
+    let of_asset_2 = f.labeled.iter().filter(|m| m.asset_id == 2).count();
+    assert_eq!(of_asset_2, 5, "the real frame's asset 2 members");
+    let unlabelled = f.labeled.iter().filter(|m| m.asset_id == 0).count();
+    assert_eq!(unlabelled, 1, "the real frame's unlabelled point");
+    let second: Vec<_> = f
+        .labeled
+        .iter()
+        .filter(|m| m.asset_id == 2)
+        .map(|m| {
+            let mut m = m.clone();
+            m.asset_id = 5;
+            m.position_m += glam::Vec3::new(3.0, 0.0, 0.0);
+            m
+        })
+        .collect();
+    f.labeled.extend(second);
+    let Message::Frame(f) = decode(&encode_frame(&f).unwrap(), V3).unwrap() else {
+        panic!("a frame")
+    };
+    let mut named = Vec::new();
+    markers_of(&f, &ModelNames::default(), &mut named);
+    let names: Vec<&str> = named.iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["2_1", "2_2", "2_3", "2_4", "2_5", "5_1", "5_2", "5_3", "5_4", "5_5"]
+    );
+    // Each actor's markers are the asset's members by number.
+    let members: Vec<String> = (1..=5).map(|k| k.to_string()).collect();
+    let actor = |name: &str, asset: &str| ActorLabels {
+        names: members.iter().map(|m| format!("{name}:{m}")).collect(),
+        markers: members.clone(),
+        claim: Claim::Patterns(vec![format!("{asset}_*")]),
+    };
+    let mut index = MarkerIndex::for_actors(&[actor("Ann", "2"), actor("Bob", "5")]);
+    for m in &named {
+        let k = index.resolve(&m.name).expect("every named marker is claimed") as usize;
+        let (asset, member) = m.name.split_once('_').unwrap();
+        // Ann's markers are stage indices 0..5, Bob's 5..10, each member at its number.
+        let start = if asset == "2" { 0 } else { 5 };
+        assert_eq!(k, start + member.parse::<usize>().unwrap() - 1, "{}", m.name);
+        let x = m.position_m.x;
+        assert_eq!(x > 2.0, asset == "5", "{}: x {x}", m.name);
+    }
 }

@@ -281,7 +281,10 @@ pub fn markers_of(f: &MocapFrame, names: &ModelNames, out: &mut Vec<NamedMarker>
         }
     }
     if out.len() == start {
-        for m in &f.labeled {
+        // Asset 0 is no asset: Motive lists unlabelled (passive) markers among the
+        // labelled ones with model id 0 and a point id (`0_50007`), which changes as
+        // points come and go; they are no marker's.
+        for m in f.labeled.iter().filter(|m| m.asset_id != 0) {
             out.push(NamedMarker {
                 name: names
                     .labelled(m.asset_id, m.member_id)
