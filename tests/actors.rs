@@ -296,6 +296,48 @@ fn the_actor_flags_name_what_the_take_has() {
         "off",
     ]);
     assert!(!ok && err.contains("has 1 performer"), "{err}");
+    let (ok, err) = run(&["calibrate", "body", &take("body_walk"), "--actors"]);
+    assert!(!ok && err.contains("has 1 performer"), "{err}");
+}
+
+/// `calibrate --actors --write` on the two-actor session: each performer calibrated on
+/// its own labels (both are the body itself: scale 1 within 1 %, 36 placed), each
+/// layout written into its own copy of the character file, which loads.
+#[test]
+fn calibrate_actors_writes_a_file_per_performer() {
+    let dir = tempfile::tempdir().unwrap();
+    let rigless = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigless"))
+            .args(args)
+            .current_dir(dir.path())
+            .output()
+            .expect("rigless runs");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{text}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        text
+    };
+    rigless(&["export-character", "body", "."]);
+    let take = format!("{}/replay/body_two_actors.c3d", env!("CARGO_MANIFEST_DIR"));
+    let out = rigless(&["calibrate", "body.toml", &take, "--actors", "--write"]);
+    println!("{out}");
+    assert_eq!(out.matches("verdict      good").count(), 2, "{out}");
+    for actor in ["Ann", "Bob"] {
+        assert!(out.contains(&format!("actor {actor} (36 labels)")), "{out}");
+        let loaded = rigless::character::file::load_character(
+            &dir.path().join(format!("body-{actor}.toml")),
+        )
+        .unwrap();
+        assert_eq!(loaded.character.markers.len(), 36, "{actor}");
+        assert!(
+            (loaded.marker_scale - 1.0).abs() < 0.01,
+            "{actor}: marker_scale {}",
+            loaded.marker_scale
+        );
+    }
 }
 
 /// `[calibration] first_secs` on a stage of two: the first seconds are captured once and
@@ -347,7 +389,11 @@ fn a_live_calibration_calibrates_each_actor_on_its_own_labels() {
             .and_then(|r| r.split(' ').next())
             .and_then(|x| x.parse().ok())
             .unwrap_or_else(|| panic!("no size in {line}"));
-        assert!((found / size - 1.0).abs() < 0.01, "{}: {found} for {size}", a.name);
+        assert!(
+            (found / size - 1.0).abs() < 0.01,
+            "{}: {found} for {size}",
+            a.name
+        );
     }
     let summary = stage.join().unwrap();
     for a in &summary.actors {

@@ -322,7 +322,10 @@ fn python_client_reads_every_actor_of_a_two_actor_stage() {
         assert_eq!(a["vertex_count"], 10116, "{s}");
         // 4 s at 120 Hz each; the client joins a little late and may skip a few.
         let frames = a["frames"].as_u64().unwrap();
-        assert!((240..=481).contains(&frames), "{name}: {frames} frames: {s}");
+        assert!(
+            (240..=481).contains(&frames),
+            "{name}: {frames} frames: {s}"
+        );
     }
     // Each actor's own frames, not the other's: their paths differ by metres along z
     // (Ann walks from z ≈ 1 m, Bob from z ≈ 8 m back towards her).

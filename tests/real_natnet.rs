@@ -332,11 +332,18 @@ fn two_assets_route_by_the_asset_id_without_model_definitions() {
     };
     let mut index = MarkerIndex::for_actors(&[actor("Ann", "2"), actor("Bob", "5")]);
     for m in &named {
-        let k = index.resolve(&m.name).expect("every named marker is claimed") as usize;
+        let k = index
+            .resolve(&m.name)
+            .expect("every named marker is claimed") as usize;
         let (asset, member) = m.name.split_once('_').unwrap();
         // Ann's markers are stage indices 0..5, Bob's 5..10, each member at its number.
         let start = if asset == "2" { 0 } else { 5 };
-        assert_eq!(k, start + member.parse::<usize>().unwrap() - 1, "{}", m.name);
+        assert_eq!(
+            k,
+            start + member.parse::<usize>().unwrap() - 1,
+            "{}",
+            m.name
+        );
         let x = m.position_m.x;
         assert_eq!(x > 2.0, asset == "5", "{}: x {x}", m.name);
     }

@@ -91,6 +91,24 @@ pub struct CalibrateArgs {
     /// it the subject with most labels is taken and the others are left out, named.
     #[arg(long, value_name = "NAME")]
     actor: Option<String>,
+    /// A take of several performers: calibrate each (every subject with at least 3
+    /// labels), a table and a verdict each. With --write, each performer's layout goes
+    /// into a copy of the character file named after it beside it (`body-Ann.toml`), one
+    /// for each `[[actors]]` entry of a stage.
+    #[arg(long, conflicts_with = "actor")]
+    actors: bool,
+}
+
+/// Labels a subject needs to be calibrated as a performer by `--actors` (a prop's one
+/// or two markers are not one).
+const PERFORMER_LABELS: usize = 3;
+
+/// The options every calibration of a run shares, read from the arguments.
+#[derive(Clone, Copy)]
+struct Settings {
+    frames: usize,
+    span_s: Option<(f64, f64)>,
+    marker_set: Option<&'static rigless::calibrate::marker_sets::MarkerSet>,
 }
 
 /// What a calibration needs of a character.
@@ -217,36 +235,158 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
             )
         })?),
     };
-    let Target {
-        character: ch,
-        bind,
-        loaded,
-        roles,
-        map,
-        file,
-    } = load(&a.character)?;
-    if a.write && file.is_none() {
+    let settings = Settings {
+        frames,
+        span_s,
+        marker_set,
+    };
+    let target = load(&a.character)?;
+    if a.write && target.file.is_none() {
         bail!(
             "--write needs a character file; the procedural {0} has none (write one with `rigless export-character {0} DIR`, then calibrate DIR/{0}.toml)",
             a.character
         );
     }
     let (mut rec, is_bvh) = take(&a)?;
+    let subjects = rec.subjects();
+    let named = |subjects: &[String]| {
+        subjects
+            .iter()
+            .map(|s| format!("{s:?}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if a.actors {
+        return calibrate_actors(&a, &settings, target, &rec, is_bvh);
+    }
     if let Some(actor) = &a.actor {
-        let subjects = rec.subjects();
         rec.keep_subject(actor);
         if rec.labels.is_empty() {
             bail!(
                 "--actor {actor:?}: {} has no label of that subject (its subjects: {})",
                 a.take,
-                subjects
-                    .iter()
-                    .map(|s| format!("{s:?}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                named(&subjects)
             );
         }
     }
+    let write_to = target.file.clone().filter(|_| a.write);
+    calibrate_take(&a, &settings, target, &rec, is_bvh, write_to.as_deref())
+}
+
+/// `--actors`: each performer of the take calibrated on its own labels, its layout
+/// written (with `--write`) into a copy of the character file named after it.
+fn calibrate_actors(
+    a: &CalibrateArgs,
+    settings: &Settings,
+    target: Target,
+    rec: &Recording,
+    is_bvh: bool,
+) -> Result<()> {
+    use rigless::markers::index::subject_of;
+    let count = |s: &str| {
+        rec.labels
+            .iter()
+            .filter(|l| subject_of(l).eq_ignore_ascii_case(s))
+            .count()
+    };
+    let performers: Vec<String> = rec
+        .subjects()
+        .into_iter()
+        .filter(|s| count(s) >= PERFORMER_LABELS)
+        .collect();
+    if performers.len() < 2 {
+        let whose: Vec<String> = rec
+            .subjects()
+            .iter()
+            .map(|s| format!("{s:?} ({} labels)", count(s)))
+            .collect();
+        bail!(
+            "--actors: {} has {} performer{} with at least {PERFORMER_LABELS} labels (subjects: {}); --actors needs two or more (without it one is calibrated)",
+            a.take,
+            performers.len(),
+            if performers.len() == 1 { "" } else { "s" },
+            whose.join(", ")
+        );
+    }
+    let mut failed = Vec::new();
+    for (i, subject) in performers.iter().enumerate() {
+        let mut mine = rec.clone();
+        mine.keep_subject(subject);
+        let name = if subject.is_empty() {
+            "unprefixed"
+        } else {
+            subject.as_str()
+        };
+        let copy = match (&target.file, a.write) {
+            (Some(path), true) => Some(actor_copy(path, name)?),
+            _ => None,
+        };
+        if !a.json {
+            println!(
+                "{}actor {name} ({} labels)",
+                if i > 0 { "\n" } else { "" },
+                mine.labels.len()
+            );
+        }
+        let target = load(&a.character)?;
+        if let Err(e) = calibrate_take(a, settings, target, &mine, is_bvh, copy.as_deref()) {
+            eprintln!("actor {name}: {e:#}");
+            failed.push(name.to_owned());
+        }
+    }
+    match failed.is_empty() {
+        true => Ok(()),
+        false => bail!(
+            "{}: the calibration of {} failed (said above)",
+            a.take,
+            failed.join(", ")
+        ),
+    }
+}
+
+/// A copy of the character file at `path` for actor `name`, beside it
+/// (`body.toml` → `body-Ann.toml`), for its layout to be written into.
+fn actor_copy(path: &Path, name: &str) -> Result<PathBuf> {
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    let safe: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let copy = path.with_file_name(format!("{stem}-{safe}.toml"));
+    std::fs::copy(path, &copy)
+        .with_context(|| format!("copying {} to {}", path.display(), copy.display()))?;
+    Ok(copy)
+}
+
+/// Calibrates `rec` onto `target` as the arguments say: the table (or JSON), the check
+/// when asked, the verdict, and the layout written into `write_to` when given.
+fn calibrate_take(
+    a: &CalibrateArgs,
+    settings: &Settings,
+    target: Target,
+    rec: &Recording,
+    is_bvh: bool,
+    write_to: Option<&Path>,
+) -> Result<()> {
+    let Target {
+        character: ch,
+        bind,
+        loaded,
+        roles,
+        map,
+        ..
+    } = target;
+    let Settings {
+        frames,
+        span_s,
+        marker_set,
+    } = *settings;
     let mut map = map;
     if is_bvh {
         map.extend(bvh_roles(Path::new(&a.take), a.bvh_scale)?);
@@ -292,26 +432,26 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     // Labels the bind refused may change the verdict.
     let verdict = cal.verdict();
     if !a.json {
-        print_table(&cal, &rec, seconds);
+        print_table(&cal, rec, seconds);
     }
     let checked = match rig.filter(|_| a.check && verdict != Verdict::Failed) {
         Some(rig) => {
             if !a.json {
                 eprintln!("replaying the take with this layout at 120 Hz ...");
             }
-            Some(check(rig, &rec, &cal)?)
+            Some(check(rig, rec, &cal)?)
         }
         None => None,
     };
     if a.json {
-        let mut v = json(&cal, &rec, seconds);
+        let mut v = json(&cal, rec, seconds);
         v["check"] = serde_json::to_value(&checked)?;
         println!("{}", serde_json::to_string(&v)?);
     } else {
         if let Some(r) = &checked {
             print_check(r);
         }
-        print_verdict(&cal, a.write);
+        print_verdict(&cal, write_to.is_some());
     }
     if verdict == Verdict::Failed {
         bail!(
@@ -325,7 +465,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
                 .join("; ")
         );
     }
-    if let (true, Some(path)) = (a.write, &file) {
+    if let Some(path) = write_to {
         write_layout(path, &cal)?;
         if !a.json {
             println!(

@@ -137,7 +137,14 @@ pub fn calibrate_live(
     let Some(seconds) = cfg.first_secs else {
         return Ok(None);
     };
-    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input", &SubjectFilter::One)?;
+    let (rec, _) = capture(
+        inputs,
+        base_dir,
+        clock,
+        seconds,
+        "live input",
+        &SubjectFilter::One,
+    )?;
     calibrate_captured(cfg, seconds, &rec, target, progress).map(Some)
 }
 
@@ -153,7 +160,14 @@ pub fn capture_for_calibration(
     let Some(seconds) = cfg.first_secs else {
         return Ok(None);
     };
-    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input", &SubjectFilter::All)?;
+    let (rec, _) = capture(
+        inputs,
+        base_dir,
+        clock,
+        seconds,
+        "live input",
+        &SubjectFilter::All,
+    )?;
     Ok(Some((seconds, rec)))
 }
 

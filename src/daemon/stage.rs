@@ -15,7 +15,6 @@ use super::live_calibration::{
     calibrate_captured, calibrate_live, capture_for_calibration, LiveCalibration,
     LiveCalibrationError, Target,
 };
-use crate::replay::recording::Recording;
 use super::pipeline::{run_loop_many, ActorBoard, LoopParams, LoopStatus, Pipeline};
 use crate::calibrate::labels::map_entries;
 use crate::character::demo::{body_bind_params, demo_body, demo_hand, hand_bind_params};
@@ -30,6 +29,7 @@ use crate::output::frame::DeformedFrame;
 use crate::output::rerun_sink::{self, RerunOptions, RerunStats, RerunTarget};
 use crate::output::scene::Scene;
 use crate::output::stream::{StreamServer, StreamStats};
+use crate::replay::recording::Recording;
 use crate::replay::session::{run_recorder, RecorderOutcome, SessionHeader, SessionWriter};
 use crate::rig::bind::{BindError, BindStage, Rig};
 use crate::rig::cache::{load_or_bind, LoadOrBindError};
@@ -756,7 +756,13 @@ impl Stage {
         )?;
         let bind_s = t0.elapsed().as_secs_f64();
         let scenes = actors.scenes(cfg.solver.rate_hz);
-        let sinks = Sinks::start(cfg, base_dir, &scenes, opts.frames.take(), opts.rerun.take())?;
+        let sinks = Sinks::start(
+            cfg,
+            base_dir,
+            &scenes,
+            opts.frames.take(),
+            opts.rerun.take(),
+        )?;
         let solvers = std::mem::take(&mut actors.solvers);
         let (txs, mut pipelines, pins) = actor_pipelines(cfg, solvers, &actors, &sinks, &opts);
         let recorder = match cfg.recorder.path_at(base_dir, clock.unix_s(0.0)) {

@@ -478,7 +478,8 @@ fn log_mesh(
     let mut mesh = ::rerun::Mesh3D::update_fields()
         .with_vertex_positions(f.vertices_m.iter().map(|v| v.to_array()));
     // The harmonic method's field as the vertices' colours.
-    let field = harmonic_field && !a.scene.tied.is_empty() && f.field_deg.len() == f.vertices_m.len();
+    let field =
+        harmonic_field && !a.scene.tied.is_empty() && f.field_deg.len() == f.vertices_m.len();
     if field {
         mesh = mesh.with_vertex_colors(f.field_deg.iter().map(|a| field_color(*a)));
     }
