@@ -402,3 +402,40 @@ fn a_live_calibration_calibrates_each_actor_on_its_own_labels() {
         assert!(rms > 0.0 && rms < 0.7, "{}: {rms}", a.name);
     }
 }
+
+/// One file per actor: two replay inputs of takes without subject prefixes, each named
+/// its performer's by `subject` (the body's walk as Ann's, its reach 3 m to the side as
+/// Bob's), feed each actor its own file's 36 markers and nothing of the other's.
+#[test]
+fn one_file_per_actor_feeds_each_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let reach = Recording::from_c3d("body_reach", bundled("body_reach").unwrap()).unwrap();
+    let frames: Vec<Vec<DVec3>> = reach
+        .frames
+        .iter()
+        .map(|f| f.iter().map(|p| *p + DVec3::new(3.0, 0.0, 0.0)).collect())
+        .collect();
+    let bytes = write_c3d(&reach.labels, reach.rate_hz, &frames, Processor::Intel).unwrap();
+    std::fs::write(dir.path().join("bob.c3d"), bytes).unwrap();
+    let text = two_actor_stage(
+        "[[inputs]]\ntype = \"replay\"\nsession = \"body_walk\"\nsubject = \"Ann\"\n\n[[inputs]]\ntype = \"replay\"\npath = \"bob.c3d\"\nsubject = \"Bob\"\n",
+    );
+    let (summary, last) = run(&text, dir.path(), Some(2.0));
+    // Each input's 36 labels all feed a marker: 72 fed, none ignored.
+    assert_eq!(
+        (summary.labels_fed, summary.labels_ignored),
+        (Some(72), Some(0))
+    );
+    // Ann walks near x = 0, Bob reaches near x = 3: each mesh where its own file is.
+    let x = |f: &DeformedFrame| mean(&f.vertices_m).x;
+    assert!(x(&last[0]).abs() < 1.0, "Ann at x {}", x(&last[0]));
+    assert!((x(&last[1]) - 3.0).abs() < 1.0, "Bob at x {}", x(&last[1]));
+    for a in &summary.actors {
+        assert!(
+            a.status.marker_residual_mm_rms < 2.0,
+            "{}: {:?}",
+            a.name,
+            a.status
+        );
+    }
+}

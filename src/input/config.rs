@@ -147,6 +147,10 @@ pub struct ReplayInputConfig {
     /// Play the recording again and again.
     #[serde(rename = "loop")]
     pub looping: bool,
+    /// Whose take it is: its labels without a subject prefix are read as this subject's
+    /// (`LFHD` as `Ann:LFHD`), so that a stage of several actors plays one file per
+    /// actor (default: as written).
+    pub subject: Option<String>,
 }
 
 impl Default for ReplayInputConfig {
@@ -157,6 +161,7 @@ impl Default for ReplayInputConfig {
             bvh_scale: crate::replay::recording::DEFAULT_BVH_METRES_PER_UNIT,
             speed: 1.0,
             looping: false,
+            subject: None,
         }
     }
 }
@@ -387,6 +392,14 @@ impl InputConfig {
                         );
                     }
                     _ => {}
+                }
+                if let Some(m) = r.subject.as_deref().and_then(|s| {
+                    crate::character::config::name_problem(
+                        s,
+                        "a subject's name as it prefixes labels (`Ann` for `Ann:LFHD`)",
+                    )
+                }) {
+                    push("subject", m);
                 }
                 if !(positive(r.bvh_scale) && r.bvh_scale <= 10.0) {
                     push(

@@ -34,7 +34,7 @@ impl ReplayInput {
     /// labels onto the character's markers; refuses a recording none of whose labels is
     /// a marker. Without a character (`ctx.markers` is `None`), every label is a marker.
     pub fn open(cfg: &ReplayInputConfig, ctx: &OpenContext<'_>) -> Result<Self, InputError> {
-        let rec = match (&cfg.session, &cfg.path) {
+        let mut rec = match (&cfg.session, &cfg.path) {
             (Some(name), _) => {
                 let bytes = bundled(name)
                     .ok_or_else(|| InputError::NoSuchSession { name: name.clone() })?;
@@ -43,6 +43,13 @@ impl ReplayInput {
             (None, Some(p)) => Recording::load_with(&ctx.base_dir.join(p), cfg.bvh_scale)?,
             (None, None) => return Err(InputError::NoRecording),
         };
+        if let Some(subject) = &cfg.subject {
+            for l in &mut rec.labels {
+                if crate::markers::index::subject_of(l).is_empty() {
+                    *l = format!("{subject}:{l}");
+                }
+            }
+        }
         let index = match ctx.markers {
             Some(_) => ctx.index(),
             None => MarkerIndex::fixed_for(&rec.labels, ctx.subject.clone()),
