@@ -12,6 +12,10 @@ use std::time::Duration;
 /// Longest the whole browser check may take, seconds (it takes about 30).
 const TIMEOUT_S: u64 = 180;
 
+/// One browser check at a time: each runs a demo and a software-WebGL Chromium, and two
+/// at once on two cores halve the rates each measures.
+static ONE_BROWSER: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn missing_peer() -> Option<String> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/browser");
     if Command::new("node").arg("--version").output().is_err() {
@@ -37,6 +41,7 @@ fn the_viewer_page_draws_the_stream_and_reconnects_in_chromium() {
         common::skip_for_missing_peer(&why);
         return;
     }
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let out = tempfile::tempdir().unwrap();
     let r = common::run_json_check(
         "node",
@@ -93,6 +98,7 @@ fn the_viewer_draws_every_actor_labelled_and_keeps_them_in_view() {
         common::skip_for_missing_peer(&why);
         return;
     }
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let out = tempfile::tempdir().unwrap();
     let r = common::run_json_check_with(
         "node",

@@ -402,12 +402,17 @@ function placeLabels(viewProj) {
   const placed = [];
   for (const a of page.actors) {
     if (!a) continue;
-    const s = a.seen && a.box && project(viewProj, [0.5 * (a.box.lo[0] + a.box.hi[0]), a.box.hi[1], 0.5 * (a.box.lo[2] + a.box.hi[2])]);
-    if (!s) { a.label.style.display = "none"; continue; }
+    // A stage of one needs no name over its one character.
+    const s = a.t.actorCount > 1 && a.seen && a.box && project(viewProj, [0.5 * (a.box.lo[0] + a.box.hi[0]), a.box.hi[1], 0.5 * (a.box.lo[2] + a.box.hi[2])]);
+    if (!s) { if (a.label.style.display !== "none") a.label.style.display = "none"; continue; }
     const held = a.drawn.states.every((st) => st === HELD);
-    a.label.textContent = a.t.actor + (held ? " (no marker in view: holding)" : "");
-    a.label.style.display = "block";
-    const x = (0.5 + 0.5 * s[0]) * canvas.clientWidth, w = a.label.offsetWidth, h = a.label.offsetHeight;
+    const text = a.t.actor + (held ? " (no marker in view: holding)" : "");
+    // Measured only when the text changes (a read after a change costs a layout).
+    if (a.label.textContent !== text || a.label.style.display !== "block") {
+      a.label.textContent = text; a.label.style.display = "block";
+      a.labelSize = [a.label.offsetWidth, a.label.offsetHeight];
+    }
+    const x = (0.5 + 0.5 * s[0]) * canvas.clientWidth, [w, h] = a.labelSize;
     let y = (0.5 - 0.5 * s[1]) * canvas.clientHeight;
     // The label's box: centred on x, its bottom a little above y (as the CSS places it).
     const box = (yy) => ({ l: x - w / 2, r: x + w / 2, t: yy - 1.3 * h, b: yy - 0.3 * h });
