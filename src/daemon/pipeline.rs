@@ -820,10 +820,11 @@ pub fn run_loop(
 }
 
 /// [`run_loop`] for several pipelines (actors) on one thread: each tick solves them in
-/// turn, each within its share of what is left of the tick's budget (the time until
-/// `deadline_fraction` of the period, split evenly among the actors still to solve, so
-/// that one that finishes early leaves its time to the next). `status[i]` hears
-/// `pipelines[i]`'s status. Returns each one's final status.
+/// turn, each within its own share of the tick's budget (the time until
+/// `deadline_fraction` of the period, split evenly among the thread's actors), or less
+/// when the ones before it left less than that: an actor's frame time does not grow
+/// with how quickly the others converged. `status[i]` hears `pipelines[i]`'s status.
+/// Returns each one's final status.
 pub fn run_loop_many(
     pipelines: &mut [Pipeline],
     clock: &dyn Clock,
@@ -858,8 +859,10 @@ pub fn run_loop_many(
         let next = due(k);
         let end_s = next + period * params.deadline_fraction;
         let n = pipelines.len();
+        let own_s = period * params.deadline_fraction / n as f64;
         for (i, p) in pipelines.iter_mut().enumerate() {
-            let share = (end_s - clock.now_s()).max(0.0) / (n - i) as f64;
+            let left_s = (end_s - clock.now_s()).max(0.0) / (n - i) as f64;
+            let share = left_s.min(own_s);
             p.tick(next, clock.deadline_at(clock.now_s() + share), &|| {
                 clock.unix_s(clock.now_s())
             });
