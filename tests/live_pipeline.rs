@@ -603,6 +603,10 @@ fn late_ticks_are_skipped_and_counted_not_bunched() {
         121,
         "every due tick run or counted: {last:?}"
     );
+    // A frame's number is its tick's: the last, tick 120, is numbered 120 although 115
+    // frames were solved, so a client sees the skipped ticks as gaps.
+    let f = s.slot.take().expect("a published frame");
+    assert_eq!(f.frame, 120);
 }
 
 /// The loop's count of deadline stops: the hand's pipeline given a mid-curl frame cold

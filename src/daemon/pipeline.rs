@@ -260,7 +260,11 @@ pub struct Pipeline {
     markers: MarkerFrame,
     vertices: Vec<DVec3>,
     pool: Vec<Arc<DeformedFrame>>,
+    /// The tick this frame is solved at, counting from 0: solved ticks and those the
+    /// loop skipped when it fell a period behind ([`Self::skip_ticks`]).
     frame_no: u64,
+    /// Ticks skipped so far (`frame_no` less these is the frames solved).
+    skipped: u64,
     samples: u64,
     /// Recent whole-frame and solve times, ms (rings of `WINDOW_LEN`).
     window_ms: Vec<f64>,
@@ -324,6 +328,7 @@ impl Pipeline {
             vertices: vec![DVec3::ZERO; nv],
             pool: Vec::with_capacity(POOL_LEN),
             frame_no: 0,
+            skipped: 0,
             samples: 0,
             window_ms: Vec::with_capacity(WINDOW_LEN),
             window_solve_ms: Vec::with_capacity(WINDOW_LEN),
@@ -518,6 +523,14 @@ impl Pipeline {
         self.samples += drained as u64;
         self.buffer.sample_at(t_s, &mut self.markers);
         drained
+    }
+
+    /// Counts `n` ticks the loop skipped (it fell more than a period behind): the next
+    /// frame's number is its tick's, so a client sees the gap, and every actor of a
+    /// stage numbers the same tick alike.
+    pub fn skip_ticks(&mut self, n: u64) {
+        self.frame_no += n;
+        self.skipped += n;
     }
 
     /// One frame at time `t_s` on the daemon's clock: drain, sample, solve (until
@@ -751,7 +764,7 @@ impl Pipeline {
             fill_now[*s as usize] += 1;
         }
         let mut st = LoopStatus {
-            frames: self.frame_no,
+            frames: self.frame_no - self.skipped,
             frame_rate_hz: self.interval_frames as f64 / interval_s.max(1e-9),
             frame_ms_p50: pct(&self.window_ms, 0.5),
             frame_ms_p99: pct(&self.window_ms, 0.99),
@@ -852,6 +865,9 @@ pub fn run_loop_many(
             let behind = (late / period).floor() as u64;
             overruns += behind;
             k += behind;
+            for p in pipelines.iter_mut() {
+                p.skip_ticks(behind);
+            }
             if past_end(k) {
                 break;
             }
