@@ -134,18 +134,10 @@ pub fn calibrate_live(
     target: Target<'_>,
     progress: &mut dyn FnMut(BindStage, f64),
 ) -> Result<Option<(LiveCalibration, Option<Rig>)>, LiveCalibrationError> {
-    let Some(seconds) = cfg.first_secs else {
-        return Ok(None);
-    };
-    let (rec, _) = capture(
-        inputs,
-        base_dir,
-        clock,
-        seconds,
-        "live input",
-        &SubjectFilter::One,
-    )?;
-    calibrate_captured(cfg, seconds, &rec, target, progress).map(Some)
+    match capture_first_secs(cfg, inputs, base_dir, clock, &SubjectFilter::One)? {
+        Some((seconds, rec)) => calibrate_captured(cfg, seconds, &rec, target, progress).map(Some),
+        None => Ok(None),
+    }
 }
 
 /// Captures `cfg.first_secs` of the marker `inputs` on `clock` once, for the live
@@ -157,17 +149,22 @@ pub fn capture_for_calibration(
     base_dir: &Path,
     clock: &Arc<dyn Clock>,
 ) -> Result<Option<(f64, Recording)>, LiveCalibrationError> {
+    capture_first_secs(cfg, inputs, base_dir, clock, &SubjectFilter::All)
+}
+
+/// `cfg.first_secs` of the marker `inputs` on `clock`, the labels of the subjects
+/// `subject` says, and how long; `None` when `cfg` asks for no live calibration.
+fn capture_first_secs(
+    cfg: &LiveCalibrationConfig,
+    inputs: &[InputConfig],
+    base_dir: &Path,
+    clock: &Arc<dyn Clock>,
+    subject: &SubjectFilter,
+) -> Result<Option<(f64, Recording)>, LiveCalibrationError> {
     let Some(seconds) = cfg.first_secs else {
         return Ok(None);
     };
-    let (rec, _) = capture(
-        inputs,
-        base_dir,
-        clock,
-        seconds,
-        "live input",
-        &SubjectFilter::All,
-    )?;
+    let (rec, _) = capture(inputs, base_dir, clock, seconds, "live input", subject)?;
     Ok(Some((seconds, rec)))
 }
 

@@ -216,6 +216,25 @@ def to_blender_axes(v):
     return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1).ravel()
 
 
+def applied_diff(reference, actor=0):
+    """The largest difference, metres, between the driven object's vertices and the
+    stream's vertices of the frame the add-on applied last (read by the reference
+    client, in Blender's axes); None when the reference did not get that frame."""
+    f = rigless_live._state["applied"]
+    want = None
+    for _ in range(100):
+        want = reference.get(f["frame"], actor=actor)
+        if want is not None:
+            break
+        time.sleep(0.005)
+    if want is None:
+        return None
+    obj = bpy.data.objects[rigless_live._state["object"]]
+    co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    return float(np.abs(co - to_blender_axes(want)).max())
+
+
 def check_actor_choice(binary, scene):
     """On the two-actor demo: following "Bob" applies Bob's frames (equal to the
     stream's actor 1 frames of the same number); "Carl" is refused, naming Ann and Bob."""
@@ -234,18 +253,10 @@ def check_actor_choice(binary, scene):
                 continue
             f = rigless_live._state["applied"]
             check(f["actor"] == 1, f"applied a frame of actor {f['actor']}, not Bob's (1)")
-            want = None
-            for _ in range(100):
-                want = reference.get(f["frame"], actor=1)
-                if want is not None:
-                    break
-                time.sleep(0.005)
-            if want is None:
+            diff = applied_diff(reference, actor=1)
+            if diff is None:
                 continue
-            obj = bpy.data.objects[rigless_live._state["object"]]
-            co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
-            obj.data.vertices.foreach_get("co", co)
-            max_diff = max(max_diff, float(np.abs(co - to_blender_axes(want)).max()))
+            max_diff = max(max_diff, diff)
             compared += 1
         out = {"object": rigless_live._state["object"], "compared": compared, "max_diff_m": max_diff}
         rigless_live.connect("127.0.0.1", port, actor="Carl")
@@ -286,22 +297,13 @@ def main():
                 continue
             applied += 1
             f = rigless_live._state["applied"]
-            want = None
-            for _ in range(100):
-                want = reference.get(f["frame"])
-                if want is not None:
-                    break
-                time.sleep(0.005)
-            if want is None:
+            diff = applied_diff(reference)
+            if diff is None:
                 continue
-            obj = bpy.data.objects[rigless_live._state["object"]]
-            co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
-            obj.data.vertices.foreach_get("co", co)
-            v = want.reshape(-1, 3)
-            blender = np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1).ravel()
-            max_diff = max(max_diff, float(np.abs(co - blender).max()))
+            max_diff = max(max_diff, diff)
             compared += 1
             seen.add(f["frame"])
+        obj = bpy.data.objects[rigless_live._state["object"]]
         result.update(compared=compared, applied=applied, distinct_frames=len(seen), max_diff_m=max_diff,
                       vertices=len(obj.data.vertices), triangles=len(obj.data.polygons), object=obj.name)
 
